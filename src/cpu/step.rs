@@ -1,0 +1,239 @@
+//! One linearly implicit Euler step for a block of L members, fused with the batched Thomas
+//! solve. CPU twin of `shaders/step.wgsl`: the lane loop here is the invocation there, and the
+//! loops over rows have the same shape. Keep the two in sync.
+//!
+//! Layout: element i of lane l at `i * L + l` (the GPU interleaves the whole batch the same way).
+//! With c_i = mu/d_i + h·gamma·G_i/(d_i + 2 eps) (lubrication plus linearised repulsion),
+//!   (2eps/h) u_i' - c_{i+1}(u_{i+1}' - u_i') + c_i(u_i' - u_{i-1}') = (2eps/h) u_i + G_i - G_{i+1} + F_i,
+//! then d_i' = d_i + h (u_i' - u_{i-1}'). The matrix is SPD and strictly diagonally dominant, so
+//! the forward sweep needs no pivoting. The sweep stores the rows in normalised form
+//! u_i = y_i + w_i u_{i+1}, so the back sweep is one fma per row and also updates the gaps (the
+//! update telescopes, so sum d_i is conserved to rounding).
+//!
+//! Clusters (Appendix A): a gap that is zero at t = 0 is "bonded": its two particles move as
+//! one. The forward sweep then adds the row into the next one (mass and forces add up) and
+//! stores w = 1, y = 0 so that the back sweep copies the velocity exactly; a cluster attached to
+//! the wall is "pinned" (w = y = 0). Bonded gaps have c = G = 0: their forces cancel inside the
+//! cluster.
+
+use crate::plan::{Forcing, Power};
+
+/// What the plan says exists, for one block. Absent terms cost nothing.
+pub struct Terms<'a, const L: usize> {
+    pub eps: f64,
+    pub mu: [f64; L],
+    /// d* (interleaved, length N·L) and how G is evaluated: present iff the model has repulsion.
+    pub repulsion: Option<(&'a [f64], Gamma<L>)>,
+    /// Bonded gaps (interleaved, length N·L): present iff some member has clusters.
+    pub bonded: Option<&'a [bool]>,
+    pub forcing: Option<&'a Forcing>,
+}
+
+/// gamma for a block: uniform across lanes (integer → multiplications), or per lane.
+#[derive(Debug, Clone, Copy)]
+pub enum Gamma<const L: usize> {
+    Uniform(Power),
+    PerLane([f64; L]),
+}
+
+impl<const L: usize> Gamma<L> {
+    #[inline(always)]
+    fn gamma(&self, l: usize) -> f64 {
+        match self {
+            Gamma::Uniform(Power::Integer(n)) => *n as f64,
+            Gamma::Uniform(Power::Real(g)) => *g,
+            Gamma::PerLane(g) => g[l],
+        }
+    }
+    #[inline(always)]
+    fn power(&self, l: usize, ratio: f64) -> f64 {
+        match self {
+            Gamma::Uniform(p) => p.apply(ratio),
+            Gamma::PerLane(g) => Power::of(g[l]).apply(ratio),
+        }
+    }
+}
+
+/// Thomas sweep scratch: normalised rows (w, y), length (N-1)·L each.
+#[derive(Debug, Clone)]
+pub struct Scratch {
+    pub w: Vec<f64>,
+    pub y: Vec<f64>,
+}
+
+impl Scratch {
+    pub fn new(particles: usize, lanes: usize) -> Scratch {
+        Scratch {
+            w: vec![0.0; (particles - 1) * lanes],
+            y: vec![0.0; (particles - 1) * lanes],
+        }
+    }
+}
+
+/// Coupling c and repulsion G of one gap for one lane.
+#[inline(always)]
+fn gap_terms<const L: usize>(
+    terms: &Terms<L>,
+    l: usize,
+    index: usize,
+    d: f64,
+    h: f64,
+) -> (f64, f64) {
+    if let Some(bonded) = terms.bonded {
+        if bonded[index] {
+            return (0.0, 0.0);
+        }
+    }
+    let mut c = terms.mu[l] / d;
+    let mut g = 0.0;
+    if let Some((dstar, gamma)) = &terms.repulsion {
+        let inv_s = 1.0 / (d + 2.0 * terms.eps);
+        let ratio = (dstar[index] + 2.0 * terms.eps) * inv_s;
+        g = gamma.power(l, ratio);
+        c += h * gamma.gamma(l) * g * inv_s;
+    }
+    (c, g)
+}
+
+/// F_i = ∫_{q_i - eps}^{q_i + eps} f(t, x) dx by Gauss–Legendre.
+#[inline(always)]
+fn particle_force(forcing: &Forcing, eps: f64, t: f64, q: f64) -> f64 {
+    let mut s = 0.0;
+    for (xi, w) in forcing.rule.nodes.iter().zip(&forcing.rule.weights) {
+        s += w * forcing.expr.eval(q + eps * xi, t);
+    }
+    eps * s
+}
+
+/// Advances every lane by its own step h[l] from (gaps_in, vel_in) to (gaps_out, vel_out).
+/// Returns, per lane, whether the result is admissible: every free gap > 0 and finite. Lanes
+/// with `ok = false` must be rejected by the caller (their output is garbage).
+#[allow(clippy::too_many_arguments)]
+pub fn euler_step<const L: usize>(
+    terms: &Terms<L>,
+    particles: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch,
+) -> [bool; L] {
+    let n = particles;
+    let eps = terms.eps;
+    debug_assert_eq!(gaps_in.len(), n * L);
+    debug_assert_eq!(vel_in.len(), (n - 1) * L);
+    let mass = 2.0 * eps;
+    let mut m_over_h = [0.0; L];
+    for l in 0..L {
+        m_over_h[l] = mass / h[l];
+    }
+
+    // Row 0 is the wall: u_0 = 0, so w_0 = y_0 = 0.
+    let mut c_prev = [0.0; L];
+    let mut g_prev = [0.0; L];
+    let mut w_prev = [0.0; L];
+    let mut y_prev = [0.0; L];
+    let mut q = [0.0; L];
+    for l in 0..L {
+        (c_prev[l], g_prev[l]) = gap_terms(terms, l, l, gaps_in[l], h[l]);
+    }
+
+    if let Some(bonded) = terms.bonded {
+        // Cluster-aware sweep: carry (beta, delta) of rows merged into the next row.
+        let mut beta_carry = [0.0; L];
+        let mut delta_carry = [0.0; L];
+        let mut pinned = [true; L];
+        for i in 1..n {
+            let row = (i - 1) * L;
+            let next_gap = i * L;
+            for l in 0..L {
+                let (c_next, g_next) = gap_terms(terms, l, next_gap + l, gaps_in[next_gap + l], h[l]);
+                let mut f = 0.0;
+                if let Some(forcing) = terms.forcing {
+                    q[l] += gaps_in[row + l] + mass;
+                    f = particle_force(forcing, eps, t[l], q[l]);
+                }
+                let diag = m_over_h[l] + c_prev[l] + c_next;
+                let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
+                let (beta, delta);
+                if bonded[row + l] {
+                    // Gap i bonded: row i-1 was merged into this row.
+                    beta = diag + beta_carry[l];
+                    delta = rhs + delta_carry[l];
+                } else {
+                    pinned[l] = false;
+                    beta = diag - c_prev[l] * w_prev[l];
+                    delta = rhs + c_prev[l] * y_prev[l];
+                }
+                let (w, y) = if bonded[next_gap + l] {
+                    beta_carry[l] = beta;
+                    delta_carry[l] = delta;
+                    (1.0, 0.0)
+                } else if pinned[l] {
+                    (0.0, 0.0)
+                } else {
+                    let inv = 1.0 / beta;
+                    (c_next * inv, delta * inv)
+                };
+                scratch.w[row + l] = w;
+                scratch.y[row + l] = y;
+                w_prev[l] = w;
+                y_prev[l] = y;
+                c_prev[l] = c_next;
+                g_prev[l] = g_next;
+            }
+        }
+    } else {
+        for i in 1..n {
+            let row = (i - 1) * L;
+            let next_gap = i * L;
+            for l in 0..L {
+                let (c_next, g_next) = gap_terms(terms, l, next_gap + l, gaps_in[next_gap + l], h[l]);
+                let mut f = 0.0;
+                if let Some(forcing) = terms.forcing {
+                    q[l] += gaps_in[row + l] + mass;
+                    f = particle_force(forcing, eps, t[l], q[l]);
+                }
+                let diag = m_over_h[l] + c_prev[l] + c_next;
+                let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
+                let beta = diag - c_prev[l] * w_prev[l];
+                let delta = rhs + c_prev[l] * y_prev[l];
+                let inv = 1.0 / beta;
+                let w = c_next * inv;
+                let y = delta * inv;
+                scratch.w[row + l] = w;
+                scratch.y[row + l] = y;
+                w_prev[l] = w;
+                y_prev[l] = y;
+                c_prev[l] = c_next;
+                g_prev[l] = g_next;
+            }
+        }
+    }
+
+    // Back sweep from the right wall (u_N = 0), updating gap i+1 with u_{i+1} - u_i.
+    let mut ok = [true; L];
+    let mut u_next = [0.0; L];
+    for i in (1..n).rev() {
+        let row = (i - 1) * L;
+        let gap = i * L;
+        for l in 0..L {
+            let u = scratch.y[row + l] + scratch.w[row + l] * u_next[l];
+            let d = gaps_in[gap + l] + h[l] * (u_next[l] - u);
+            vel_out[row + l] = u;
+            gaps_out[gap + l] = d;
+            let free = terms.bonded.is_none_or(|b| !b[gap + l]);
+            ok[l] &= !free || (d > 0.0 && d < f64::INFINITY);
+            u_next[l] = u;
+        }
+    }
+    for l in 0..L {
+        let d = gaps_in[l] + h[l] * u_next[l];
+        gaps_out[l] = d;
+        let free = terms.bonded.is_none_or(|b| !b[l]);
+        ok[l] &= !free || (d > 0.0 && d < f64::INFINITY);
+    }
+    ok
+}

@@ -1,0 +1,287 @@
+//! Initial chains: from macroscopic profiles by the construction of Prop. 3.1, or from a particle
+//! file. The state is gaps and velocities (never positions), see DESIGN.md §2.
+
+use std::path::Path;
+
+use crate::error::{Error, Result};
+use crate::expr::Expr;
+use crate::quadrature::GaussLegendre;
+
+/// One chain of particles 0..N; particles 0 and N are fixed at x = 0 and x = 1.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chain {
+    /// Particle radius.
+    pub eps: f64,
+    /// d_1..d_N (length N): d_i = q_i - q_{i-1} - 2 eps.
+    pub gaps: Vec<f64>,
+    /// u_1..u_{N-1} (length N-1); u_0 = u_N = 0.
+    pub velocities: Vec<f64>,
+    /// d*_1..d*_N when the model has roughness (repulsion); `None` means no repulsion term.
+    pub dstar: Option<Vec<f64>>,
+    /// Gaps that are zero at t = 0 (Appendix A clusters); `None` when there are none.
+    pub bonded: Option<Vec<bool>>,
+}
+
+impl Chain {
+    pub fn particles(&self) -> usize {
+        self.gaps.len()
+    }
+
+    /// Positions q_0..q_N rebuilt from the gaps (for output and forcing only).
+    pub fn positions(&self) -> Vec<f64> {
+        positions_from_gaps(&self.gaps, self.eps)
+    }
+}
+
+pub fn positions_from_gaps(gaps: &[f64], eps: f64) -> Vec<f64> {
+    let mut q = Vec::with_capacity(gaps.len() + 1);
+    let mut x = 0.0;
+    q.push(0.0);
+    for d in gaps {
+        x += d + 2.0 * eps;
+        q.push(x);
+    }
+    q
+}
+
+/// Prop. 3.1: eps = M0/(2N); q_i with ∫_{q_{i-1}}^{q_i} rho0 = 2 eps; d*_i such that rho*_i is the
+/// mean of rho*0 over the cell; u_i = u0(q_i).
+pub fn chain_from_profiles(
+    n: usize,
+    rho: &Expr,
+    velocity: &Expr,
+    rho_star: Option<&Expr>,
+) -> Result<Chain> {
+    let gl = GaussLegendre::new(8);
+    // Cumulative mass on a fine partition (8-point Gauss–Legendre per panel, exact to rounding
+    // for smooth profiles at this panel width).
+    let panels = (4 * n).clamp(4096, 4_000_000);
+    let h = 1.0 / panels as f64;
+    let mut cumulative = Vec::with_capacity(panels + 1);
+    cumulative.push(0.0);
+    let mut mass = 0.0;
+    for k in 0..panels {
+        let a = k as f64 * h;
+        mass += gl.integrate(a, a + h, |x| rho.eval(x, 0.0));
+        cumulative.push(mass);
+    }
+    let total_mass = mass;
+    let eps = total_mass / (2.0 * n as f64);
+    if !(eps > 0.0 && eps.is_finite()) {
+        return Err(Error::invalid(
+            "initial.rho",
+            total_mass,
+            "the total mass M0 = ∫ rho0 must be positive",
+            "0 < M0 < 1",
+        ));
+    }
+
+    let mut q = vec![0.0; n + 1];
+    q[n] = 1.0;
+    let mut panel = 0;
+    for i in 1..n {
+        let target = total_mass * i as f64 / n as f64;
+        while panel + 1 < panels && cumulative[panel + 1] <= target {
+            panel += 1;
+        }
+        let a = panel as f64 * h;
+        let b = a + h;
+        let m_a = cumulative[panel];
+        let span = cumulative[panel + 1] - m_a;
+        // Newton on M(x) = target inside the panel, safeguarded by bisection.
+        let mut lo = a;
+        let mut hi = b;
+        let mut x = a + h * ((target - m_a) / span).clamp(0.0, 1.0);
+        for _ in 0..60 {
+            let m = m_a + gl.integrate(a, x, |s| rho.eval(s, 0.0));
+            let residual = m - target;
+            if residual > 0.0 {
+                hi = x;
+            } else {
+                lo = x;
+            }
+            let step = residual / rho.eval(x, 0.0);
+            let mut next = x - step;
+            if !(next > lo && next < hi) {
+                next = 0.5 * (lo + hi);
+            }
+            if (next - x).abs() <= 1e-17 + 1e-16 * x.abs() {
+                x = next;
+                break;
+            }
+            x = next;
+        }
+        q[i] = x;
+    }
+
+    let mut gaps = Vec::with_capacity(n);
+    for i in 1..=n {
+        let d = q[i] - q[i - 1] - 2.0 * eps;
+        if !(d > 0.0) {
+            return Err(Error::invalid(
+                "model.particles",
+                n,
+                format!("the construction gives a non-positive gap d_{i} = {d:e}; rho0 too close to 1 for this N"),
+                "rho0 < 1 with gaps resolved by N",
+            ));
+        }
+        gaps.push(d);
+    }
+    let velocities = (1..n).map(|i| velocity.eval(q[i], 0.0)).collect();
+    let dstar = rho_star.map(|rs| {
+        (1..=n)
+            .map(|i| {
+                let width = q[i] - q[i - 1];
+                // The mean of a profile <= 1 can exceed 1 only by rounding.
+                let mean = (gl.integrate(q[i - 1], q[i], |x| rs.eval(x, 0.0)) / width).min(1.0);
+                2.0 * eps * (1.0 - mean) / mean
+            })
+            .collect()
+    });
+    Ok(Chain {
+        eps,
+        gaps,
+        velocities,
+        dstar,
+        bonded: None,
+    })
+}
+
+#[derive(Debug, serde::Deserialize)]
+struct ParticleRow {
+    x: f64,
+    u: f64,
+    r: Option<f64>,
+}
+
+/// Reads a CSV with header `x,u,r` (r optional: without it, no roughness and no repulsion).
+/// `expected_n` is `model.particles` when the scene gives it.
+pub fn chain_from_particle_file(
+    path: &Path,
+    eps: f64,
+    expected_n: Option<usize>,
+) -> Result<Chain> {
+    let err = |line: usize, message: String| Error::ParticleFile {
+        path: path.to_path_buf(),
+        line,
+        message,
+    };
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_path(path)
+        .map_err(|e| err(0, format!("cannot open: {e}")))?;
+    let headers = reader
+        .headers()
+        .map_err(|e| err(1, format!("cannot read the header: {e}")))?
+        .clone();
+    let names: Vec<&str> = headers.iter().collect();
+    if names != ["x", "u"] && names != ["x", "u", "r"] {
+        return Err(err(
+            1,
+            format!("header is {names:?}; expected the columns x,u,r (or x,u without roughness)"),
+        ));
+    }
+    let has_roughness = names.len() == 3;
+    let mut rows: Vec<ParticleRow> = Vec::new();
+    for (k, record) in reader.deserialize::<ParticleRow>().enumerate() {
+        let line = k + 2;
+        let row = record.map_err(|e| err(line, format!("not a row of numbers x,u,r: {e}")))?;
+        for (name, v) in [("x", Some(row.x)), ("u", Some(row.u)), ("r", row.r)] {
+            if let Some(v) = v {
+                if !v.is_finite() {
+                    return Err(err(line, format!("{name} = {v} is not a finite number")));
+                }
+            }
+        }
+        if has_roughness {
+            match row.r {
+                Some(r) if r >= 0.0 => {}
+                Some(r) => {
+                    return Err(err(line, format!("roughness radius r = {r} must be >= 0")))
+                }
+                None => return Err(err(line, "missing roughness radius r".into())),
+            }
+        }
+        rows.push(row);
+    }
+    let n = rows.len().saturating_sub(1);
+    if n < 2 {
+        return Err(err(
+            rows.len() + 1,
+            format!("{} particle rows; need N+1 >= 3 rows (particles 0..N)", rows.len()),
+        ));
+    }
+    if let Some(expected) = expected_n {
+        if expected != n {
+            return Err(err(
+                rows.len() + 1,
+                format!("{} rows give N = {n}, but model.particles = {expected}", rows.len()),
+            ));
+        }
+    }
+    // End particles are fixed at 0 and 1 with zero velocity.
+    const POSITION_TOLERANCE: f64 = 1e-12;
+    if rows[0].x.abs() > POSITION_TOLERANCE || rows[0].u != 0.0 {
+        return Err(err(2, format!("particle 0 must be at x = 0 with u = 0 (got x = {}, u = {})", rows[0].x, rows[0].u)));
+    }
+    if (rows[n].x - 1.0).abs() > POSITION_TOLERANCE || rows[n].u != 0.0 {
+        return Err(err(n + 2, format!("particle N must be at x = 1 with u = 0 (got x = {}, u = {})", rows[n].x, rows[n].u)));
+    }
+    let mut x: Vec<f64> = rows.iter().map(|r| r.x).collect();
+    x[0] = 0.0;
+    x[n] = 1.0;
+    // Gaps within rounding of the decimal positions count as contact (a cluster).
+    let contact_tolerance = 1e-12 + 1e-9 * eps;
+    let mut gaps = Vec::with_capacity(n);
+    let mut bonded = vec![false; n];
+    for i in 1..=n {
+        let d = x[i] - x[i - 1] - 2.0 * eps;
+        if d < -contact_tolerance {
+            return Err(err(
+                i + 2,
+                format!(
+                    "particles {} and {i} overlap: gap x_{i} - x_{} - 2 radius = {d:e} < 0 (need x_i >= x_(i-1) + 2 radius)",
+                    i - 1,
+                    i - 1
+                ),
+            ));
+        }
+        if d.abs() <= contact_tolerance {
+            bonded[i - 1] = true;
+            gaps.push(0.0);
+        } else {
+            gaps.push(d);
+        }
+    }
+    if bonded.iter().all(|&b| b) {
+        return Err(err(n + 2, "every gap is zero: the chain is one rigid body and nothing moves".into()));
+    }
+    // Particles glued into one cluster must start with one velocity (Appendix A: rigid bodies).
+    for i in 1..n {
+        if bonded[i - 1] {
+            let (ua, ub) = (rows[i - 1].u, rows[i].u);
+            if ua != ub {
+                return Err(err(
+                    i + 2,
+                    format!("particles {} and {i} touch (zero gap) but have different velocities {ua} and {ub}; a cluster moves rigidly", i - 1),
+                ));
+            }
+        }
+    }
+    if bonded[n - 1] && rows[n - 1].u != 0.0 {
+        return Err(err(n + 1, "particle N-1 touches the fixed particle N, so its velocity must be 0".into()));
+    }
+    let dstar = has_roughness.then(|| {
+        (1..=n)
+            .map(|i| rows[i - 1].r.unwrap_or(0.0) + rows[i].r.unwrap_or(0.0))
+            .collect()
+    });
+    Ok(Chain {
+        eps,
+        gaps,
+        velocities: rows[1..n].iter().map(|r| r.u).collect(),
+        dstar,
+        bonded: bonded.iter().any(|&b| b).then_some(bonded),
+    })
+}

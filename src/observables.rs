@@ -1,0 +1,167 @@
+//! What a researcher looks at: macroscopic fields on a grid (rho and rho* piecewise constant on
+//! [q_{i-1}, q_i), u piecewise linear between particles), the discrete energy, the dissipation
+//! rate, the smallest gap and the largest density.
+
+use crate::plan::Plan;
+use crate::scene::MemberParams;
+
+/// One member at one output time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Snapshot {
+    pub gaps: Vec<f64>,
+    pub velocities: Vec<f64>,
+    pub rho: Vec<f64>,
+    pub u: Vec<f64>,
+    pub rho_star: Vec<f64>,
+    pub energy: f64,
+    pub dissipation: f64,
+    pub min_gap: f64,
+    pub max_density: f64,
+}
+
+impl Snapshot {
+    /// The row written for a member that has failed: every value NaN, so that nothing downstream
+    /// can mistake it for data (the manifest says why and when it failed).
+    pub fn failed(plan: &Plan) -> Snapshot {
+        let n = plan.particles;
+        let g = plan.grid;
+        let f = &plan.fields;
+        let nan = |len: usize, keep: bool| if keep { vec![f64::NAN; len] } else { Vec::new() };
+        Snapshot {
+            gaps: nan(n, f.gaps),
+            velocities: nan(n - 1, f.velocities),
+            rho: nan(g, f.rho),
+            u: nan(g, f.u),
+            rho_star: nan(g, f.rho_star),
+            energy: f64::NAN,
+            dissipation: f64::NAN,
+            min_gap: f64::NAN,
+            max_density: f64::NAN,
+        }
+    }
+}
+
+/// Evenly spaced points 0..=1.
+pub fn grid_points(grid: usize) -> Vec<f64> {
+    (0..grid)
+        .map(|j| if j + 1 == grid { 1.0 } else { j as f64 / (grid - 1) as f64 })
+        .collect()
+}
+
+/// Discrete energy E = eps Σ u_i² + Σ Φ_i(d_i) over free gaps, with Φ_i = (d_i + 2eps) G_i/(γ−1)
+/// for γ > 1 and Φ_i = −(d*_i + 2eps) ln(d_i + 2eps) for γ = 1 (bonded gaps are constant and left
+/// out).
+pub fn energy(
+    eps: f64,
+    gamma: f64,
+    gaps: &[f64],
+    velocities: &[f64],
+    dstar: Option<&[f64]>,
+    bonded: Option<&[bool]>,
+) -> f64 {
+    let kinetic: f64 = eps * velocities.iter().map(|u| u * u).sum::<f64>();
+    let Some(dstar) = dstar else { return kinetic };
+    let mut potential = 0.0;
+    for (i, (&d, &ds)) in gaps.iter().zip(dstar).enumerate() {
+        if bonded.is_some_and(|b| b[i]) {
+            continue;
+        }
+        let s = d + 2.0 * eps;
+        let s_star = ds + 2.0 * eps;
+        potential += if gamma == 1.0 {
+            -s_star * s.ln()
+        } else {
+            s * (s_star / s).powf(gamma) / (gamma - 1.0)
+        };
+    }
+    kinetic + potential
+}
+
+/// Dissipation rate mu Σ (u_i − u_{i−1})² / d_i over free gaps.
+pub fn dissipation(mu: f64, gaps: &[f64], velocities: &[f64], bonded: Option<&[bool]>) -> f64 {
+    let n = gaps.len();
+    let mut s = 0.0;
+    for i in 0..n {
+        if bonded.is_some_and(|b| b[i]) {
+            continue;
+        }
+        let right = if i < n - 1 { velocities[i] } else { 0.0 };
+        let left = if i > 0 { velocities[i - 1] } else { 0.0 };
+        s += (right - left).powi(2) / gaps[i];
+    }
+    mu * s
+}
+
+#[allow(clippy::too_many_arguments)]
+pub fn observe(
+    plan: &Plan,
+    params: &MemberParams,
+    gaps: Vec<f64>,
+    velocities: Vec<f64>,
+    dstar: Option<&[f64]>,
+    bonded: Option<&[bool]>,
+    grid_x: &[f64],
+) -> Snapshot {
+    let eps = plan.eps;
+    let n = gaps.len();
+    let f = &plan.fields;
+    let mut min_gap = f64::INFINITY;
+    let mut max_density: f64 = 0.0;
+    for (i, &d) in gaps.iter().enumerate() {
+        if bonded.is_some_and(|b| b[i]) {
+            max_density = 1.0;
+            continue;
+        }
+        min_gap = min_gap.min(d);
+        max_density = max_density.max(2.0 * eps / (d + 2.0 * eps));
+    }
+
+    let mut rho = Vec::new();
+    let mut u = Vec::new();
+    let mut rho_star = Vec::new();
+    if f.rho || f.u || f.rho_star {
+        let cap = |on: bool| if on { grid_x.len() } else { 0 };
+        rho.reserve(cap(f.rho));
+        u.reserve(cap(f.u));
+        rho_star.reserve(cap(f.rho_star));
+        // Walk the grid and the cells together.
+        let mut cell = 1; // cell i covers [q_{i-1}, q_i)
+        let mut q_left = 0.0;
+        let mut q_right = gaps[0] + 2.0 * eps;
+        for &x in grid_x {
+            while x >= q_right && cell < n {
+                cell += 1;
+                q_left = q_right;
+                q_right += gaps[cell - 1] + 2.0 * eps;
+            }
+            let d = gaps[cell - 1];
+            if f.rho {
+                rho.push(2.0 * eps / (d + 2.0 * eps));
+            }
+            if f.rho_star {
+                if let Some(ds) = dstar {
+                    rho_star.push(2.0 * eps / (ds[cell - 1] + 2.0 * eps));
+                }
+            }
+            if f.u {
+                let u_left = if cell >= 2 { velocities[cell - 2] } else { 0.0 };
+                let u_right = if cell <= n - 1 { velocities[cell - 1] } else { 0.0 };
+                let s = ((x - q_left) / (q_right - q_left)).clamp(0.0, 1.0);
+                u.push(u_left + (u_right - u_left) * s);
+            }
+        }
+    }
+    let energy = energy(eps, params.gamma, &gaps, &velocities, dstar, bonded);
+    let dissipation = dissipation(params.mu, &gaps, &velocities, bonded);
+    Snapshot {
+        gaps: if f.gaps { gaps } else { Vec::new() },
+        velocities: if f.velocities { velocities } else { Vec::new() },
+        rho,
+        u,
+        rho_star,
+        energy,
+        dissipation,
+        min_gap,
+        max_density,
+    }
+}

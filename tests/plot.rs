@@ -1,0 +1,278 @@
+//! Tests of the PNG plots: real PNG files of the requested size, errors (not panics) on bad input.
+
+use std::path::Path;
+
+use roughlub::plot::{plot_profiles, plot_series, PlotError, ProfilePlot};
+
+const PNG_SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a];
+
+/// Checks the file is a PNG and returns (width, height) from its IHDR chunk.
+fn png_size(path: &Path) -> (u32, u32) {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("cannot read {path:?}: {e}"));
+    assert!(bytes.len() > 33, "{path:?} is too short to be a PNG");
+    assert_eq!(
+        bytes[..8],
+        PNG_SIGNATURE,
+        "{path:?} lacks the PNG signature"
+    );
+    // First chunk: 4-byte length (13), "IHDR", width and height as big-endian u32.
+    assert_eq!(u32::from_be_bytes(bytes[8..12].try_into().unwrap()), 13);
+    assert_eq!(&bytes[12..16], b"IHDR", "{path:?}: first chunk is not IHDR");
+    let width = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+    let height = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
+    // The file must end with the IEND chunk.
+    assert_eq!(
+        &bytes[bytes.len() - 8..bytes.len() - 4],
+        b"IEND",
+        "{path:?}: no IEND chunk"
+    );
+    (width, height)
+}
+
+/// Copies a plot to $ROUGHLUB_PLOT_TEST_KEEP (when set) to look at it.
+fn keep(path: &Path, name: &str) {
+    if let Ok(dir) = std::env::var("ROUGHLUB_PLOT_TEST_KEEP") {
+        std::fs::copy(path, Path::new(&dir).join(name)).unwrap();
+    }
+}
+
+/// Grid, times, rho, u, rho_star.
+type Profiles = (Vec<f64>, Vec<f64>, Rows, Rows, Rows);
+type Rows = Vec<Vec<f64>>;
+
+/// Synthetic profiles: a spreading density bump and a velocity wave, on a grid of `g` points at
+/// `t` times.
+fn synthetic(g: usize, t: usize) -> Profiles {
+    let x: Vec<f64> = (0..g).map(|i| (i as f64 + 0.5) / g as f64).collect();
+    let times: Vec<f64> = (0..t).map(|k| 0.05 * k as f64).collect();
+    let mut rho = Vec::new();
+    let mut u = Vec::new();
+    let mut rho_star = Vec::new();
+    for &tk in &times {
+        let w = 0.05 + tk;
+        let r: Vec<f64> = x
+            .iter()
+            .map(|&xi| 0.2 + 0.6 * (-(xi - 0.5).powi(2) / (2.0 * w * w)).exp())
+            .collect();
+        rho_star.push(r.iter().map(|&v| 0.5 * v * v).collect());
+        u.push(
+            x.iter()
+                .map(|&xi| (1.0 - tk) * (2.0 * std::f64::consts::PI * xi).sin() * 0.3)
+                .collect(),
+        );
+        rho.push(r);
+    }
+    (x, times, rho, u, rho_star)
+}
+
+#[test]
+fn profiles_png_has_requested_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let (x, times, rho, u, rho_star) = synthetic(200, 6);
+    let path = dir.path().join("profiles.png");
+    let plot = ProfilePlot {
+        title: "case1 — member 0 (mu = 0.01, gamma = 1)",
+        x: &x,
+        times: &times,
+        rho: &rho,
+        u: &u,
+        rho_star: Some(&rho_star),
+    };
+    plot_profiles(&path, &plot).unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    assert_eq!(roughlub::plot::PLOT_SIZE, (1000, 800));
+    keep(&path, "profiles.png");
+}
+
+#[test]
+fn profiles_with_many_times_nan_and_no_roughness() {
+    let dir = tempfile::tempdir().unwrap();
+    let (x, times, mut rho, mut u, _) = synthetic(64, 25);
+    // A failed member: NaN from time 15 on, and a hole in one row.
+    for k in 15..25 {
+        rho[k].iter_mut().for_each(|v| *v = f64::NAN);
+        u[k].iter_mut().for_each(|v| *v = f64::NAN);
+    }
+    rho[3][10] = f64::NAN;
+    u[3][10] = f64::INFINITY;
+    let path = dir.path().join("many.png");
+    let plot = ProfilePlot {
+        title: "many times",
+        x: &x,
+        times: &times,
+        rho: &rho,
+        u: &u,
+        rho_star: None,
+    };
+    plot_profiles(&path, &plot).unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    keep(&path, "many_times.png");
+}
+
+#[test]
+fn profiles_degenerate_data_do_not_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let x = vec![0.5];
+    let times = vec![0.0];
+    let cases: Vec<(&str, Rows, Rows)> = vec![
+        ("zero", vec![vec![0.0]], vec![vec![0.0]]),
+        ("allnan", vec![vec![f64::NAN]], vec![vec![f64::NAN]]),
+        ("const", vec![vec![0.4]], vec![vec![1e-300]]),
+        ("big", vec![vec![3.0]], vec![vec![1e300]]),
+    ];
+    for (name, rho, u) in cases {
+        let path = dir.path().join(format!("{name}.png"));
+        let plot = ProfilePlot {
+            title: name,
+            x: &x,
+            times: &times,
+            rho: &rho,
+            u: &u,
+            rho_star: None,
+        };
+        plot_profiles(&path, &plot).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(png_size(&path), (1000, 800), "{name}");
+        keep(&path, &format!("degenerate_{name}.png"));
+    }
+    // Values whose range overflows: an error, not a panic.
+    let rho = vec![vec![0.5, 0.5]];
+    let u = vec![vec![-1.7e308, 1.7e308]];
+    let plot = ProfilePlot {
+        title: "overflow",
+        x: &[0.0, 1.0],
+        times: &times,
+        rho: &rho,
+        u: &u,
+        rho_star: None,
+    };
+    let e = plot_profiles(&dir.path().join("overflow.png"), &plot).unwrap_err();
+    assert!(e.message.contains("too large"), "{e}");
+}
+
+fn profile_error(plot: &ProfilePlot) -> PlotError {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.png");
+    let e = plot_profiles(&path, plot).unwrap_err();
+    assert_eq!(e.path, path);
+    assert!(!path.exists(), "no file should be written on bad input");
+    e
+}
+
+#[test]
+fn profiles_mismatched_lengths_are_errors() {
+    let (x, times, rho, u, rho_star) = synthetic(10, 3);
+    let base = ProfilePlot {
+        title: "bad",
+        x: &x,
+        times: &times,
+        rho: &rho,
+        u: &u,
+        rho_star: Some(&rho_star),
+    };
+
+    // Too few rho rows.
+    let e = profile_error(&ProfilePlot {
+        rho: &rho[..2],
+        ..base
+    });
+    assert!(
+        e.message.contains("rho has 2 rows") && e.message.contains("3 output times"),
+        "{e}"
+    );
+    assert!(e.to_string().starts_with("cannot draw plot "), "{e}");
+
+    // A u row of the wrong length.
+    let mut u_bad = u.clone();
+    u_bad[1].pop();
+    let e = profile_error(&ProfilePlot { u: &u_bad, ..base });
+    assert!(
+        e.message.contains("u row 1 has 9 values") && e.message.contains("10 points"),
+        "{e}"
+    );
+
+    // rho_star with an empty row.
+    let mut rs_bad = rho_star.clone();
+    rs_bad[2].clear();
+    let e = profile_error(&ProfilePlot {
+        rho_star: Some(&rs_bad),
+        ..base
+    });
+    assert!(e.message.contains("rho_star row 2 has 0 values"), "{e}");
+
+    // Empty grid, no times.
+    let empty_rows = vec![Vec::new(); 3];
+    let e = profile_error(&ProfilePlot {
+        x: &[],
+        rho: &empty_rows,
+        u: &empty_rows,
+        rho_star: None,
+        ..base
+    });
+    assert!(e.message.contains("grid x is empty"), "{e}");
+    let e = profile_error(&ProfilePlot {
+        times: &[],
+        rho: &[],
+        u: &[],
+        rho_star: None,
+        ..base
+    });
+    assert!(e.message.contains("no output times"), "{e}");
+}
+
+#[test]
+fn series_png_has_requested_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let times: Vec<f64> = (0..50).map(|k| 0.02 * k as f64).collect();
+    let series: Vec<(String, Vec<f64>)> = (0..4)
+        .map(|m| {
+            let mu = 0.01 * (m + 1) as f64;
+            let mut v: Vec<f64> = times
+                .iter()
+                .map(|&t| 0.6 + 0.3 * (1.0 - (-t / mu / 20.0).exp()))
+                .collect();
+            if m == 3 {
+                // Failed member.
+                v[30..].iter_mut().for_each(|y| *y = f64::NAN);
+            }
+            (format!("member {m} (mu = {mu})"), v)
+        })
+        .collect();
+    let path = dir.path().join("series.png");
+    plot_series(&path, "case1 — max density", "max rho", &times, &series).unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    keep(&path, "series.png");
+
+    // Many series (legend thinned), constant data, a single time.
+    let many: Vec<(String, Vec<f64>)> = (0..80).map(|m| (format!("m{m}"), vec![1.0])).collect();
+    let path = dir.path().join("many.png");
+    plot_series(&path, "many", "y", &[0.5], &many).unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    keep(&path, "many_series.png");
+}
+
+#[test]
+fn series_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.png");
+    let times = [0.0, 0.1, 0.2];
+    let series = vec![
+        ("a".to_string(), vec![1.0, 2.0, 3.0]),
+        ("b".to_string(), vec![1.0, 2.0]),
+    ];
+    let e = plot_series(&path, "t", "y", &times, &series).unwrap_err();
+    assert!(
+        e.message.contains("series \"b\" has 2 values") && e.message.contains("3 output times"),
+        "{e}"
+    );
+    assert_eq!(e.path, path);
+
+    let e = plot_series(&path, "t", "y", &times, &[]).unwrap_err();
+    assert!(e.message.contains("no series"), "{e}");
+    let e = plot_series(&path, "t", "y", &[], &series[..0]).unwrap_err();
+    assert!(e.message.contains("no output times"), "{e}");
+
+    // An unwritable destination is an error too.
+    let missing = dir.path().join("no/such/dir/x.png");
+    assert!(plot_series(&missing, "t", "y", &times, &series[..1]).is_err());
+    assert!(!path.exists());
+}
