@@ -2,24 +2,31 @@
 //
 // Why this file exists: naga accepts sin/cos/exp/log/pow on f64, but the Vulkan backend lowers
 // them to GLSL.std.450 instructions that are only defined for 16/32-bit floats; on lavapipe
-// (wgpu 30) they return garbage (sin(4.0) -> 0, pow -> 0, log -> -88). Only the correctly
-// rounded f64 core (+ - * / sqrt fma floor abs min max) and ldexp (exact scaling by 2^k) are
-// used below. frexp is avoided: naga types frexp(f64).exp as i64 (needs SHADER_INT64).
-//
+// (wgpu 30) they return garbage (sin(4.0) -> 0, exp(4.0) -> 9e-315, log(4.0) -> -88). Only the
+// correctly rounded f64 core (+ - * / sqrt floor abs min max select) and ldexp (exact scaling by
+// 2^k) are used below. Two further traps, both measured on lavapipe:
+//  - frexp(f64) cannot be used: naga types its exponent as i64, which needs SHADER_INT64;
+//  - WGSL `fma` on f64 is NOT fused (it is evaluated as a*b + c with two roundings), and the
+//    driver compiler (Mesa NIR) applies value-unsafe algebra to float ops that naga does not mark
+//    NoContraction (it never does): (a + b) - a -> b, a - a -> 0, ... This silently turns
+//    error-free transformations (TwoSum, Fast2Sum, fma residuals, Kahan sums) into zeros.
+//    `opaque_f64` below hides a value from that algebra; `two_sum_f64` and `two_prod_f64`
+//    (Dekker, no fma) use it and are exact on such drivers.
+
 // The algorithms are ports of FreeBSD msun / fdlibm (e_exp.c, s_expm1.c, e_log.c, k_sin.c,
 // k_cos.c, e_rem_pio2.c), whose polynomial constants are written here in decimal with enough
 // digits to round to the exact fdlibm bit patterns. Accuracy against Rust's std f64 functions is
-// checked by tests/gpu_f64_math.rs (about 1 ulp for exp/log/sin/cos/expm1, 2-3 ulp for
-// tan/tanh/pow).
+// checked by tests/gpu_f64_math.rs (measured on lavapipe: <= 1 ulp for exp/expm1/log/sin/cos,
+// <= 2 ulp for tan/tanh, <= 3 ulp for pow).
 //
 // The file has no entry point and no bindings: prepend (concatenate) it to a kernel's source.
 // Public functions: exp_f64, expm1_f64, log_f64, sin_f64, cos_f64, tan_f64, tanh_f64,
-// pow_f64. Private helpers and constants start with `f64m_`/`F64M_`.
+// pow_f64, and the building blocks opaque_f64, two_sum_f64, two_prod_f64. Private helpers and
+// constants start with `f64m_`/`F64M_`.
 //
-// Compilers may contract a*b+c into fma (no NoContraction decoration is emitted by naga); every
-// step below stays correct when that happens: the reduction products are exact, and the
-// compensated sums only involve products that are used several times (not fused by Mesa) or
-// whose fusion only adds precision.
+// Compilers may also contract a*b + c into an fma; the algorithms stay correct when that
+// happens: the range-reduction and Dekker partial products are exact, and the error-free
+// transformations go through opaque_f64.
 
 // ---------------------------------------------------------------------------------------------
 // Constants (fdlibm bit patterns in comments).
@@ -115,12 +122,37 @@ fn f64m_exp_dd(x: f64, xt: f64) -> f64 {
     return f64m_scale2(y, i32(kf));
 }
 
-// Knuth's TwoSum: s + e == a + b exactly.
-fn f64m_two_sum(a: f64, b: f64) -> vec2<f64> {
-    let s = a + b;
-    let bb = s - a;
+// The value x, hidden from the driver's algebraic simplifier: the comparison is data-dependent
+// (false only for NaN, where -x is NaN too), so the compiler cannot prove that the result equals
+// x and cannot cancel it against the expression x came from. Costs a compare and a select.
+fn opaque_f64(x: f64) -> f64 {
+    return select(-x, x, x == x);
+}
+
+// Knuth's TwoSum: s + e == a + b exactly (s = a + b rounded), for finite a, b. The opaque steps
+// keep the compiler from folding (a + b) - a to b, which would make e = 0.
+fn two_sum_f64(a: f64, b: f64) -> vec2<f64> {
+    let s = opaque_f64(a + b);
+    let bb = opaque_f64(s - a);
     let e = (a - (s - bb)) + (b - bb);
     return vec2<f64>(s, e);
+}
+
+// Veltkamp split: a = hi + lo with hi holding the top 26 bits; |a| < 2^996.
+fn f64m_split(a: f64) -> vec2<f64> {
+    let c = opaque_f64(134217729.0 * a); // 2^27 + 1
+    let hi = opaque_f64(c - opaque_f64(c - a));
+    return vec2<f64>(hi, a - hi);
+}
+
+// Dekker's TwoProduct without fma (WGSL fma on f64 is not fused on every device): p + e == a * b
+// exactly (p = a * b rounded), for |a|, |b| < 2^996 and no underflow in the partial products.
+fn two_prod_f64(a: f64, b: f64) -> vec2<f64> {
+    let p = opaque_f64(a * b);
+    let x = f64m_split(a);
+    let y = f64m_split(b);
+    let e = (((x.x * y.x - p) + x.x * y.y) + x.y * y.x) + x.y * y.y;
+    return vec2<f64>(p, e);
 }
 
 // x = m 2^k with m in [1, 2), for finite x > 0; returns vec2(m, k). Binary search on the exponent
@@ -160,7 +192,7 @@ fn f64m_frexp(x: f64) -> vec2<f64> {
 // log(x) as a double-double (hi, lo), about 2^-60 relative, for finite x > 0 (normal).
 // x = 2^k m with m in (sqrt(1/2), sqrt(2)], f = m - 1 (exact), s = f / (2 + f);
 // log(1 + f) = f - f^2/2 + s (f^2/2 + R(s^2))   (fdlibm e_log.c),
-// with k ln2 + f - f^2/2 summed in double-double (f^2/2 split exactly with fma) so that
+// with k ln2 + f - f^2/2 summed in double-double (f^2/2 split exactly by two_prod_f64) so that
 // pow can use the ~60-bit result.
 fn f64m_log_dd(x: f64) -> vec2<f64> {
     let fr = f64m_frexp(x);
@@ -178,14 +210,15 @@ fn f64m_log_dd(x: f64) -> vec2<f64> {
     let t2 = z * (F64M_LG1 + w * (F64M_LG3 + w * (F64M_LG5 + w * F64M_LG7)));
     let r = t2 + t1;
     let hf = 0.5 * f;
-    let hfsq = hf * f;
-    let hfsq_lo = fma(hf, f, -hfsq); // hf*f - hfsq, exact
+    let hfsq2 = two_prod_f64(hf, f); // f^2/2 exactly, as hi + lo
+    let hfsq = hfsq2.x;
+    let hfsq_lo = hfsq2.y;
     let tail = s * (hfsq + r);
-    let a = f64m_two_sum(kf * F64M_LN2_HI, f); // k*LN2_HI is exact
-    let b = f64m_two_sum(a.x, -hfsq);
+    let a = two_sum_f64(kf * F64M_LN2_HI, f); // k*LN2_HI is exact
+    let b = two_sum_f64(a.x, -hfsq);
     let lo = a.y + b.y + ((kf * F64M_LN2_LO - hfsq_lo) + tail);
-    let h = b.x + lo;
-    return vec2<f64>(h, lo - (h - b.x));
+    let h = opaque_f64(b.x + lo);
+    return vec2<f64>(h, lo - (h - b.x)); // Fast2Sum
 }
 
 // x reduced modulo pi/2: returns (y0, y1, n mod 4) with x = n pi/2 + y0 + y1, |y0| <~ pi/4.
@@ -196,11 +229,11 @@ fn f64m_log_dd(x: f64) -> vec2<f64> {
 fn f64m_rem_pio2(x: f64) -> vec3<f64> {
     let n = floor(x * F64M_INV_PIO2 + 0.5);
     let r1 = x - n * F64M_PIO2_1; // exact
-    let a = f64m_two_sum(r1, -(n * F64M_PIO2_2)); // n*PIO2_2 exact
-    let b = f64m_two_sum(a.x, -(n * F64M_PIO2_3)); // n*PIO2_3 exact
+    let a = two_sum_f64(r1, -(n * F64M_PIO2_2)); // n*PIO2_2 exact
+    let b = two_sum_f64(a.x, -(n * F64M_PIO2_3)); // n*PIO2_3 exact
     let lo = (a.y + b.y) - n * F64M_PIO2_3T;
-    let y0 = b.x + lo;
-    let y1 = lo - (y0 - b.x);
+    let y0 = opaque_f64(b.x + lo);
+    let y1 = lo - (y0 - b.x); // Fast2Sum
     // quadrant computed in f64: exact, and no integer overflow for huge n
     let q = n - 4.0 * floor(n * 0.25);
     return vec3<f64>(y0, y1, q);
@@ -220,10 +253,11 @@ fn f64m_ksin(x: f64, y: f64) -> f64 {
 fn f64m_kcos(x: f64, y: f64) -> f64 {
     let z = x * x;
     let w = z * z;
-    let r = z * (F64M_C1 + z * (F64M_C2 + z * F64M_C3)) + w * w * (F64M_C4 + z * (F64M_C5 + z * F64M_C6));
+    let r = z * (F64M_C1 + z * (F64M_C2 + z * F64M_C3))
+        + w * w * (F64M_C4 + z * (F64M_C5 + z * F64M_C6));
     let hz = 0.5 * z;
-    let v = 1.0 - hz;
-    return v + (((1.0 - v) - hz) + (z * r - x * y));
+    let v = opaque_f64(1.0 - hz);
+    return v + (((1.0 - v) - hz) + (z * r - x * y)); // (1 - v) - hz: rounding error of v
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -259,12 +293,13 @@ fn expm1_f64(x: f64) -> f64 {
         k = i32(kf);
         let hi = x - kf * F64M_LN2_HI;
         let lo = kf * F64M_LN2_LO;
-        xr = hi - lo;
-        c = (hi - xr) - lo;
+        xr = opaque_f64(hi - lo);
+        c = (hi - xr) - lo; // rounding error of xr
     }
     let hfx = 0.5 * xr;
     let hxs = xr * hfx;
-    let r1 = 1.0 + hxs * (F64M_Q1 + hxs * (F64M_Q2 + hxs * (F64M_Q3 + hxs * (F64M_Q4 + hxs * F64M_Q5))));
+    let r1 = 1.0
+        + hxs * (F64M_Q1 + hxs * (F64M_Q2 + hxs * (F64M_Q3 + hxs * (F64M_Q4 + hxs * F64M_Q5))));
     let t = 3.0 - r1 * hfx;
     var e = hxs * ((r1 - t) / (6.0 - xr * t));
     if (k == 0) {
@@ -377,8 +412,9 @@ fn tanh_f64(x: f64) -> f64 {
 }
 
 // x^y for x >= 0. Computed as exp(y log x) with log x in double-double and y log x kept as
-// hi + lo (an fma recovers the product's rounding), so the result stays within a few ulp even
-// when |y log x| is in the hundreds (the naive exp(y*log(x)) loses ~|y log x| ulp).
+// hi + lo (two_prod_f64 recovers the product's rounding), so the result stays within a few ulp
+// even when |y log x| is in the hundreds (the naive exp(y*log(x)) loses ~|y log x| ulp: 5e-14
+// relative for x = 1e-3, y = 50).
 // Special cases: x^0 = 1, 1^y = 1, 0^y = 0 (y > 0) or +inf (y < 0), inf^y = inf or 0,
 // x < 0 -> NaN (no integer-exponent special case), overflow -> +inf, underflow -> 0.
 fn pow_f64(x: f64, y: f64) -> f64 {
@@ -398,7 +434,10 @@ fn pow_f64(x: f64, y: f64) -> f64 {
         return select(x, f64(0.0), y < 0.0); // inf^y: inf, or 0 for y < 0
     }
     let l = f64m_log_dd(x);
-    let zh = y * l.x;
-    let zl = fma(y, l.x, -zh) + y * l.y;
-    return f64m_exp_dd(zh, zl);
+    let p = y * l.x;
+    if (!(abs(p) < 746.0)) {
+        return f64m_exp_dd(p, f64(0.0)); // overflow to inf or underflow to 0 (NaN passes)
+    }
+    let z = two_prod_f64(y, l.x); // |y| < 2^996 here since |log x| > 1e-16 for x != 1
+    return f64m_exp_dd(z.x, z.y + y * l.y);
 }

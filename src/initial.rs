@@ -55,17 +55,22 @@ pub fn chain_from_profiles(
     let gl = GaussLegendre::new(8);
     // Cumulative mass on a fine partition (8-point Gauss–Legendre per panel, exact to rounding
     // for smooth profiles at this panel width).
-    let panels = (4 * n).clamp(4096, 4_000_000);
+    let panels = n.clamp(4096, 2_000_000);
     let h = 1.0 / panels as f64;
+    let mut density = |x: f64| rho.eval(x, 0.0);
     let mut cumulative = Vec::with_capacity(panels + 1);
     cumulative.push(0.0);
-    let mut mass = 0.0;
+    // Neumaier-compensated running sum: M0 and the cell masses keep full precision at large N.
+    let (mut mass, mut compensation) = (0.0f64, 0.0f64);
     for k in 0..panels {
         let a = k as f64 * h;
-        mass += gl.integrate(a, a + h, |x| rho.eval(x, 0.0));
-        cumulative.push(mass);
+        let term = gl.integrate_adaptive(a, a + h, &mut density);
+        let sum = mass + term;
+        compensation += if mass.abs() >= term.abs() { (mass - sum) + term } else { (term - sum) + mass };
+        mass = sum;
+        cumulative.push(mass + compensation);
     }
-    let total_mass = mass;
+    let total_mass = mass + compensation;
     let eps = total_mass / (2.0 * n as f64);
     if !(eps > 0.0 && eps.is_finite()) {
         return Err(Error::invalid(
@@ -93,14 +98,14 @@ pub fn chain_from_profiles(
         let mut hi = b;
         let mut x = a + h * ((target - m_a) / span).clamp(0.0, 1.0);
         for _ in 0..60 {
-            let m = m_a + gl.integrate(a, x, |s| rho.eval(s, 0.0));
+            let m = m_a + gl.integrate_adaptive(a, x, &mut density);
             let residual = m - target;
             if residual > 0.0 {
                 hi = x;
             } else {
                 lo = x;
             }
-            let step = residual / rho.eval(x, 0.0);
+            let step = residual / density(x);
             let mut next = x - step;
             if !(next > lo && next < hi) {
                 next = 0.5 * (lo + hi);
@@ -133,7 +138,7 @@ pub fn chain_from_profiles(
             .map(|i| {
                 let width = q[i] - q[i - 1];
                 // The mean of a profile <= 1 can exceed 1 only by rounding.
-                let mean = (gl.integrate(q[i - 1], q[i], |x| rs.eval(x, 0.0)) / width).min(1.0);
+                let mean = (gl.integrate_adaptive(q[i - 1], q[i], &mut |x| rs.eval(x, 0.0)) / width).min(1.0);
                 2.0 * eps * (1.0 - mean) / mean
             })
             .collect()
@@ -170,7 +175,7 @@ pub fn chain_from_particle_file(
         .trim(csv::Trim::All)
         .comment(Some(b'#'))
         .from_path(path)
-        .map_err(|e| err(0, format!("cannot open: {e}")))?;
+        .map_err(|e| Error::Io { path: path.to_path_buf(), source: std::io::Error::other(format!("cannot open the particle file: {e}")) })?;
     let headers = reader
         .headers()
         .map_err(|e| err(1, format!("cannot read the header: {e}")))?
@@ -184,9 +189,21 @@ pub fn chain_from_particle_file(
     }
     let has_roughness = names.len() == 3;
     let mut rows: Vec<ParticleRow> = Vec::new();
-    for (k, record) in reader.deserialize::<ParticleRow>().enumerate() {
-        let line = k + 2;
-        let row = record.map_err(|e| err(line, format!("not a row of numbers x,u,r: {e}")))?;
+    // Physical line of each row (comment lines are skipped by the reader).
+    let mut lines: Vec<usize> = Vec::new();
+    let mut record = csv::StringRecord::new();
+    loop {
+        let more = reader
+            .read_record(&mut record)
+            .map_err(|e| err(e.position().map_or(0, |p| p.line() as usize), format!("unreadable row: {e}")))?;
+        if !more {
+            break;
+        }
+        let line = record.position().map_or(0, |p| p.line() as usize);
+        let row: ParticleRow = record
+            .deserialize(Some(&headers))
+            .map_err(|e| err(line, format!("not a row of numbers x,u,r: {e}")))?;
+        lines.push(line);
         for (name, v) in [("x", Some(row.x)), ("u", Some(row.u)), ("r", row.r)] {
             if let Some(v) = v {
                 if !v.is_finite() {
@@ -205,6 +222,7 @@ pub fn chain_from_particle_file(
         }
         rows.push(row);
     }
+    let line_of = |i: usize| lines.get(i).copied().unwrap_or(0);
     let n = rows.len().saturating_sub(1);
     if n < 2 {
         return Err(err(
@@ -223,10 +241,10 @@ pub fn chain_from_particle_file(
     // End particles are fixed at 0 and 1 with zero velocity.
     const POSITION_TOLERANCE: f64 = 1e-12;
     if rows[0].x.abs() > POSITION_TOLERANCE || rows[0].u != 0.0 {
-        return Err(err(2, format!("particle 0 must be at x = 0 with u = 0 (got x = {}, u = {})", rows[0].x, rows[0].u)));
+        return Err(err(line_of(0), format!("particle 0 must be at x = 0 with u = 0 (got x = {}, u = {})", rows[0].x, rows[0].u)));
     }
     if (rows[n].x - 1.0).abs() > POSITION_TOLERANCE || rows[n].u != 0.0 {
-        return Err(err(n + 2, format!("particle N must be at x = 1 with u = 0 (got x = {}, u = {})", rows[n].x, rows[n].u)));
+        return Err(err(line_of(n), format!("particle N must be at x = 1 with u = 0 (got x = {}, u = {})", rows[n].x, rows[n].u)));
     }
     let mut x: Vec<f64> = rows.iter().map(|r| r.x).collect();
     x[0] = 0.0;
@@ -239,7 +257,7 @@ pub fn chain_from_particle_file(
         let d = x[i] - x[i - 1] - 2.0 * eps;
         if d < -contact_tolerance {
             return Err(err(
-                i + 2,
+                line_of(i),
                 format!(
                     "particles {} and {i} overlap: gap x_{i} - x_{} - 2 radius = {d:e} < 0 (need x_i >= x_(i-1) + 2 radius)",
                     i - 1,
@@ -255,7 +273,7 @@ pub fn chain_from_particle_file(
         }
     }
     if bonded.iter().all(|&b| b) {
-        return Err(err(n + 2, "every gap is zero: the chain is one rigid body and nothing moves".into()));
+        return Err(err(line_of(n), "every gap is zero: the chain is one rigid body and nothing moves".into()));
     }
     // Particles glued into one cluster must start with one velocity (Appendix A: rigid bodies).
     for i in 1..n {
@@ -263,14 +281,14 @@ pub fn chain_from_particle_file(
             let (ua, ub) = (rows[i - 1].u, rows[i].u);
             if ua != ub {
                 return Err(err(
-                    i + 2,
+                    line_of(i),
                     format!("particles {} and {i} touch (zero gap) but have different velocities {ua} and {ub}; a cluster moves rigidly", i - 1),
                 ));
             }
         }
     }
     if bonded[n - 1] && rows[n - 1].u != 0.0 {
-        return Err(err(n + 1, "particle N-1 touches the fixed particle N, so its velocity must be 0".into()));
+        return Err(err(line_of(n - 1), "particle N-1 touches the fixed particle N, so its velocity must be 0".into()));
     }
     let dstar = has_roughness.then(|| {
         (1..=n)

@@ -50,6 +50,25 @@ impl GaussLegendre {
         }
         s * half
     }
+
+    /// ∫_a^b f by recursive bisection until the rule and its two halves agree to `tol`
+    /// (relative to the magnitude of the integral): profiles that are only Lipschitz (kinks) are
+    /// integrated to rounding, while smooth ones stop after the first comparison.
+    pub fn integrate_adaptive(&self, a: f64, b: f64, f: &mut impl FnMut(f64) -> f64) -> f64 {
+        let whole = self.integrate(a, b, &mut *f);
+        self.refine(a, b, whole, f, 0)
+    }
+
+    fn refine(&self, a: f64, b: f64, whole: f64, f: &mut impl FnMut(f64) -> f64, depth: u32) -> f64 {
+        let mid = 0.5 * (a + b);
+        let left = self.integrate(a, mid, &mut *f);
+        let right = self.integrate(mid, b, &mut *f);
+        let halves = left + right;
+        if depth >= 40 || (halves - whole).abs() <= 1e-15 * halves.abs().max(1e-300) || mid <= a || mid >= b {
+            return halves;
+        }
+        self.refine(a, mid, left, f, depth + 1) + self.refine(mid, b, right, f, depth + 1)
+    }
 }
 
 fn legendre_with_derivative(n: usize, x: f64) -> (f64, f64) {

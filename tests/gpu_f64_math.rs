@@ -531,6 +531,11 @@ fn gpu_ldexp_frexp_and_builtins() {
         };
         println!("built-in f64 {call} at x = 4, y = 0.5: {got:e} (std {want:e})");
     }
+    let sub = eval(&ctx, "x * y", &[1e-300], &[1e-10])[0];
+    println!(
+        "f64 subnormal result 1e-300 * 1e-10 on the device: {sub:e} (IEEE: {:e})",
+        1e-310
+    );
 }
 
 /// Shader and pipeline errors from wgpu itself (not caught by naga) come back as GpuError
@@ -568,4 +573,64 @@ fn gpu_errors_do_not_panic() {
     let out = run_compute_f64(&ctx, src, "main", &[], 1, 1).unwrap();
     assert_eq!(out, vec![1.0]);
     assert!(ctx.take_uncaptured_errors().is_empty());
+}
+
+/// `two_sum_f64` and `two_prod_f64` are exact on the device even though the driver may simplify
+/// float algebra and WGSL `fma` on f64 may not be fused (both the case on lavapipe). Prints what
+/// the naive versions return, for information.
+#[test]
+fn gpu_error_free_transformations() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let mut rng = Rng(7);
+    let n = 4000;
+    let mut xs: Vec<f64> = rng.log_uniform(1e-200, 1e200, n);
+    let mut ys: Vec<f64> = rng.log_uniform(1e-200, 1e200, n);
+    for i in 0..n {
+        if i % 2 == 1 {
+            xs[i] = -xs[i];
+        }
+        if i % 3 == 1 {
+            ys[i] = -ys[i];
+        }
+    }
+    xs.extend(rng.uniform(1.0, 2.0, 500));
+    ys.extend(rng.uniform(1.0, 2.0, 500).iter().map(|y| y * 1e-10));
+    let sum_hi = eval(&ctx, "two_sum_f64(x, y).x", &xs, &ys);
+    let sum_lo = eval(&ctx, "two_sum_f64(x, y).y", &xs, &ys);
+    let prod_hi = eval(&ctx, "two_prod_f64(x, y).x", &xs, &ys);
+    let prod_lo = eval(&ctx, "two_prod_f64(x, y).y", &xs, &ys);
+    for i in 0..xs.len() {
+        let (a, b) = (xs[i], ys[i]);
+        let s = a + b;
+        let bb = s - a;
+        let e = (a - (s - bb)) + (b - bb);
+        assert_eq!((sum_hi[i], sum_lo[i]), (s, e), "two_sum_f64({a:e}, {b:e})");
+        let p = a * b;
+        if p.is_normal() && p.abs() > 1e-290 {
+            assert_eq!(
+                (prod_hi[i], prod_lo[i]),
+                (p, a.mul_add(b, -p)),
+                "two_prod_f64({a:e}, {b:e})"
+            );
+        }
+    }
+    let naive_fma = eval(&ctx, "fma(x, y, -(x * y))", &xs[n..n + 4], &ys[n..n + 4]);
+    let naive_sum = eval(
+        &ctx,
+        "(x - ((x + y) - ((x + y) - x))) + (y - ((x + y) - x))",
+        &xs[n..n + 4],
+        &ys[n..n + 4],
+    );
+    for i in 0..4 {
+        let (a, b) = (xs[n + i], ys[n + i]);
+        println!(
+            "naive fma residual {:e} (exact {:e}); naive TwoSum error {:e} (exact {:e})",
+            naive_fma[i],
+            a.mul_add(b, -(a * b)),
+            naive_sum[i],
+            sum_lo[n + i]
+        );
+    }
 }

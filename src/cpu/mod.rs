@@ -10,7 +10,7 @@ use crate::initial::Chain;
 use crate::observables::{grid_points, observe, Snapshot};
 use crate::plan::{Plan, Power};
 use crate::scene::{MemberParams, Stepping};
-use step::{euler_step, Gamma, Scratch, Terms};
+use step::{euler_step, gap_step_admissible, Gamma, Scratch, Terms};
 
 /// Why a member stopped.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -143,7 +143,7 @@ impl<const L: usize> Block<L> {
             }
             Stepping::Adaptive { .. } => None,
         };
-        for lane in self.lanes.iter_mut() {
+        for lane in self.lanes.iter_mut().filter(|l| l.failed.is_none()) {
             lane.regular_steps = Some(0);
             if let Some(h) = fixed_h {
                 lane.dt = h;
@@ -283,10 +283,10 @@ impl<const L: usize> Block<L> {
 
     /// Order 2: cand ← 2·(two half steps) − (one full step); free gaps must stay positive.
     fn extrapolate(&mut self, mut ok: [bool; L]) -> [bool; L] {
-        for (i, (a, b)) in self.cand_gaps.iter_mut().zip(&self.full_gaps).enumerate() {
+        for (i, ((a, b), old)) in self.cand_gaps.iter_mut().zip(&self.full_gaps).zip(&self.gaps).enumerate() {
             *a = 2.0 * *a - b;
             let free = self.bonded.as_ref().is_none_or(|bd| !bd[i]);
-            ok[i % L] &= !free || (*a > 0.0 && a.is_finite());
+            ok[i % L] &= !free || gap_step_admissible(*old, *a);
         }
         for (i, (a, b)) in self.cand_vel.iter_mut().zip(&self.full_vel).enumerate() {
             *a = 2.0 * *a - b;

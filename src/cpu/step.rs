@@ -10,6 +10,14 @@
 //! u_i = y_i + w_i u_{i+1}, so the back sweep is one fma per row and also updates the gaps (the
 //! update telescopes, so sum d_i is conserved to rounding).
 //!
+//! Precision at tiny gaps: the textbook pivot beta_i = D_i - c_i^2/beta_{i-1} cancels
+//! catastrophically when a gap is tiny (c ~ mu/d huge). The sweep instead carries the pivot's
+//! excess over its right coupling, e_i = beta_i - c_{i+1} = m/h + c_i e_{i-1}/beta_{i-1}: a sum of
+//! positive terms (c_i in series with everything to its left). With lambda_i = e_i/beta_i and
+//! w_i = c_{i+1}/beta_i, the relative velocity u_{i+1} - u_i = lambda_i u_{i+1} - y_i is a difference of
+//! two small numbers when gap i+1 is small, so gaps keep their relative precision down to ~1e-300
+//! instead of being swamped by the rounding of absolute velocities.
+//!
 //! Clusters (Appendix A): a gap that is zero at t = 0 is "bonded": its two particles move as
 //! one. The forward sweep then adds the row into the next one (mass and forces add up) and
 //! stores w = 1, y = 0 so that the back sweep copies the velocity exactly; a cluster attached to
@@ -17,6 +25,18 @@
 //! cluster.
 
 use crate::plan::{Forcing, Power};
+
+/// A step may shrink a gap to no less than this fraction of its old value. The gap update is
+/// explicit in d, so a step that shrinks a gap by more has left the regime where it is accurate
+/// (and the next one would close it): it is rejected and retried with a smaller step, exactly as
+/// a step that closes a gap.
+pub const MIN_GAP_RATIO: f64 = 0.5;
+
+/// Whether a free gap may go from `old` to `new` in one step (NaN fails every comparison).
+#[inline(always)]
+pub fn gap_step_admissible(old: f64, new: f64) -> bool {
+    new > MIN_GAP_RATIO * old && new < f64::INFINITY
+}
 
 /// What the plan says exists, for one block. Absent terms cost nothing.
 pub struct Terms<'a, const L: usize> {
@@ -54,19 +74,20 @@ impl<const L: usize> Gamma<L> {
     }
 }
 
-/// Thomas sweep scratch: normalised rows (w, y), length (N-1)·L each.
+/// Thomas sweep scratch, length (N-1)·L each: the normalised rows u_i = y_i + w_i u_{i+1} and
+/// lambda_i = 1 - w_i kept separately, so that u_{i+1} - u_i = lambda_i u_{i+1} - y_i is computed
+/// from small numbers when gap i+1 is tiny (see `euler_step`).
 #[derive(Debug, Clone)]
 pub struct Scratch {
     pub w: Vec<f64>,
+    pub lambda: Vec<f64>,
     pub y: Vec<f64>,
 }
 
 impl Scratch {
     pub fn new(particles: usize, lanes: usize) -> Scratch {
-        Scratch {
-            w: vec![0.0; (particles - 1) * lanes],
-            y: vec![0.0; (particles - 1) * lanes],
-        }
+        let len = (particles - 1) * lanes;
+        Scratch { w: vec![0.0; len], lambda: vec![0.0; len], y: vec![0.0; len] }
     }
 }
 
@@ -106,7 +127,8 @@ fn particle_force(forcing: &Forcing, eps: f64, t: f64, q: f64) -> f64 {
 }
 
 /// Advances every lane by its own step h[l] from (gaps_in, vel_in) to (gaps_out, vel_out).
-/// Returns, per lane, whether the result is admissible: every free gap > 0 and finite. Lanes
+/// Returns, per lane, whether the result is admissible: every free gap finite and above
+/// MIN_GAP_RATIO times its old value. Lanes
 /// with `ok = false` must be rejected by the caller (their output is garbage).
 #[allow(clippy::too_many_arguments)]
 pub fn euler_step<const L: usize>(
@@ -130,19 +152,20 @@ pub fn euler_step<const L: usize>(
         m_over_h[l] = mass / h[l];
     }
 
-    // Row 0 is the wall: u_0 = 0, so w_0 = y_0 = 0.
+    // Row 0 is the wall: u_0 = 0, so y_0 = 0.
     let mut c_prev = [0.0; L];
     let mut g_prev = [0.0; L];
-    let mut w_prev = [0.0; L];
     let mut y_prev = [0.0; L];
     let mut q = [0.0; L];
     for l in 0..L {
         (c_prev[l], g_prev[l]) = gap_terms(terms, l, l, gaps_in[l], h[l]);
     }
 
+    // lambda_prev = e_{i-1}/beta_{i-1}: 1 at the wall (infinite pivot excess).
+    let mut lambda_prev = [1.0; L];
     if let Some(bonded) = terms.bonded {
-        // Cluster-aware sweep: carry (beta, delta) of rows merged into the next row.
-        let mut beta_carry = [0.0; L];
+        // Cluster-aware sweep: a row merged into the next carries its excess and right-hand side.
+        let mut excess_carry = [0.0; L];
         let mut delta_carry = [0.0; L];
         let mut pinned = [true; L];
         for i in 1..n {
@@ -155,31 +178,31 @@ pub fn euler_step<const L: usize>(
                     q[l] += gaps_in[row + l] + mass;
                     f = particle_force(forcing, eps, t[l], q[l]);
                 }
-                let diag = m_over_h[l] + c_prev[l] + c_next;
                 let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
-                let (beta, delta);
+                let (excess, delta);
                 if bonded[row + l] {
-                    // Gap i bonded: row i-1 was merged into this row.
-                    beta = diag + beta_carry[l];
+                    // Gap i bonded (c_i = 0): row i-1 was merged into this row.
+                    excess = m_over_h[l] + excess_carry[l];
                     delta = rhs + delta_carry[l];
                 } else {
                     pinned[l] = false;
-                    beta = diag - c_prev[l] * w_prev[l];
+                    excess = m_over_h[l] + c_prev[l] * lambda_prev[l];
                     delta = rhs + c_prev[l] * y_prev[l];
                 }
-                let (w, y) = if bonded[next_gap + l] {
-                    beta_carry[l] = beta;
+                let (w, lambda, y) = if bonded[next_gap + l] {
+                    excess_carry[l] = excess;
                     delta_carry[l] = delta;
-                    (1.0, 0.0)
+                    (1.0, 0.0, 0.0)
                 } else if pinned[l] {
-                    (0.0, 0.0)
+                    (0.0, 1.0, 0.0)
                 } else {
-                    let inv = 1.0 / beta;
-                    (c_next * inv, delta * inv)
+                    let inv = 1.0 / (excess + c_next);
+                    (c_next * inv, excess * inv, delta * inv)
                 };
                 scratch.w[row + l] = w;
+                scratch.lambda[row + l] = lambda;
                 scratch.y[row + l] = y;
-                w_prev[l] = w;
+                lambda_prev[l] = lambda;
                 y_prev[l] = y;
                 c_prev[l] = c_next;
                 g_prev[l] = g_next;
@@ -196,16 +219,16 @@ pub fn euler_step<const L: usize>(
                     q[l] += gaps_in[row + l] + mass;
                     f = particle_force(forcing, eps, t[l], q[l]);
                 }
-                let diag = m_over_h[l] + c_prev[l] + c_next;
                 let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
-                let beta = diag - c_prev[l] * w_prev[l];
+                let excess = m_over_h[l] + c_prev[l] * lambda_prev[l];
                 let delta = rhs + c_prev[l] * y_prev[l];
-                let inv = 1.0 / beta;
-                let w = c_next * inv;
+                let inv = 1.0 / (excess + c_next);
+                let lambda = excess * inv;
                 let y = delta * inv;
-                scratch.w[row + l] = w;
+                scratch.w[row + l] = c_next * inv;
+                scratch.lambda[row + l] = lambda;
                 scratch.y[row + l] = y;
-                w_prev[l] = w;
+                lambda_prev[l] = lambda;
                 y_prev[l] = y;
                 c_prev[l] = c_next;
                 g_prev[l] = g_next;
@@ -221,11 +244,13 @@ pub fn euler_step<const L: usize>(
         let gap = i * L;
         for l in 0..L {
             let u = scratch.y[row + l] + scratch.w[row + l] * u_next[l];
-            let d = gaps_in[gap + l] + h[l] * (u_next[l] - u);
+            // u_{i+1} - u_i without cancelling two large velocities.
+            let relative = scratch.lambda[row + l] * u_next[l] - scratch.y[row + l];
+            let d = gaps_in[gap + l] + h[l] * relative;
             vel_out[row + l] = u;
             gaps_out[gap + l] = d;
             let free = terms.bonded.is_none_or(|b| !b[gap + l]);
-            ok[l] &= !free || (d > 0.0 && d < f64::INFINITY);
+            ok[l] &= !free || gap_step_admissible(gaps_in[gap + l], d);
             u_next[l] = u;
         }
     }
@@ -233,7 +258,7 @@ pub fn euler_step<const L: usize>(
         let d = gaps_in[l] + h[l] * u_next[l];
         gaps_out[l] = d;
         let free = terms.bonded.is_none_or(|b| !b[l]);
-        ok[l] &= !free || (d > 0.0 && d < f64::INFINITY);
+        ok[l] &= !free || gap_step_admissible(gaps_in[l], d);
     }
     ok
 }

@@ -143,9 +143,15 @@ impl std::fmt::Display for AdapterDescription {
 }
 
 /// New instance; backends, flags and options may be chosen through the usual wgpu environment
-/// variables (`WGPU_BACKEND`, `WGPU_VALIDATION`, ...).
+/// variables (`WGPU_BACKEND`, `WGPU_VALIDATION`, ...). Without `WGPU_BACKEND`, only the primary
+/// backends (Vulkan, Metal, DX12) are used: GL has no f64 shaders, and probing it through EGL
+/// prints noise on headless machines.
 fn new_instance() -> wgpu::Instance {
-    wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env())
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+    if wgpu::Backends::from_env().is_none() {
+        desc.backends = wgpu::Backends::PRIMARY;
+    }
+    wgpu::Instance::new(desc)
 }
 
 /// Describes every adapter wgpu can see (empty when there is none).
