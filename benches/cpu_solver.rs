@@ -1,1 +1,83 @@
-fn main() {}
+//! Particle-steps per second (members × particles × steps / wall time) of the batched CPU
+//! solver: order 1, fixed steps, integer gamma (repulsion on, gamma = 2), no forcing.
+
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use roughlub::cpu::CpuSolver;
+use roughlub::expr::Expr;
+use roughlub::initial::chain_from_profiles;
+use roughlub::plan::Plan;
+use roughlub::scene::{MemberParams, OutputFields, Stepping};
+
+fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver {
+    let chain = chain_from_profiles(
+        particles,
+        &Expr::parse("0.7").unwrap(),
+        &Expr::parse("0.5*sin(2*pi*x)").unwrap(),
+        Some(&Expr::parse("0.7").unwrap()),
+    )
+    .unwrap();
+    let none = OutputFields {
+        gaps: false,
+        velocities: false,
+        rho: false,
+        u: false,
+        rho_star: false,
+        energy: false,
+    };
+    let plan = Plan {
+        particles,
+        eps: chain.eps,
+        repulsion: true,
+        clusters: false,
+        forcing: None,
+        order: 1,
+        stepping: Stepping::Fixed { dt, dt_min: 1e-14 },
+        members: vec![
+            MemberParams {
+                mu: 0.01,
+                gamma: 2.0
+            };
+            members
+        ],
+        // The first output is t = 0 (no steps); the second needs `steps` steps.
+        output_times: vec![0.0, steps as f64 * dt],
+        fields: none,
+        grid: 2,
+    };
+    let mut s = CpuSolver::new(plan, vec![chain; members]);
+    s.next_output(None);
+    s
+}
+
+fn particle_steps(c: &mut Criterion) {
+    let mut group = c.benchmark_group("cpu_order1_fixed_integer_gamma");
+    group
+        .sample_size(10)
+        .measurement_time(Duration::from_secs(8))
+        .warm_up_time(Duration::from_secs(1));
+    for (members, particles, steps) in [
+        (1usize, 100_000usize, 20usize),
+        (256, 1000, 40),
+        (4096, 100, 40),
+    ] {
+        let dt = 1e-4;
+        group.throughput(Throughput::Elements((members * particles * steps) as u64));
+        group.bench_with_input(
+            BenchmarkId::from_parameter(format!("B{members}_N{particles}")),
+            &(members, particles, steps),
+            |b, &(m, n, k)| {
+                b.iter_batched(
+                    || solver(m, n, k, dt),
+                    |mut s| s.next_output(None),
+                    criterion::BatchSize::LargeInput,
+                )
+            },
+        );
+    }
+    group.finish();
+}
+
+criterion_group!(benches, particle_steps);
+criterion_main!(benches);

@@ -66,7 +66,11 @@ pub fn chain_from_profiles(
         let a = k as f64 * h;
         let term = gl.integrate_adaptive(a, a + h, &mut density);
         let sum = mass + term;
-        compensation += if mass.abs() >= term.abs() { (mass - sum) + term } else { (term - sum) + mass };
+        compensation += if mass.abs() >= term.abs() {
+            (mass - sum) + term
+        } else {
+            (term - sum) + mass
+        };
         mass = sum;
         cumulative.push(mass + compensation);
     }
@@ -138,7 +142,9 @@ pub fn chain_from_profiles(
             .map(|i| {
                 let width = q[i] - q[i - 1];
                 // The mean of a profile <= 1 can exceed 1 only by rounding.
-                let mean = (gl.integrate_adaptive(q[i - 1], q[i], &mut |x| rs.eval(x, 0.0)) / width).min(1.0);
+                let mean = (gl.integrate_adaptive(q[i - 1], q[i], &mut |x| rs.eval(x, 0.0))
+                    / width)
+                    .min(1.0);
                 2.0 * eps * (1.0 - mean) / mean
             })
             .collect()
@@ -161,11 +167,7 @@ struct ParticleRow {
 
 /// Reads a CSV with header `x,u,r` (r optional: without it, no roughness and no repulsion).
 /// `expected_n` is `model.particles` when the scene gives it.
-pub fn chain_from_particle_file(
-    path: &Path,
-    eps: f64,
-    expected_n: Option<usize>,
-) -> Result<Chain> {
+pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>) -> Result<Chain> {
     let err = |line: usize, message: String| Error::ParticleFile {
         path: path.to_path_buf(),
         line,
@@ -175,7 +177,10 @@ pub fn chain_from_particle_file(
         .trim(csv::Trim::All)
         .comment(Some(b'#'))
         .from_path(path)
-        .map_err(|e| Error::Io { path: path.to_path_buf(), source: std::io::Error::other(format!("cannot open the particle file: {e}")) })?;
+        .map_err(|e| Error::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::other(format!("cannot open the particle file: {e}")),
+        })?;
     let headers = reader
         .headers()
         .map_err(|e| err(1, format!("cannot read the header: {e}")))?
@@ -193,9 +198,12 @@ pub fn chain_from_particle_file(
     let mut lines: Vec<usize> = Vec::new();
     let mut record = csv::StringRecord::new();
     loop {
-        let more = reader
-            .read_record(&mut record)
-            .map_err(|e| err(e.position().map_or(0, |p| p.line() as usize), format!("unreadable row: {e}")))?;
+        let more = reader.read_record(&mut record).map_err(|e| {
+            err(
+                e.position().map_or(0, |p| p.line() as usize),
+                format!("unreadable row: {e}"),
+            )
+        })?;
         if !more {
             break;
         }
@@ -214,9 +222,7 @@ pub fn chain_from_particle_file(
         if has_roughness {
             match row.r {
                 Some(r) if r >= 0.0 => {}
-                Some(r) => {
-                    return Err(err(line, format!("roughness radius r = {r} must be >= 0")))
-                }
+                Some(r) => return Err(err(line, format!("roughness radius r = {r} must be >= 0"))),
                 None => return Err(err(line, "missing roughness radius r".into())),
             }
         }
@@ -227,24 +233,42 @@ pub fn chain_from_particle_file(
     if n < 2 {
         return Err(err(
             rows.len() + 1,
-            format!("{} particle rows; need N+1 >= 3 rows (particles 0..N)", rows.len()),
+            format!(
+                "{} particle rows; need N+1 >= 3 rows (particles 0..N)",
+                rows.len()
+            ),
         ));
     }
     if let Some(expected) = expected_n {
         if expected != n {
             return Err(err(
                 rows.len() + 1,
-                format!("{} rows give N = {n}, but model.particles = {expected}", rows.len()),
+                format!(
+                    "{} rows give N = {n}, but model.particles = {expected}",
+                    rows.len()
+                ),
             ));
         }
     }
     // End particles are fixed at 0 and 1 with zero velocity.
     const POSITION_TOLERANCE: f64 = 1e-12;
     if rows[0].x.abs() > POSITION_TOLERANCE || rows[0].u != 0.0 {
-        return Err(err(line_of(0), format!("particle 0 must be at x = 0 with u = 0 (got x = {}, u = {})", rows[0].x, rows[0].u)));
+        return Err(err(
+            line_of(0),
+            format!(
+                "particle 0 must be at x = 0 with u = 0 (got x = {}, u = {})",
+                rows[0].x, rows[0].u
+            ),
+        ));
     }
     if (rows[n].x - 1.0).abs() > POSITION_TOLERANCE || rows[n].u != 0.0 {
-        return Err(err(line_of(n), format!("particle N must be at x = 1 with u = 0 (got x = {}, u = {})", rows[n].x, rows[n].u)));
+        return Err(err(
+            line_of(n),
+            format!(
+                "particle N must be at x = 1 with u = 0 (got x = {}, u = {})",
+                rows[n].x, rows[n].u
+            ),
+        ));
     }
     let mut x: Vec<f64> = rows.iter().map(|r| r.x).collect();
     x[0] = 0.0;
@@ -273,7 +297,10 @@ pub fn chain_from_particle_file(
         }
     }
     if bonded.iter().all(|&b| b) {
-        return Err(err(line_of(n), "every gap is zero: the chain is one rigid body and nothing moves".into()));
+        return Err(err(
+            line_of(n),
+            "every gap is zero: the chain is one rigid body and nothing moves".into(),
+        ));
     }
     // Particles glued into one cluster must start with one velocity (Appendix A: rigid bodies).
     for i in 1..n {
@@ -288,7 +315,10 @@ pub fn chain_from_particle_file(
         }
     }
     if bonded[n - 1] && rows[n - 1].u != 0.0 {
-        return Err(err(line_of(n - 1), "particle N-1 touches the fixed particle N, so its velocity must be 0".into()));
+        return Err(err(
+            line_of(n - 1),
+            "particle N-1 touches the fixed particle N, so its velocity must be 0".into(),
+        ));
     }
     let dstar = has_roughness.then(|| {
         (1..=n)

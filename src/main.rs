@@ -8,7 +8,11 @@ use roughlub::run::{run_scene, RunOptions};
 use roughlub::scene::{Backend, Precision, Scene};
 
 #[derive(Parser)]
-#[command(name = "roughlub", version, about = "Batched simulation of chains of rough particles interacting through lubrication")]
+#[command(
+    name = "roughlub",
+    version,
+    about = "Batched simulation of chains of rough particles interacting through lubrication"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -38,13 +42,28 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
-        Command::Run { scene, out, backend, precision, quiet } => {
+        Command::Run {
+            scene,
+            out,
+            backend,
+            precision,
+            quiet,
+        } => {
             let result = (|| -> roughlub::Result<roughlub::run::RunSummary> {
                 let scene = Scene::from_file(&scene)?;
                 let backend: Option<Backend> = backend.as_deref().map(str::parse).transpose()?;
-                let precision: Option<Precision> = precision.as_deref().map(str::parse).transpose()?;
+                let precision: Option<Precision> =
+                    precision.as_deref().map(str::parse).transpose()?;
                 let out_dir = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
-                run_scene(&scene, &RunOptions { out_dir, backend, precision, quiet })
+                run_scene(
+                    &scene,
+                    &RunOptions {
+                        out_dir,
+                        backend,
+                        precision,
+                        quiet,
+                    },
+                )
             })();
             match result {
                 Ok(summary) => {
@@ -60,7 +79,10 @@ fn main() -> ExitCode {
                     }
                     if summary.failed > 0 {
                         // The run itself succeeded; failed members are data, listed in the manifest.
-                        eprintln!("warning: {} member(s) failed; see \"failed_members\" in the manifest", summary.failed);
+                        eprintln!(
+                            "warning: {} member(s) failed; see \"failed_members\" in the manifest",
+                            summary.failed
+                        );
                     }
                     ExitCode::SUCCESS
                 }

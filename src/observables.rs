@@ -26,7 +26,13 @@ impl Snapshot {
         let n = plan.particles;
         let g = plan.grid;
         let f = &plan.fields;
-        let nan = |len: usize, keep: bool| if keep { vec![f64::NAN; len] } else { Vec::new() };
+        let nan = |len: usize, keep: bool| {
+            if keep {
+                vec![f64::NAN; len]
+            } else {
+                Vec::new()
+            }
+        };
         Snapshot {
             gaps: nan(n, f.gaps),
             velocities: nan(n - 1, f.velocities),
@@ -44,7 +50,13 @@ impl Snapshot {
 /// Evenly spaced points 0..=1.
 pub fn grid_points(grid: usize) -> Vec<f64> {
     (0..grid)
-        .map(|j| if j + 1 == grid { 1.0 } else { j as f64 / (grid - 1) as f64 })
+        .map(|j| {
+            if j + 1 == grid {
+                1.0
+            } else {
+                j as f64 / (grid - 1) as f64
+            }
+        })
         .collect()
 }
 
@@ -145,7 +157,11 @@ pub fn observe(
             }
             if f.u {
                 let u_left = if cell >= 2 { velocities[cell - 2] } else { 0.0 };
-                let u_right = if cell <= n - 1 { velocities[cell - 1] } else { 0.0 };
+                let u_right = if cell <= n - 1 {
+                    velocities[cell - 1]
+                } else {
+                    0.0
+                };
                 let s = ((x - q_left) / (q_right - q_left)).clamp(0.0, 1.0);
                 u.push(u_left + (u_right - u_left) * s);
             }

@@ -31,7 +31,12 @@ impl NpyStream {
             .writer(BufWriter::new(file))
             .begin_nd()
             .map_err(|e| Error::io(&path, e))?;
-        Ok(NpyStream { path, writer, expected: shape.iter().product(), written: 0 })
+        Ok(NpyStream {
+            path,
+            writer,
+            expected: shape.iter().product(),
+            written: 0,
+        })
     }
 
     pub fn push(&mut self, values: &[f64]) -> Result<()> {
@@ -42,14 +47,19 @@ impl NpyStream {
                 message: format!("more values than its shape holds ({})", self.expected),
             });
         }
-        self.writer.extend(values.iter().copied()).map_err(|e| Error::io(&self.path, e))
+        self.writer
+            .extend(values.iter().copied())
+            .map_err(|e| Error::io(&self.path, e))
     }
 
     pub fn finish(self) -> Result<PathBuf> {
         if self.written != self.expected {
             return Err(Error::Output {
                 path: self.path.clone(),
-                message: format!("{} values written, shape holds {}", self.written, self.expected),
+                message: format!(
+                    "{} values written, shape holds {}",
+                    self.written, self.expected
+                ),
             });
         }
         self.writer.finish().map_err(|e| Error::io(&self.path, e))?;

@@ -59,12 +59,23 @@ impl GaussLegendre {
         self.refine(a, b, whole, f, 0)
     }
 
-    fn refine(&self, a: f64, b: f64, whole: f64, f: &mut impl FnMut(f64) -> f64, depth: u32) -> f64 {
+    fn refine(
+        &self,
+        a: f64,
+        b: f64,
+        whole: f64,
+        f: &mut impl FnMut(f64) -> f64,
+        depth: u32,
+    ) -> f64 {
         let mid = 0.5 * (a + b);
         let left = self.integrate(a, mid, &mut *f);
         let right = self.integrate(mid, b, &mut *f);
         let halves = left + right;
-        if depth >= 40 || (halves - whole).abs() <= 1e-15 * halves.abs().max(1e-300) || mid <= a || mid >= b {
+        if depth >= 40
+            || (halves - whole).abs() <= 1e-15 * halves.abs().max(1e-300)
+            || mid <= a
+            || mid >= b
+        {
             return halves;
         }
         self.refine(a, mid, left, f, depth + 1) + self.refine(mid, b, right, f, depth + 1)
@@ -93,7 +104,10 @@ mod tests {
             for deg in 0..(2 * n) {
                 let got = q.integrate(0.0, 1.0, |x| x.powi(deg as i32));
                 let want = 1.0 / (deg as f64 + 1.0);
-                assert!((got - want).abs() < 1e-14, "n={n} deg={deg}: {got} vs {want}");
+                assert!(
+                    (got - want).abs() < 1e-14,
+                    "n={n} deg={deg}: {got} vs {want}"
+                );
             }
         }
     }

@@ -35,13 +35,19 @@ pub struct RunSummary {
 /// Builds the initial chain a scene describes.
 pub fn initial_chain(scene: &Scene) -> Result<Chain> {
     match &scene.initial {
-        InitialSpec::Profiles { rho, velocity, rho_star } => {
-            let n = scene
-                .particles
-                .ok_or_else(|| Error::missing("model.particles", "required with profile initial data"))?;
+        InitialSpec::Profiles {
+            rho,
+            velocity,
+            rho_star,
+        } => {
+            let n = scene.particles.ok_or_else(|| {
+                Error::missing("model.particles", "required with profile initial data")
+            })?;
             chain_from_profiles(n, rho, velocity, rho_star.as_ref())
         }
-        InitialSpec::Particles { path, radius } => chain_from_particle_file(path, *radius, scene.particles),
+        InitialSpec::Particles { path, radius } => {
+            chain_from_particle_file(path, *radius, scene.particles)
+        }
     }
 }
 
@@ -92,7 +98,8 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let g = plan.grid as u64;
     let f = plan.fields;
     let open = |name: &str, shape: &[u64], on: bool| -> Result<Option<NpyStream>> {
-        on.then(|| NpyStream::create(dir.join(name), shape)).transpose()
+        on.then(|| NpyStream::create(dir.join(name), shape))
+            .transpose()
     };
     let mut gaps_out = open("gaps.npy", &[t_count, b, n], f.gaps)?;
     let mut vel_out = open("velocities.npy", &[t_count, b, n - 1], f.velocities)?;
@@ -104,7 +111,11 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let mut min_gap = Vec::with_capacity((t_count * b) as usize);
     let mut max_density = Vec::with_capacity((t_count * b) as usize);
 
-    let plotted = if scene.plots { scene.plot_members.min(plan.members.len()) } else { 0 };
+    let plotted = if scene.plots {
+        scene.plot_members.min(plan.members.len())
+    } else {
+        0
+    };
     let mut plot_rho: Vec<Vec<Vec<f64>>> = vec![Vec::new(); plotted];
     let mut plot_u: Vec<Vec<Vec<f64>>> = vec![Vec::new(); plotted];
     let mut plot_rho_star: Vec<Vec<Vec<f64>>> = vec![Vec::new(); plotted];
@@ -113,8 +124,10 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let mut solver = CpuSolver::new(plan.clone(), chains);
     let progress = ProgressBar::with_draw_target(Some(b * t_count), ProgressDrawTarget::hidden());
     progress.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} member-intervals, eta {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {pos}/{len} member-intervals, eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let mut shown = false;
     let mut k = 0;
@@ -135,7 +148,13 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
             min_gap.push(s.min_gap);
             max_density.push(s.max_density);
             if m < plotted {
-                record_for_plot(&mut plot_rho[m], &mut plot_u[m], &mut plot_rho_star[m], s, &plan);
+                record_for_plot(
+                    &mut plot_rho[m],
+                    &mut plot_u[m],
+                    &mut plot_rho_star[m],
+                    s,
+                    &plan,
+                );
             }
         }
         k += 1;
@@ -144,17 +163,32 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     debug_assert_eq!(k as u64, t_count);
 
     let mut files = Vec::new();
-    for s in [gaps_out, vel_out, rho_out, u_out, rho_star_out].into_iter().flatten() {
+    for s in [gaps_out, vel_out, rho_out, u_out, rho_star_out]
+        .into_iter()
+        .flatten()
+    {
         files.push(s.finish()?);
     }
-    files.push(write_npy(dir.join("times.npy"), &[t_count], &plan.output_times)?);
+    files.push(write_npy(
+        dir.join("times.npy"),
+        &[t_count],
+        &plan.output_times,
+    )?);
     files.push(write_npy(dir.join("x.npy"), &[g], solver.grid())?);
     if f.energy {
         files.push(write_npy(dir.join("energy.npy"), &[t_count, b], &energy)?);
-        files.push(write_npy(dir.join("dissipation.npy"), &[t_count, b], &dissipation)?);
+        files.push(write_npy(
+            dir.join("dissipation.npy"),
+            &[t_count, b],
+            &dissipation,
+        )?);
     }
     files.push(write_npy(dir.join("min_gap.npy"), &[t_count, b], &min_gap)?);
-    files.push(write_npy(dir.join("max_density.npy"), &[t_count, b], &max_density)?);
+    files.push(write_npy(
+        dir.join("max_density.npy"),
+        &[t_count, b],
+        &max_density,
+    )?);
 
     let reports = solver.reports();
     if plotted > 0 {
@@ -162,7 +196,10 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         std::fs::create_dir_all(&plot_dir).map_err(|e| Error::io(&plot_dir, e))?;
         for m in 0..plotted {
             let p = &plan.members[m];
-            let title = format!("{} - member {m} (mu = {}, gamma = {})", scene.name, p.mu, p.gamma);
+            let title = format!(
+                "{} - member {m} (mu = {}, gamma = {})",
+                scene.name, p.mu, p.gamma
+            );
             let path = plot_dir.join(format!("member_{m:04}.png"));
             plot_profiles(
                 &path,
@@ -182,18 +219,38 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
                 let p = &plan.members[m];
                 (
                     format!("mu={} gamma={}", p.mu, p.gamma),
-                    (0..t_count as usize).map(|t| max_density[t * b as usize + m]).collect(),
+                    (0..t_count as usize)
+                        .map(|t| max_density[t * b as usize + m])
+                        .collect(),
                 )
             })
             .collect();
         let path = plot_dir.join("max_density.png");
-        plot_series(&path, &format!("{}: max density", scene.name), "max rho", &plan.output_times, &series)?;
+        plot_series(
+            &path,
+            &format!("{}: max density", scene.name),
+            "max rho",
+            &plan.output_times,
+            &series,
+        )?;
         files.push(path);
     }
 
     let wall = started.elapsed().as_secs_f64();
-    let failed = reports.iter().filter(|r| r.status != MemberStatus::Ok).count();
-    let manifest = manifest_json(scene, &plan, &backend_name, precision, wall, &reports, &files, dir);
+    let failed = reports
+        .iter()
+        .filter(|r| r.status != MemberStatus::Ok)
+        .count();
+    let manifest = manifest_json(
+        scene,
+        &plan,
+        &backend_name,
+        precision,
+        wall,
+        &reports,
+        &files,
+        dir,
+    );
     write_manifest(dir, &manifest)?;
     Ok(RunSummary {
         out_dir: dir.clone(),
@@ -211,13 +268,27 @@ fn push(stream: &mut Option<NpyStream>, values: &[f64]) -> Result<()> {
     }
 }
 
-fn record_for_plot(rho: &mut Vec<Vec<f64>>, u: &mut Vec<Vec<f64>>, rho_star: &mut Vec<Vec<f64>>, s: &Snapshot, plan: &Plan) {
+fn record_for_plot(
+    rho: &mut Vec<Vec<f64>>,
+    u: &mut Vec<Vec<f64>>,
+    rho_star: &mut Vec<Vec<f64>>,
+    s: &Snapshot,
+    plan: &Plan,
+) {
     // Plots need the fields even when they are not written.
     let grid = plan.grid;
     let nan = || vec![f64::NAN; grid];
-    rho.push(if s.rho.is_empty() { nan() } else { s.rho.clone() });
+    rho.push(if s.rho.is_empty() {
+        nan()
+    } else {
+        s.rho.clone()
+    });
     u.push(if s.u.is_empty() { nan() } else { s.u.clone() });
-    rho_star.push(if s.rho_star.is_empty() { nan() } else { s.rho_star.clone() });
+    rho_star.push(if s.rho_star.is_empty() {
+        nan()
+    } else {
+        s.rho_star.clone()
+    });
 }
 
 #[allow(clippy::too_many_arguments)]

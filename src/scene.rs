@@ -223,7 +223,12 @@ fn check_finite(field: &str, v: f64) -> Result<()> {
     if v.is_finite() {
         Ok(())
     } else {
-        Err(Error::invalid(field, v, "not a finite number", "a finite number"))
+        Err(Error::invalid(
+            field,
+            v,
+            "not a finite number",
+            "a finite number",
+        ))
     }
 }
 
@@ -232,7 +237,12 @@ fn check_mu(field: &str, mu: f64) -> Result<()> {
     if mu > 0.0 {
         Ok(())
     } else {
-        Err(Error::invalid(field, mu, "the lubrication coefficient must be positive", "mu > 0"))
+        Err(Error::invalid(
+            field,
+            mu,
+            "the lubrication coefficient must be positive",
+            "mu > 0",
+        ))
     }
 }
 
@@ -241,7 +251,12 @@ fn check_gamma(field: &str, gamma: f64) -> Result<()> {
     if (1.0..=MAX_GAMMA).contains(&gamma) {
         Ok(())
     } else {
-        Err(Error::invalid(field, gamma, "repulsion exponent out of range", "1 <= gamma <= 1000"))
+        Err(Error::invalid(
+            field,
+            gamma,
+            "repulsion exponent out of range",
+            "1 <= gamma <= 1000",
+        ))
     }
 }
 
@@ -427,7 +442,12 @@ impl Scene {
         let t = &file.time;
         check_finite("time.end", t.end)?;
         if !(t.end > 0.0) {
-            return Err(Error::invalid("time.end", t.end, "the final time", "end > 0"));
+            return Err(Error::invalid(
+                "time.end",
+                t.end,
+                "the final time",
+                "end > 0",
+            ));
         }
         let output_times = match &t.outputs {
             OutputsSpec::Count(k) => {
@@ -441,7 +461,13 @@ impl Scene {
                 }
                 let k = *k as usize;
                 (0..k)
-                    .map(|j| if j + 1 == k { t.end } else { t.end * j as f64 / (k - 1) as f64 })
+                    .map(|j| {
+                        if j + 1 == k {
+                            t.end
+                        } else {
+                            t.end * j as f64 / (k - 1) as f64
+                        }
+                    })
                     .collect()
             }
             OutputsSpec::Times(list) => {
@@ -528,12 +554,10 @@ impl Scene {
                     dt_min,
                 }
             }
-            (Some(_), Some(_)) => {
-                return Err(Error::missing(
-                    "time.dt",
-                    "give either time.dt (fixed steps) or time.tolerance (adaptive steps), not both",
-                ))
-            }
+            (Some(_), Some(_)) => return Err(Error::missing(
+                "time.dt",
+                "give either time.dt (fixed steps) or time.tolerance (adaptive steps), not both",
+            )),
             (None, None) => {
                 return Err(Error::missing(
                     "time.dt",
@@ -565,7 +589,12 @@ impl Scene {
         if let Some(b) = &file.batch {
             if let Some(list) = &b.mu {
                 if list.is_empty() {
-                    return Err(Error::invalid("batch.mu", "[]", "empty sweep", "a non-empty list of mu > 0"));
+                    return Err(Error::invalid(
+                        "batch.mu",
+                        "[]",
+                        "empty sweep",
+                        "a non-empty list of mu > 0",
+                    ));
                 }
                 for (j, &v) in list.iter().enumerate() {
                     check_mu(&format!("batch.mu[{j}]"), v)?;

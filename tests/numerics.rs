@@ -34,15 +34,18 @@ fn dense_reference_step(
     // body[i] for particles 0..=N; bodies joined by bonded gaps.
     let mut body = vec![0usize; n + 1];
     for i in 1..=n {
-        body[i] = if bonded[i - 1] { body[i - 1] } else { body[i - 1] + 1 };
+        body[i] = if bonded[i - 1] {
+            body[i - 1]
+        } else {
+            body[i - 1] + 1
+        };
     }
     let fixed_left = body[0];
     let fixed_right = body[n];
     let bodies = body[n] + 1;
     // Unknown index of each free body.
-    let index = |b: usize| -> Option<usize> {
-        (b != fixed_left && b != fixed_right).then(|| b - 1)
-    };
+    let index =
+        |b: usize| -> Option<usize> { (b != fixed_left && b != fixed_right).then(|| b - 1) };
     let unknowns = bodies - 2;
     let mut a = DMatrix::<f64>::zeros(unknowns, unknowns);
     let mut r = DVector::<f64>::zeros(unknowns);
@@ -86,7 +89,9 @@ fn dense_reference_step(
         .map(|i| index(body[i]).map_or(0.0, |k| solution[k]))
         .collect();
     let u_at = |i: usize| if i == 0 || i == n { 0.0 } else { u_new[i - 1] };
-    let gaps_new = (1..=n).map(|g| gaps[g - 1] + h * (u_at(g) - u_at(g - 1))).collect();
+    let gaps_new = (1..=n)
+        .map(|g| gaps[g - 1] + h * (u_at(g) - u_at(g - 1)))
+        .collect();
     (gaps_new, u_new)
 }
 
@@ -120,7 +125,13 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
                             *b = g + 1 < n && rng.uniform(0.0, 1.0) < 0.3;
                         }
                         bonded[0] = rng.uniform(0.0, 1.0) < 0.5; // sometimes glued to the left wall
-                        let freed: f64 = c.gaps.iter().zip(&bonded).filter(|(_, &b)| b).map(|(d, _)| d).sum();
+                        let freed: f64 = c
+                            .gaps
+                            .iter()
+                            .zip(&bonded)
+                            .filter(|(_, &b)| b)
+                            .map(|(d, _)| d)
+                            .sum();
                         let free_count = bonded.iter().filter(|&&b| !b).count() as f64;
                         for (d, &b) in c.gaps.iter_mut().zip(&bonded) {
                             *d = if b { 0.0 } else { *d + freed / free_count };
@@ -144,10 +155,22 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
             let h: [f64; L] = std::array::from_fn(|_| rng.uniform(1e-4, 1e-2));
             let t: [f64; L] = std::array::from_fn(|_| rng.uniform(0.0, 1.0));
             let gaps = interleave(&chains.iter().map(|c| c.gaps.clone()).collect::<Vec<_>>());
-            let vel = interleave(&chains.iter().map(|c| c.velocities.clone()).collect::<Vec<_>>());
-            let dstar = interleave(&chains.iter().map(|c| c.dstar.clone().unwrap()).collect::<Vec<_>>());
-            let bonded_lanes: Vec<Vec<bool>> =
-                chains.iter().map(|c| c.bonded.clone().unwrap_or(vec![false; n])).collect();
+            let vel = interleave(
+                &chains
+                    .iter()
+                    .map(|c| c.velocities.clone())
+                    .collect::<Vec<_>>(),
+            );
+            let dstar = interleave(
+                &chains
+                    .iter()
+                    .map(|c| c.dstar.clone().unwrap())
+                    .collect::<Vec<_>>(),
+            );
+            let bonded_lanes: Vec<Vec<bool>> = chains
+                .iter()
+                .map(|c| c.bonded.clone().unwrap_or(vec![false; n]))
+                .collect();
             let bonded: Vec<bool> = (0..n * L).map(|k| bonded_lanes[k % L][k / L]).collect();
             let forcing = Forcing {
                 expr: Expr::parse("0.5*x^2 - 0.3*x^3 + t*x").unwrap(),
@@ -163,7 +186,17 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
             let mut gaps_out = vec![0.0; gaps.len()];
             let mut vel_out = vec![0.0; vel.len()];
             let mut scratch = Scratch::new(n, L);
-            let ok = euler_step(&terms, n, &t, &h, &gaps, &vel, &mut gaps_out, &mut vel_out, &mut scratch);
+            let ok = euler_step(
+                &terms,
+                n,
+                &t,
+                &h,
+                &gaps,
+                &vel,
+                &mut gaps_out,
+                &mut vel_out,
+                &mut scratch,
+            );
             for l in 0..L {
                 let c = &chains[l];
                 let (want_gaps, want_vel) = dense_reference_step(
@@ -198,7 +231,13 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
                         want_gaps[i]
                     );
                 }
-                assert_eq!(ok[l], want_gaps.iter().zip(&bonded_lanes[l]).all(|(d, b)| *b || *d > 0.0));
+                assert_eq!(
+                    ok[l],
+                    want_gaps
+                        .iter()
+                        .zip(&bonded_lanes[l])
+                        .all(|(d, b)| *b || *d > 0.0)
+                );
             }
         }
     }
@@ -206,7 +245,13 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
 
 /// Independent reference: classical RK4 on the position form of the model (q, u), with the
 /// forcing integral in closed form, at a step far below the scheme's.
-fn rk4_reference(chain: &Chain, mu: f64, gamma: f64, t_end: f64, steps: usize) -> (Vec<f64>, Vec<f64>) {
+fn rk4_reference(
+    chain: &Chain,
+    mu: f64,
+    gamma: f64,
+    t_end: f64,
+    steps: usize,
+) -> (Vec<f64>, Vec<f64>) {
     let n = chain.particles();
     let eps = chain.eps;
     let dstar = chain.dstar.clone().unwrap();
@@ -215,7 +260,15 @@ fn rk4_reference(chain: &Chain, mu: f64, gamma: f64, t_end: f64, steps: usize) -
     state.extend_from_slice(&chain.velocities);
     let rhs = |t: f64, s: &[f64]| -> Vec<f64> {
         let m = n - 1;
-        let q = |i: usize| if i == 0 { 0.0 } else if i == n { 1.0 } else { s[i - 1] };
+        let q = |i: usize| {
+            if i == 0 {
+                0.0
+            } else if i == n {
+                1.0
+            } else {
+                s[i - 1]
+            }
+        };
         let u = |i: usize| if i == 0 || i == n { 0.0 } else { s[m + i - 1] };
         let d = |i: usize| q(i) - q(i - 1) - 2.0 * eps;
         let g = |i: usize| ((dstar[i - 1] + 2.0 * eps) / (d(i) + 2.0 * eps)).powf(gamma);
@@ -223,10 +276,14 @@ fn rk4_reference(chain: &Chain, mu: f64, gamma: f64, t_end: f64, steps: usize) -
         for i in 1..n {
             out[i - 1] = u(i);
             // ∫ 0.3 sin(2πx) cos(3t) over the particle, in closed form.
-            let f = 0.3 * (3.0 * t).cos() * (2.0 * std::f64::consts::PI * q(i)).sin()
+            let f = 0.3
+                * (3.0 * t).cos()
+                * (2.0 * std::f64::consts::PI * q(i)).sin()
                 * (2.0 * std::f64::consts::PI * eps).sin()
                 / std::f64::consts::PI;
-            let force = mu * ((u(i + 1) - u(i)) / d(i + 1) - (u(i) - u(i - 1)) / d(i)) + g(i) - g(i + 1) + f;
+            let force = mu * ((u(i + 1) - u(i)) / d(i + 1) - (u(i) - u(i - 1)) / d(i)) + g(i)
+                - g(i + 1)
+                + f;
             out[m + i - 1] = force / (2.0 * eps);
         }
         out
@@ -235,9 +292,17 @@ fn rk4_reference(chain: &Chain, mu: f64, gamma: f64, t_end: f64, steps: usize) -
     for k in 0..steps {
         let t = k as f64 * h;
         let k1 = rhs(t, &state);
-        let s2: Vec<f64> = state.iter().zip(&k1).map(|(s, k)| s + 0.5 * h * k).collect();
+        let s2: Vec<f64> = state
+            .iter()
+            .zip(&k1)
+            .map(|(s, k)| s + 0.5 * h * k)
+            .collect();
         let k2 = rhs(t + 0.5 * h, &s2);
-        let s3: Vec<f64> = state.iter().zip(&k2).map(|(s, k)| s + 0.5 * h * k).collect();
+        let s3: Vec<f64> = state
+            .iter()
+            .zip(&k2)
+            .map(|(s, k)| s + 0.5 * h * k)
+            .collect();
         let k3 = rhs(t + 0.5 * h, &s3);
         let s4: Vec<f64> = state.iter().zip(&k3).map(|(s, k)| s + h * k).collect();
         let k4 = rhs(t + h, &s4);
@@ -246,13 +311,24 @@ fn rk4_reference(chain: &Chain, mu: f64, gamma: f64, t_end: f64, steps: usize) -
         }
     }
     let m = n - 1;
-    let q = |i: usize| if i == 0 { 0.0 } else if i == n { 1.0 } else { state[i - 1] };
+    let q = |i: usize| {
+        if i == 0 {
+            0.0
+        } else if i == n {
+            1.0
+        } else {
+            state[i - 1]
+        }
+    };
     let gaps = (1..=n).map(|i| q(i) - q(i - 1) - 2.0 * eps).collect();
     (gaps, state[m..].to_vec())
 }
 
 fn max_error(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 #[test]
@@ -281,12 +357,19 @@ fn converges_to_independent_solution_with_orders_one_and_two() {
         let p2 = (errors[1] / errors[2]).log2();
         eprintln!("order {order}: errors {errors:?}, measured orders {p1:.3} {p2:.3}");
         for p in [p1, p2] {
-            assert!((p - order as f64).abs() <= 0.2, "order {order}: measured {p} from errors {errors:?}");
+            assert!(
+                (p - order as f64).abs() <= 0.2,
+                "order {order}: measured {p} from errors {errors:?}"
+            );
         }
         // Error within the scheme's order: C dt^p with a modest C (measured C ≈ 1.1 for order 1
         // and ≈ 6.5 for order 2 on this chain; see the printed errors).
         let c = if order == 1 { 3.0 } else { 20.0 };
-        assert!(errors[2] < c * 0.0025f64.powi(order as i32), "order {order}: error {} too large", errors[2]);
+        assert!(
+            errors[2] < c * 0.0025f64.powi(order as i32),
+            "order {order}: error {} too large",
+            errors[2]
+        );
     }
 }
 
@@ -304,18 +387,44 @@ fn case1_chain(n: usize, rho_star: Option<&str>) -> Chain {
 fn energy_never_increases_without_forcing() {
     let chain = case1_chain(50, Some("0.7"));
     let times: Vec<f64> = (0..=100).map(|k| 0.004 * k as f64).collect();
-    let members = vec![MemberParams { mu: 0.01, gamma: 1.0 }, MemberParams { mu: 0.01, gamma: 3.0 }];
+    let members = vec![
+        MemberParams {
+            mu: 0.01,
+            gamma: 1.0,
+        },
+        MemberParams {
+            mu: 0.01,
+            gamma: 3.0,
+        },
+    ];
     let steppings = [
-        Stepping::Fixed { dt: 2e-3, dt_min: 1e-12 },
-        Stepping::Adaptive { tolerance: 1e-5, dt_initial: 1e-4, dt_min: 1e-12 },
+        Stepping::Fixed {
+            dt: 2e-3,
+            dt_min: 1e-12,
+        },
+        Stepping::Adaptive {
+            tolerance: 1e-5,
+            dt_initial: 1e-4,
+            dt_min: 1e-12,
+        },
     ];
     for order in [1u8, 2] {
         for stepping in steppings {
-            let plan = plan_for(&chain, members.clone(), order, stepping, times.clone(), None);
+            let plan = plan_for(
+                &chain,
+                members.clone(),
+                order,
+                stepping,
+                times.clone(),
+                None,
+            );
             let (snaps, _) = run_all(plan, vec![chain.clone(); 2]);
             for m in 0..2 {
                 let e: Vec<f64> = snaps.iter().map(|s| s[m].energy).collect();
-                assert!(e[0] - e[e.len() - 1] > 1e-4, "energy should decay visibly: {e:?}");
+                assert!(
+                    e[0] - e[e.len() - 1] > 1e-4,
+                    "energy should decay visibly: {e:?}"
+                );
                 for k in 1..e.len() {
                     // Tolerance: rounding of a sum of ~100 terms of size ~|E|.
                     assert!(
@@ -345,27 +454,75 @@ fn gaps_stay_positive_and_sum_is_conserved_at_the_extremes() {
     .unwrap();
     let total0: f64 = chain.gaps.iter().sum();
     assert!((total0 - (1.0 - 2.0 * chain.eps * 200.0)).abs() < 1e-14);
-    let members = vec![MemberParams { mu: 1e-3, gamma: 20.0 }];
+    let members = vec![MemberParams {
+        mu: 1e-3,
+        gamma: 20.0,
+    }];
     let times: Vec<f64> = (0..=20).map(|k| 0.01 * k as f64).collect();
     for (order, stepping) in [
-        (1u8, Stepping::Fixed { dt: 1e-3, dt_min: 1e-12 }),
-        (2u8, Stepping::Fixed { dt: 1e-3, dt_min: 1e-12 }),
-        (1u8, Stepping::Adaptive { tolerance: 1e-4, dt_initial: 1e-5, dt_min: 1e-12 }),
-        (2u8, Stepping::Adaptive { tolerance: 1e-6, dt_initial: 1e-5, dt_min: 1e-12 }),
+        (
+            1u8,
+            Stepping::Fixed {
+                dt: 1e-3,
+                dt_min: 1e-12,
+            },
+        ),
+        (
+            2u8,
+            Stepping::Fixed {
+                dt: 1e-3,
+                dt_min: 1e-12,
+            },
+        ),
+        (
+            1u8,
+            Stepping::Adaptive {
+                tolerance: 1e-4,
+                dt_initial: 1e-5,
+                dt_min: 1e-12,
+            },
+        ),
+        (
+            2u8,
+            Stepping::Adaptive {
+                tolerance: 1e-6,
+                dt_initial: 1e-5,
+                dt_min: 1e-12,
+            },
+        ),
     ] {
-        let plan = plan_for(&chain, members.clone(), order, stepping, times.clone(), None);
+        let plan = plan_for(
+            &chain,
+            members.clone(),
+            order,
+            stepping,
+            times.clone(),
+            None,
+        );
         let (snaps, solver) = run_all(plan, vec![chain.clone()]);
         let report = &solver.reports()[0];
-        assert_eq!(report.status, MemberStatus::Ok, "order {order} {stepping:?}: {report:?}");
+        assert_eq!(
+            report.status,
+            MemberStatus::Ok,
+            "order {order} {stepping:?}: {report:?}"
+        );
         for (k, s) in snaps.iter().enumerate() {
             let s = &s[0];
             assert!(s.min_gap > 0.0, "t = {}: min gap {}", times[k], s.min_gap);
             let total: f64 = s.gaps.iter().sum();
             // Conservation to rounding: ~N ulps of the free length 1 - 2 eps N ≈ 0.01.
-            assert!((total - total0).abs() <= 1e-14, "t = {}: sum of gaps drifted by {:e}", times[k], total - total0);
+            assert!(
+                (total - total0).abs() <= 1e-14,
+                "t = {}: sum of gaps drifted by {:e}",
+                times[k],
+                total - total0
+            );
         }
         // The compression really reaches the extreme: some gap falls below 1e-15.
-        assert!(snaps.iter().any(|s| s[0].min_gap < 1e-15), "the scene should squeeze gaps hard");
+        assert!(
+            snaps.iter().any(|s| s[0].min_gap < 1e-15),
+            "the scene should squeeze gaps hard"
+        );
     }
 }
 
@@ -386,7 +543,10 @@ fn prop_3_1_initial_density_error_decreases_like_one_over_n() {
         };
         let mut err: f64 = 0.0;
         for i in 1..=n {
-            assert!((mass(q[i - 1], q[i]) - 2.0 * chain.eps).abs() < 1e-13, "cell {i} mass");
+            assert!(
+                (mass(q[i - 1], q[i]) - 2.0 * chain.eps).abs() < 1e-13,
+                "cell {i} mass"
+            );
             let rho_i = 2.0 * chain.eps / (chain.gaps[i - 1] + 2.0 * chain.eps);
             // rho0 is piecewise linear, so the sup over a cell is at its ends or at the kink.
             let mut pts = vec![q[i - 1], q[i]];
@@ -406,7 +566,10 @@ fn prop_3_1_initial_density_error_decreases_like_one_over_n() {
     // Constant: L0 · 2eps/δ with L0 = 0.3, δ = 0.5 (the bound in the proof of Prop. 3.1).
     for (&n, &e) in sizes.iter().zip(&errors) {
         let eps = 0.5 * (0.5 + 0.15 * (0.36 + 0.16)) / n as f64;
-        assert!(e <= 0.3 * 2.0 * eps / 0.5, "N = {n}: error {e} above the proof's bound");
+        assert!(
+            e <= 0.3 * 2.0 * eps / 0.5,
+            "N = {n}: error {e} above the proof's bound"
+        );
     }
 }
 
@@ -421,20 +584,36 @@ fn clusters_move_rigidly() {
     bonded[4] = true; // gap 5: particles 4 and 5
     let free = 1.0 - 2.0 * eps * n as f64;
     let free_gaps = bonded.iter().filter(|b| !**b).count() as f64;
-    let gaps: Vec<f64> = bonded.iter().map(|&b| if b { 0.0 } else { free / free_gaps }).collect();
+    let gaps: Vec<f64> = bonded
+        .iter()
+        .map(|&b| if b { 0.0 } else { free / free_gaps })
+        .collect();
     let mut velocities: Vec<f64> = (1..n).map(|i| 0.3 * (i as f64).sin()).collect();
     velocities[0] = 0.0; // particle 1, glued to the wall
     for v in &mut velocities[2..5] {
         *v = 0.2; // particles 3, 4, 5: one cluster, one velocity
     }
     let dstar: Vec<f64> = (0..n).map(|i| 0.01 + 0.002 * (i % 3) as f64).collect();
-    let chain = Chain { eps, gaps, velocities, dstar: Some(dstar), bonded: Some(bonded.clone()) };
+    let chain = Chain {
+        eps,
+        gaps,
+        velocities,
+        dstar: Some(dstar),
+        bonded: Some(bonded.clone()),
+    };
     let times: Vec<f64> = (0..=10).map(|k| 0.02 * k as f64).collect();
     let plan = plan_for(
         &chain,
-        vec![MemberParams { mu: 0.02, gamma: 2.0 }],
+        vec![MemberParams {
+            mu: 0.02,
+            gamma: 2.0,
+        }],
         2,
-        Stepping::Adaptive { tolerance: 1e-6, dt_initial: 1e-4, dt_min: 1e-12 },
+        Stepping::Adaptive {
+            tolerance: 1e-6,
+            dt_initial: 1e-4,
+            dt_min: 1e-12,
+        },
         times,
         Some(("sin(6*x)*(1+t)", 4)),
     );
@@ -449,8 +628,14 @@ fn clusters_move_rigidly() {
             }
         }
         assert_eq!(s.velocities[0], 0.0, "the wall-glued particle moved");
-        assert_eq!(s.velocities[2], s.velocities[3], "particles 3 and 4 of the cluster");
-        assert_eq!(s.velocities[3], s.velocities[4], "particles 4 and 5 of the cluster");
+        assert_eq!(
+            s.velocities[2], s.velocities[3],
+            "particles 3 and 4 of the cluster"
+        );
+        assert_eq!(
+            s.velocities[3], s.velocities[4],
+            "particles 4 and 5 of the cluster"
+        );
         moved |= (s.velocities[3] - 0.2).abs() > 1e-3;
     }
     assert!(moved, "the cluster should feel forces and change velocity");
@@ -462,7 +647,10 @@ fn integer_and_real_power_agree() {
         for &r in &[0.3, 0.97, 1.0, 1.03, 2.5] {
             let a = Power::Integer(n).apply(r);
             let b = (r as f64).powf(n as f64);
-            assert!((a - b).abs() <= 1e-14 * b.abs().max(1e-300) * n.max(1) as f64, "{r}^{n}: {a} vs {b}");
+            assert!(
+                (a - b).abs() <= 1e-14 * b.abs().max(1e-300) * n.max(1) as f64,
+                "{r}^{n}: {a} vs {b}"
+            );
         }
     }
 }

@@ -85,13 +85,21 @@ const MAX_GROWTH: f64 = 5.0;
 const MAX_SHRINK: f64 = 0.2;
 
 impl<const L: usize> Block<L> {
-    fn new(plan: &Plan, chains: &[&Chain; L], members: [Option<usize>; L], params: [MemberParams; L], dt0: f64) -> Self {
+    fn new(
+        plan: &Plan,
+        chains: &[&Chain; L],
+        members: [Option<usize>; L],
+        params: [MemberParams; L],
+        dt0: f64,
+    ) -> Self {
         let n = plan.particles;
         let gaps = interleave::<f64, L>(&chains.map(|c| c.gaps.as_slice()));
         let vel = interleave::<f64, L>(&chains.map(|c| c.velocities.as_slice()));
-        let dstar = plan
-            .repulsion
-            .then(|| interleave::<f64, L>(&chains.map(|c| c.dstar.as_deref().expect("plan.repulsion implies d*"))));
+        let dstar = plan.repulsion.then(|| {
+            interleave::<f64, L>(
+                &chains.map(|c| c.dstar.as_deref().expect("plan.repulsion implies d*")),
+            )
+        });
         let no_bonds = vec![false; n];
         let bonded = plan.clusters.then(|| {
             interleave::<bool, L>(&chains.map(|c| c.bonded.as_deref().unwrap_or(&no_bonds)))
@@ -163,7 +171,11 @@ impl<const L: usize> Block<L> {
                 t[l] = lane.t;
                 let remaining = t_end - lane.t;
                 // Land exactly on the output time instead of leaving a sliver.
-                h[l] = if active[l] && remaining <= lane.dt * (1.0 + 1e-9) { remaining } else { lane.dt };
+                h[l] = if active[l] && remaining <= lane.dt * (1.0 + 1e-9) {
+                    remaining
+                } else {
+                    lane.dt
+                };
             }
             if !active.iter().any(|&a| a) {
                 break;
@@ -177,16 +189,56 @@ impl<const L: usize> Block<L> {
             };
             let mut err = [0.0; L];
             let ok = if !richardson {
-                euler_step(&terms, n, &t, &h, &self.gaps, &self.vel, &mut self.cand_gaps, &mut self.cand_vel, &mut self.scratch)
+                euler_step(
+                    &terms,
+                    n,
+                    &t,
+                    &h,
+                    &self.gaps,
+                    &self.vel,
+                    &mut self.cand_gaps,
+                    &mut self.cand_vel,
+                    &mut self.scratch,
+                )
             } else {
-                let ok_full = euler_step(&terms, n, &t, &h, &self.gaps, &self.vel, &mut self.full_gaps, &mut self.full_vel, &mut self.scratch);
+                let ok_full = euler_step(
+                    &terms,
+                    n,
+                    &t,
+                    &h,
+                    &self.gaps,
+                    &self.vel,
+                    &mut self.full_gaps,
+                    &mut self.full_vel,
+                    &mut self.scratch,
+                );
                 let half = h.map(|x| 0.5 * x);
-                let ok_half = euler_step(&terms, n, &t, &half, &self.gaps, &self.vel, &mut self.half_gaps, &mut self.half_vel, &mut self.scratch);
+                let ok_half = euler_step(
+                    &terms,
+                    n,
+                    &t,
+                    &half,
+                    &self.gaps,
+                    &self.vel,
+                    &mut self.half_gaps,
+                    &mut self.half_vel,
+                    &mut self.scratch,
+                );
                 let mut t_mid = t;
                 for l in 0..L {
                     t_mid[l] += half[l];
                 }
-                let ok_two = euler_step(&terms, n, &t_mid, &half, &self.half_gaps, &self.half_vel, &mut self.cand_gaps, &mut self.cand_vel, &mut self.scratch);
+                let ok_two = euler_step(
+                    &terms,
+                    n,
+                    &t_mid,
+                    &half,
+                    &self.half_gaps,
+                    &self.half_vel,
+                    &mut self.cand_gaps,
+                    &mut self.cand_vel,
+                    &mut self.scratch,
+                );
                 let mut ok = [false; L];
                 for l in 0..L {
                     ok[l] = ok_full[l] && ok_half[l] && ok_two[l];
@@ -220,9 +272,14 @@ impl<const L: usize> Block<L> {
                     if let Some(hf) = fixed_h {
                         lane.dt = (2.0 * lane.dt).min(hf);
                     } else {
-                        let factor = (SAFETY * err[l].max(1e-10).powf(-0.5)).clamp(MAX_SHRINK, MAX_GROWTH);
+                        let factor =
+                            (SAFETY * err[l].max(1e-10).powf(-0.5)).clamp(MAX_SHRINK, MAX_GROWTH);
                         // A step shortened to land on an output time says little about dt.
-                        lane.dt = if landed { lane.dt.max(h[l] * factor) } else { h[l] * factor };
+                        lane.dt = if landed {
+                            lane.dt.max(h[l] * factor)
+                        } else {
+                            h[l] * factor
+                        };
                     }
                 } else {
                     keep_old[l] = true;
@@ -271,19 +328,33 @@ impl<const L: usize> Block<L> {
                 continue;
             }
             let e = (a - b).abs() / (tol * a.abs());
-            err[l] = if e.is_nan() { f64::INFINITY } else { err[l].max(e) };
+            err[l] = if e.is_nan() {
+                f64::INFINITY
+            } else {
+                err[l].max(e)
+            };
         }
         for (i, (a, b)) in self.cand_vel.iter().zip(&self.full_vel).enumerate() {
             let l = i % L;
             let e = (a - b).abs() / (tol * (1.0 + a.abs()));
-            err[l] = if e.is_nan() { f64::INFINITY } else { err[l].max(e) };
+            err[l] = if e.is_nan() {
+                f64::INFINITY
+            } else {
+                err[l].max(e)
+            };
         }
         err
     }
 
     /// Order 2: cand ← 2·(two half steps) − (one full step); free gaps must stay positive.
     fn extrapolate(&mut self, mut ok: [bool; L]) -> [bool; L] {
-        for (i, ((a, b), old)) in self.cand_gaps.iter_mut().zip(&self.full_gaps).zip(&self.gaps).enumerate() {
+        for (i, ((a, b), old)) in self
+            .cand_gaps
+            .iter_mut()
+            .zip(&self.full_gaps)
+            .zip(&self.gaps)
+            .enumerate()
+        {
             *a = 2.0 * *a - b;
             let free = self.bonded.as_ref().is_none_or(|bd| !bd[i]);
             ok[i % L] &= !free || gap_step_admissible(*old, *a);
@@ -295,7 +366,12 @@ impl<const L: usize> Block<L> {
         ok
     }
 
-    fn snapshot(&self, plan: &Plan, params: &[MemberParams], grid_x: &[f64]) -> Vec<(usize, Snapshot)> {
+    fn snapshot(
+        &self,
+        plan: &Plan,
+        params: &[MemberParams],
+        grid_x: &[f64],
+    ) -> Vec<(usize, Snapshot)> {
         let mut out = Vec::new();
         for (l, lane) in self.lanes.iter().enumerate() {
             let Some(member) = lane.member else { continue };
@@ -304,7 +380,10 @@ impl<const L: usize> Block<L> {
                 continue;
             }
             let dstar = self.dstar.as_ref().map(|d| lane_values::<L>(d, l));
-            let bonded = self.bonded.as_ref().map(|b| b.iter().skip(l).step_by(L).copied().collect::<Vec<bool>>());
+            let bonded = self
+                .bonded
+                .as_ref()
+                .map(|b| b.iter().skip(l).step_by(L).copied().collect::<Vec<bool>>());
             out.push((
                 member,
                 observe(
@@ -332,7 +411,10 @@ impl<const L: usize> Block<L> {
                     gamma: params[m].gamma,
                     status: match &lane.failed {
                         None => MemberStatus::Ok,
-                        Some((reason, time)) => MemberStatus::Failed { reason: reason.clone(), time: *time },
+                        Some((reason, time)) => MemberStatus::Failed {
+                            reason: reason.clone(),
+                            time: *time,
+                        },
                     },
                     steps_accepted: lane.accepted,
                     steps_rejected: lane.rejected,
@@ -387,7 +469,12 @@ impl CpuSolver {
             Blocks::Single(build_blocks::<1>(&plan, &chains, dt0))
         };
         let grid_x = grid_points(plan.grid);
-        CpuSolver { plan, blocks, grid_x, time_index: 0 }
+        CpuSolver {
+            plan,
+            blocks,
+            grid_x,
+            time_index: 0,
+        }
     }
 
     pub fn plan(&self) -> &Plan {
@@ -400,10 +487,17 @@ impl CpuSolver {
 
     /// Advances to the next output time and returns every member's snapshot there, in member
     /// order. The first call returns the initial state. `None` after the last output time.
-    pub fn next_output(&mut self, progress: Option<&indicatif::ProgressBar>) -> Option<Vec<Snapshot>> {
+    pub fn next_output(
+        &mut self,
+        progress: Option<&indicatif::ProgressBar>,
+    ) -> Option<Vec<Snapshot>> {
         let k = self.time_index;
         let t_end = *self.plan.output_times.get(k)?;
-        let t_start = if k == 0 { 0.0 } else { self.plan.output_times[k - 1] };
+        let t_start = if k == 0 {
+            0.0
+        } else {
+            self.plan.output_times[k - 1]
+        };
         self.time_index += 1;
         let plan = &self.plan;
         let grid = &self.grid_x;
@@ -417,8 +511,14 @@ impl CpuSolver {
 
     pub fn reports(&self) -> Vec<MemberReport> {
         let mut r: Vec<MemberReport> = match &self.blocks {
-            Blocks::Single(bs) => bs.iter().flat_map(|b| b.reports(&self.plan.members)).collect(),
-            Blocks::Eight(bs) => bs.iter().flat_map(|b| b.reports(&self.plan.members)).collect(),
+            Blocks::Single(bs) => bs
+                .iter()
+                .flat_map(|b| b.reports(&self.plan.members))
+                .collect(),
+            Blocks::Eight(bs) => bs
+                .iter()
+                .flat_map(|b| b.reports(&self.plan.members))
+                .collect(),
         };
         r.sort_by_key(|m| m.index);
         r
@@ -446,4 +546,3 @@ fn advance_all<const L: usize>(
         })
         .collect()
 }
-

@@ -87,7 +87,11 @@ pub struct Scratch {
 impl Scratch {
     pub fn new(particles: usize, lanes: usize) -> Scratch {
         let len = (particles - 1) * lanes;
-        Scratch { w: vec![0.0; len], lambda: vec![0.0; len], y: vec![0.0; len] }
+        Scratch {
+            w: vec![0.0; len],
+            lambda: vec![0.0; len],
+            y: vec![0.0; len],
+        }
     }
 }
 
@@ -124,6 +128,74 @@ fn particle_force(forcing: &Forcing, eps: f64, t: f64, q: f64) -> f64 {
         s += w * forcing.expr.eval(q + eps * xi, t);
     }
     eps * s
+}
+
+/// Registers carried along the forward sweep (per lane).
+struct SweepState<const L: usize> {
+    lambda_prev: [f64; L],
+    y_prev: [f64; L],
+    c_prev: [f64; L],
+    g_prev: [f64; L],
+    q: [f64; L],
+}
+
+#[inline(always)]
+fn forcing_or(f: &Forcing) -> Option<&Forcing> {
+    Some(f)
+}
+
+/// Forward sweep without clusters. `coupling(l, gap_index, d, h)` gives (c, G) of one gap.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn forward_sweep_free<
+    const L: usize,
+    const FORCED: bool,
+    C: Fn(usize, usize, f64, f64) -> (f64, f64),
+>(
+    n: usize,
+    eps: f64,
+    forcing: Option<&Forcing>,
+    t: &[f64; L],
+    h: &[f64; L],
+    m_over_h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    scratch: &mut Scratch,
+    mut st: SweepState<L>,
+    coupling: C,
+) {
+    let mass = 2.0 * eps;
+    // The first gap with the same specialised arithmetic as the others.
+    for l in 0..L {
+        (st.c_prev[l], st.g_prev[l]) = coupling(l, l, gaps_in[l], h[l]);
+    }
+    for i in 1..n {
+        let row = (i - 1) * L;
+        let next_gap = i * L;
+        for l in 0..L {
+            let (c_next, g_next) = coupling(l, next_gap + l, gaps_in[next_gap + l], h[l]);
+            let mut f = 0.0;
+            if FORCED {
+                if let Some(forcing) = forcing {
+                    st.q[l] += gaps_in[row + l] + mass;
+                    f = particle_force(forcing, eps, t[l], st.q[l]);
+                }
+            }
+            let rhs = m_over_h[l] * vel_in[row + l] + st.g_prev[l] - g_next + f;
+            let excess = m_over_h[l] + st.c_prev[l] * st.lambda_prev[l];
+            let delta = rhs + st.c_prev[l] * st.y_prev[l];
+            let inv = 1.0 / (excess + c_next);
+            let lambda = excess * inv;
+            let y = delta * inv;
+            scratch.w[row + l] = c_next * inv;
+            scratch.lambda[row + l] = lambda;
+            scratch.y[row + l] = y;
+            st.lambda_prev[l] = lambda;
+            st.y_prev[l] = y;
+            st.c_prev[l] = c_next;
+            st.g_prev[l] = g_next;
+        }
+    }
 }
 
 /// Advances every lane by its own step h[l] from (gaps_in, vel_in) to (gaps_out, vel_out).
@@ -172,7 +244,8 @@ pub fn euler_step<const L: usize>(
             let row = (i - 1) * L;
             let next_gap = i * L;
             for l in 0..L {
-                let (c_next, g_next) = gap_terms(terms, l, next_gap + l, gaps_in[next_gap + l], h[l]);
+                let (c_next, g_next) =
+                    gap_terms(terms, l, next_gap + l, gaps_in[next_gap + l], h[l]);
                 let mut f = 0.0;
                 if let Some(forcing) = terms.forcing {
                     q[l] += gaps_in[row + l] + mass;
@@ -209,29 +282,77 @@ pub fn euler_step<const L: usize>(
             }
         }
     } else {
-        for i in 1..n {
-            let row = (i - 1) * L;
-            let next_gap = i * L;
-            for l in 0..L {
-                let (c_next, g_next) = gap_terms(terms, l, next_gap + l, gaps_in[next_gap + l], h[l]);
-                let mut f = 0.0;
+        // Without clusters: the hot path, specialised on the terms present so that the lane loop
+        // has no per-element branches (and integer gamma is a fixed chain of multiplications).
+        let state = SweepState {
+            lambda_prev,
+            y_prev,
+            c_prev,
+            g_prev,
+            q,
+        };
+        let eps2 = 2.0 * eps;
+        let mu = terms.mu;
+        macro_rules! with_forcing {
+            ($coupling:expr) => {
                 if let Some(forcing) = terms.forcing {
-                    q[l] += gaps_in[row + l] + mass;
-                    f = particle_force(forcing, eps, t[l], q[l]);
+                    forward_sweep_free::<L, true, _>(
+                        n,
+                        eps,
+                        forcing_or(forcing),
+                        t,
+                        h,
+                        &m_over_h,
+                        gaps_in,
+                        vel_in,
+                        scratch,
+                        state,
+                        $coupling,
+                    )
+                } else {
+                    forward_sweep_free::<L, false, _>(
+                        n, eps, None, t, h, &m_over_h, gaps_in, vel_in, scratch, state, $coupling,
+                    )
                 }
-                let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
-                let excess = m_over_h[l] + c_prev[l] * lambda_prev[l];
-                let delta = rhs + c_prev[l] * y_prev[l];
-                let inv = 1.0 / (excess + c_next);
-                let lambda = excess * inv;
-                let y = delta * inv;
-                scratch.w[row + l] = c_next * inv;
-                scratch.lambda[row + l] = lambda;
-                scratch.y[row + l] = y;
-                lambda_prev[l] = lambda;
-                y_prev[l] = y;
-                c_prev[l] = c_next;
-                g_prev[l] = g_next;
+            };
+        }
+        match &terms.repulsion {
+            None => with_forcing!(|l: usize, _i: usize, d: f64, _h: f64| (mu[l] / d, 0.0)),
+            Some((dstar, gamma)) => {
+                macro_rules! repulsion {
+                    ($pow:expr, $gamma_of:expr) => {
+                        with_forcing!(|l: usize, i: usize, d: f64, h: f64| {
+                            let inv_s = 1.0 / (d + eps2);
+                            let g = $pow((dstar[i] + eps2) * inv_s, l);
+                            (mu[l] / d + h * $gamma_of(l) * g * inv_s, g)
+                        })
+                    };
+                }
+                match *gamma {
+                    Gamma::Uniform(Power::Integer(1)) => repulsion!(|r: f64, _l| r, |_l| 1.0),
+                    Gamma::Uniform(Power::Integer(2)) => repulsion!(|r: f64, _l| r * r, |_l| 2.0),
+                    Gamma::Uniform(Power::Integer(3)) => {
+                        repulsion!(|r: f64, _l| r * r * r, |_l| 3.0)
+                    }
+                    Gamma::Uniform(Power::Integer(4)) => repulsion!(
+                        |r: f64, _l| {
+                            let r2 = r * r;
+                            r2 * r2
+                        },
+                        |_l| 4.0
+                    ),
+                    Gamma::Uniform(p) => {
+                        let g = match p {
+                            Power::Integer(k) => k as f64,
+                            Power::Real(g) => g,
+                        };
+                        repulsion!(|r: f64, _l| p.apply(r), |_l| g)
+                    }
+                    Gamma::PerLane(gs) => {
+                        repulsion!(|r: f64, l: usize| Power::of(gs[l]).apply(r), |l: usize| gs
+                            [l])
+                    }
+                }
             }
         }
     }

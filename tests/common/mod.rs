@@ -10,7 +10,14 @@ use roughlub::quadrature::GaussLegendre;
 use roughlub::scene::{MemberParams, OutputFields, Stepping};
 
 pub fn all_fields() -> OutputFields {
-    OutputFields { gaps: true, velocities: true, rho: true, u: true, rho_star: true, energy: true }
+    OutputFields {
+        gaps: true,
+        velocities: true,
+        rho: true,
+        u: true,
+        rho_star: true,
+        energy: true,
+    }
 }
 
 pub fn plan_for(
@@ -34,7 +41,10 @@ pub fn plan_for(
         stepping,
         members,
         output_times,
-        fields: OutputFields { rho_star: chain.dstar.is_some(), ..all_fields() },
+        fields: OutputFields {
+            rho_star: chain.dstar.is_some(),
+            ..all_fields()
+        },
         grid: 64,
     }
 }
@@ -78,5 +88,11 @@ pub fn random_chain(rng: &mut Rng, n: usize, eps: f64, roughness: Option<f64>) -
         let r: Vec<f64> = (0..=n).map(|_| rng.uniform(0.0, r_max)).collect();
         (1..=n).map(|i| r[i - 1] + r[i]).collect()
     });
-    Chain { eps, gaps, velocities, dstar, bonded: None }
+    Chain {
+        eps,
+        gaps,
+        velocities,
+        dstar,
+        bonded: None,
+    }
 }
