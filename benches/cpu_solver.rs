@@ -18,14 +18,6 @@ fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver 
         Some(&Expr::parse("0.7").unwrap()),
     )
     .unwrap();
-    let none = OutputFields {
-        gaps: false,
-        velocities: false,
-        rho: false,
-        u: false,
-        rho_star: false,
-        energy: false,
-    };
     let plan = Plan {
         particles,
         eps: chain.eps,
@@ -43,7 +35,7 @@ fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver 
         ],
         // The first output is t = 0 (no steps); the second needs `steps` steps.
         output_times: vec![0.0, steps as f64 * dt],
-        fields: none,
+        fields: OutputFields::none(),
         grid: 2,
     };
     let mut s = CpuSolver::new(plan, vec![chain; members]);

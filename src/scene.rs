@@ -188,6 +188,25 @@ pub struct OutputFields {
     pub energy: bool,
 }
 
+impl OutputFields {
+    pub fn all() -> OutputFields {
+        OutputFields::uniform(true)
+    }
+    pub fn none() -> OutputFields {
+        OutputFields::uniform(false)
+    }
+    fn uniform(on: bool) -> OutputFields {
+        OutputFields {
+            gaps: on,
+            velocities: on,
+            rho: on,
+            u: on,
+            rho_star: on,
+            energy: on,
+        }
+    }
+}
+
 pub const FIELD_NAMES: [&str; 6] = ["gaps", "velocities", "rho", "u", "rho_star", "energy"];
 
 #[derive(Debug, Clone)]
@@ -631,23 +650,9 @@ impl Scene {
             }
         };
         let fields = match &o.fields {
-            None => OutputFields {
-                gaps: true,
-                velocities: true,
-                rho: true,
-                u: true,
-                rho_star: true,
-                energy: true,
-            },
+            None => OutputFields::all(),
             Some(list) => {
-                let mut f = OutputFields {
-                    gaps: false,
-                    velocities: false,
-                    rho: false,
-                    u: false,
-                    rho_star: false,
-                    energy: false,
-                };
+                let mut f = OutputFields::none();
                 for (j, name) in list.iter().enumerate() {
                     match name.as_str() {
                         "gaps" => f.gaps = true,

@@ -6,6 +6,7 @@
 //!   ones are 32-bit only on Vulkan and return garbage for f64); prepend it to a kernel's source.
 
 pub mod context;
+pub mod kernel;
 
 pub use context::{
     acquire_for_tests, describe_adapters, run_compute_f64, run_compute_raw, validate_wgsl,

@@ -10,14 +10,7 @@ use roughlub::quadrature::GaussLegendre;
 use roughlub::scene::{MemberParams, OutputFields, Stepping};
 
 pub fn all_fields() -> OutputFields {
-    OutputFields {
-        gaps: true,
-        velocities: true,
-        rho: true,
-        u: true,
-        rho_star: true,
-        energy: true,
-    }
+    OutputFields::all()
 }
 
 pub fn plan_for(

@@ -1,0 +1,262 @@
+//! Generation of the WGSL step kernel (`shaders/step.wgsl`, the twin of `crate::cpu::step`).
+//!
+//! The shader is a template: the terms a plan leaves out are removed from the source (not
+//! branched on at run time), the power `ratio^gamma`, the forcing function and the Gauss–Legendre
+//! sum are generated, and the element type is f32 or f64. See the header of `shaders/step.wgsl`
+//! for the markers and the bindings.
+
+use std::fmt::Write as _;
+
+use crate::expr::{Expr, WgslFloat};
+use crate::scene::Precision;
+
+/// The template (`shaders/step.wgsl`).
+pub const STEP_TEMPLATE_WGSL: &str = include_str!("../../shaders/step.wgsl");
+
+/// Entry point of the generated kernel.
+pub const STEP_ENTRY: &str = "euler_step";
+/// Workgroup size of the generated kernel (one invocation per member).
+pub const STEP_WORKGROUP_SIZE: u32 = 64;
+
+/// Binding numbers (all in group 0). `CONFIG` is a uniform `{ batch: u32, particles: u32,
+/// eps: real }`; `MEMBERS` holds `{ mu, h, t, gamma }` (reals) per member; `SCRATCH` holds w,
+/// lambda and y one after the other, (N-1)·batch each; `OK` one u32 per member; `DSTAR` exists
+/// only with repulsion and `BONDED` (u32 per gap) only with clusters.
+pub mod binding {
+    pub const CONFIG: u32 = 0;
+    pub const GAPS_IN: u32 = 1;
+    pub const VEL_IN: u32 = 2;
+    pub const MEMBERS: u32 = 3;
+    pub const GAPS_OUT: u32 = 4;
+    pub const VEL_OUT: u32 = 5;
+    pub const SCRATCH: u32 = 6;
+    pub const OK: u32 = 7;
+    pub const DSTAR: u32 = 8;
+    pub const BONDED: u32 = 9;
+}
+
+/// How G = ratio^gamma is evaluated in the kernel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum GammaSpec {
+    /// The same integer gamma for every member: a fixed chain of multiplications.
+    Integer(u32),
+    /// gamma read per member from the `gamma` field of the member parameters.
+    PerMember,
+}
+
+/// What the generated kernel contains.
+#[derive(Debug, Clone)]
+pub struct KernelSpec {
+    pub precision: Precision,
+    /// Present iff the model has repulsion (d* and G).
+    pub repulsion: Option<GammaSpec>,
+    /// Whether some member has clusters (bonded gaps).
+    pub clusters: bool,
+    /// The forcing f(x, t) and the Gauss–Legendre nodes and weights on [-1, 1].
+    pub forcing: Option<(Expr, Vec<f64>, Vec<f64>)>,
+}
+
+fn wgsl_float(precision: Precision) -> WgslFloat {
+    match precision {
+        Precision::F32 => WgslFloat::F32,
+        Precision::F64 => WgslFloat::F64,
+    }
+}
+
+/// A finite literal of the given precision (`1.5lf`, `(-0.25f)`).
+fn literal(v: f64, float: WgslFloat) -> String {
+    assert!(v.is_finite(), "non-finite constant {v} in the step kernel");
+    let (digits, suffix) = match float {
+        WgslFloat::F64 => (format!("{:?}", v.abs()), "lf"),
+        WgslFloat::F32 => (format!("{:?}", (v as f32).abs()), "f"),
+    };
+    if v.is_sign_negative() {
+        format!("(-{digits}{suffix})")
+    } else {
+        format!("{digits}{suffix}")
+    }
+}
+
+/// Straight-line `ratio^n` in the sequence of `crate::plan::powi_by_squaring` (the leading
+/// `1.0 * base` is exact and left out), as statements ending in `return`.
+fn integer_power_body(n: u32, out: &mut String) {
+    if n == 0 {
+        out.push_str("    return 1.0;\n");
+        return;
+    }
+    out.push_str("    var base: real = r;\n");
+    let mut have_result = false;
+    let mut e = n;
+    while e > 0 {
+        if e & 1 == 1 {
+            if have_result {
+                out.push_str("    result = result * base;\n");
+            } else {
+                out.push_str("    var result: real = base;\n");
+                have_result = true;
+            }
+        }
+        e >>= 1;
+        if e > 0 {
+            out.push_str("    base = base * base;\n");
+        }
+    }
+    out.push_str("    return result;\n");
+}
+
+/// The generated functions: `REAL_MAX`, `power`, `gamma_of`, `forcing`, `particle_force`.
+fn generated(spec: &KernelSpec) -> String {
+    let float = wgsl_float(spec.precision);
+    let mut out = String::new();
+    // The largest finite value (f32::MAX is exactly representable as an f64 literal).
+    let max = match spec.precision {
+        Precision::F32 => f32::MAX as f64,
+        Precision::F64 => f64::MAX,
+    };
+    let _ = writeln!(out, "const REAL_MAX: real = {};\n", literal(max, float));
+
+    match spec.repulsion {
+        None => {}
+        Some(GammaSpec::Integer(n)) => {
+            let _ = writeln!(
+                out,
+                "// G = ratio^{n}: square and multiply (powi_by_squaring).\n\
+                 fn power(r: real, gamma: real) -> real {{"
+            );
+            integer_power_body(n, &mut out);
+            out.push_str("}\n\n");
+            let _ = writeln!(
+                out,
+                "fn gamma_of(m: Member) -> real {{\n    return {};\n}}\n",
+                literal(n as f64, float)
+            );
+        }
+        Some(GammaSpec::PerMember) => {
+            // Power::of: integer gamma <= 64 by square and multiply, else exp(gamma ln r).
+            let real_pow = match spec.precision {
+                Precision::F32 => "exp(gamma * log(r))",
+                Precision::F64 => "pow_f64(r, gamma)",
+            };
+            let _ = writeln!(
+                out,
+                "// G = ratio^gamma with a per-member gamma, as Power::of(gamma).apply(ratio).\n\
+                 fn power(r: real, gamma: real) -> real {{\n\
+                 \x20   if gamma == floor(gamma) && gamma <= 64.0 {{\n\
+                 \x20       var result: real = 1.0;\n\
+                 \x20       var base: real = r;\n\
+                 \x20       var e: u32 = u32(gamma);\n\
+                 \x20       while e > 0u {{\n\
+                 \x20           if (e & 1u) == 1u {{\n\
+                 \x20               result = result * base;\n\
+                 \x20           }}\n\
+                 \x20           e = e >> 1u;\n\
+                 \x20           if e > 0u {{\n\
+                 \x20               base = base * base;\n\
+                 \x20           }}\n\
+                 \x20       }}\n\
+                 \x20       return result;\n\
+                 \x20   }}\n\
+                 \x20   return {real_pow};\n\
+                 }}\n\n\
+                 fn gamma_of(m: Member) -> real {{\n    return m.gamma;\n}}\n"
+            );
+        }
+    }
+
+    if let Some((expr, nodes, weights)) = &spec.forcing {
+        assert_eq!(
+            nodes.len(),
+            weights.len(),
+            "Gauss–Legendre nodes and weights"
+        );
+        out.push_str(&expr.to_wgsl(float, "forcing"));
+        out.push('\n');
+        // F_i = eps * sum_k w_k f(q + eps xi_k, t), unrolled, summed in the CPU's order.
+        out.push_str(
+            "// F = integral of f over the particle by Gauss–Legendre (particle_force).\n\
+             fn particle_force(eps: real, t: real, q: real) -> real {\n\
+             \x20   var s: real = 0.0;\n",
+        );
+        for (xi, w) in nodes.iter().zip(weights) {
+            let _ = writeln!(
+                out,
+                "    s = s + {} * forcing(q + eps * {}, t);",
+                literal(*w, float),
+                literal(*xi, float)
+            );
+        }
+        out.push_str("    return eps * s;\n}\n");
+    }
+    out
+}
+
+/// Whether the generated code calls the f64 math library.
+fn needs_f64_math(spec: &KernelSpec) -> bool {
+    spec.precision == Precision::F64
+        && (spec.repulsion == Some(GammaSpec::PerMember)
+            || spec
+                .forcing
+                .as_ref()
+                .is_some_and(|(e, _, _)| !e.wgsl_f64_functions_used().is_empty()))
+}
+
+/// Keeps or removes the `//@BEGIN NAME` ... `//@END NAME` blocks of the template.
+fn select_blocks(template: &str, keep: impl Fn(&str) -> bool) -> String {
+    let mut out = String::with_capacity(template.len());
+    // Stack of (name, kept) for the open blocks.
+    let mut open: Vec<(&str, bool)> = Vec::new();
+    for line in template.lines() {
+        let trimmed = line.trim();
+        if let Some(name) = trimmed.strip_prefix("//@BEGIN ") {
+            let name = name.trim();
+            open.push((name, keep(name)));
+            continue;
+        }
+        if let Some(name) = trimmed.strip_prefix("//@END ") {
+            let (open_name, _) = open.pop().expect("//@END without //@BEGIN in step.wgsl");
+            assert_eq!(
+                open_name,
+                name.trim(),
+                "mismatched block markers in step.wgsl"
+            );
+            continue;
+        }
+        if open.iter().all(|&(_, k)| k) {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    assert!(open.is_empty(), "unterminated block in step.wgsl");
+    out
+}
+
+/// The WGSL source of the step kernel for `spec` (entry point [`STEP_ENTRY`]).
+pub fn generate_step_wgsl(spec: &KernelSpec) -> String {
+    let body = select_blocks(STEP_TEMPLATE_WGSL, |name| match name {
+        "REPULSION" => spec.repulsion.is_some(),
+        "CLUSTERS" => spec.clusters,
+        "FREE" => !spec.clusters,
+        "FORCING" => spec.forcing.is_some(),
+        other => panic!("unknown block {other} in step.wgsl"),
+    });
+    let real = match spec.precision {
+        Precision::F32 => "alias real = f32;",
+        Precision::F64 => "alias real = f64;",
+    };
+    let generated = generated(spec);
+    let mut out = String::with_capacity(body.len() + generated.len());
+    for line in body.lines() {
+        match line.trim() {
+            "alias real = f64;" => out.push_str(real),
+            "//@GENERATED" => out.push_str(&generated),
+            _ => out.push_str(line),
+        }
+        out.push('\n');
+    }
+    let body = out;
+    if needs_f64_math(spec) {
+        format!("{}\n{body}", super::F64_MATH_WGSL)
+    } else {
+        body
+    }
+}
