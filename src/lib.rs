@@ -14,5 +14,6 @@ pub mod quadrature;
 pub mod scene;
 
 pub use error::{Error, Result};
+pub mod ensemble;
 pub mod output;
 pub mod run;

@@ -2,6 +2,7 @@
 //! batch, so the Thomas sweeps of L members run side by side in SIMD registers), rayon across
 //! blocks, each lane with its own time, step size and status.
 
+pub mod control;
 pub mod step;
 
 use rayon::prelude::*;
@@ -10,6 +11,7 @@ use crate::initial::Chain;
 use crate::observables::{grid_points, observe, Snapshot};
 use crate::plan::{Plan, Power};
 use crate::scene::{MemberParams, Stepping};
+use control::{Failure, Rules, StepControl};
 use step::{euler_step, gap_step_admissible, Gamma, Scratch, Terms};
 
 /// Why a member stopped.
@@ -36,14 +38,7 @@ pub struct MemberReport {
 #[derive(Debug, Clone)]
 struct Lane {
     member: Option<usize>,
-    t: f64,
-    dt: f64,
-    accepted: u64,
-    rejected: u64,
-    failed: Option<(String, f64)>,
-    /// Fixed steps: accepted steps since the interval start while no step was rejected, so that
-    /// t = t_start + k·h exactly (time is a count of steps, not an accumulated sum).
-    regular_steps: Option<u64>,
+    control: StepControl,
 }
 
 struct Block<const L: usize> {
@@ -79,11 +74,6 @@ fn lane_values<const L: usize>(data: &[f64], l: usize) -> Vec<f64> {
     data.iter().skip(l).step_by(L).copied().collect()
 }
 
-const REJECT_SHRINK: f64 = 0.25;
-const SAFETY: f64 = 0.9;
-const MAX_GROWTH: f64 = 5.0;
-const MAX_SHRINK: f64 = 0.2;
-
 impl<const L: usize> Block<L> {
     fn new(
         plan: &Plan,
@@ -112,12 +102,7 @@ impl<const L: usize> Block<L> {
         };
         let lane = |member| Lane {
             member,
-            t: 0.0,
-            dt: dt0,
-            accepted: 0,
-            rejected: 0,
-            failed: None,
-            regular_steps: Some(0),
+            control: StepControl::new(dt0),
         };
         let richardson = plan.order == 2 || matches!(plan.stepping, Stepping::Adaptive { .. });
         let extra = if richardson { gaps.len() } else { 0 };
@@ -143,38 +128,27 @@ impl<const L: usize> Block<L> {
     /// Advances every running lane to `t_end`.
     fn advance(&mut self, plan: &Plan, t_start: f64, t_end: f64) {
         let n = plan.particles;
-        // Fixed steps: the interval is cut into equal steps no longer than dt.
-        let fixed_h = match plan.stepping {
-            Stepping::Fixed { dt, .. } => {
-                let count = ((t_end - t_start) / dt * (1.0 - 1e-12)).ceil().max(1.0);
-                Some((t_end - t_start) / count)
-            }
-            Stepping::Adaptive { .. } => None,
+        let (fixed_dt, adaptive_tol) = match plan.stepping {
+            Stepping::Fixed { dt, .. } => (Some(dt), None),
+            Stepping::Adaptive { tolerance, .. } => (None, Some(tolerance)),
         };
-        for lane in self.lanes.iter_mut().filter(|l| l.failed.is_none()) {
-            lane.regular_steps = Some(0);
-            if let Some(h) = fixed_h {
-                lane.dt = h;
-            }
+        let rules = Rules::new(t_start, t_end, fixed_dt, plan.stepping.dt_min());
+        for lane in self.lanes.iter_mut() {
+            lane.control.begin_interval(&rules);
         }
-        let adaptive_tol = match plan.stepping {
-            Stepping::Adaptive { tolerance, .. } => Some(tolerance),
-            Stepping::Fixed { .. } => None,
-        };
         let richardson = plan.order == 2 || adaptive_tol.is_some();
         loop {
             let mut active = [false; L];
             let mut h = [0.0; L];
             let mut t = [0.0; L];
             for (l, lane) in self.lanes.iter().enumerate() {
-                active[l] = lane.member.is_some() && lane.failed.is_none() && lane.t < t_end;
-                t[l] = lane.t;
-                let remaining = t_end - lane.t;
-                // Land exactly on the output time instead of leaving a sliver.
-                h[l] = if active[l] && remaining <= lane.dt * (1.0 + 1e-9) {
-                    remaining
+                active[l] = lane.member.is_some() && lane.control.running(&rules);
+                t[l] = lane.control.t;
+                // Idle lanes compute with their (finite) dt; their result is discarded.
+                h[l] = if active[l] {
+                    lane.control.trial_step(&rules)
                 } else {
-                    lane.dt
+                    lane.control.dt
                 };
             }
             if !active.iter().any(|&a| a) {
@@ -251,54 +225,12 @@ impl<const L: usize> Block<L> {
                 }
                 ok
             };
-            let dt_min = plan.stepping.dt_min();
             let mut keep_old = [false; L];
             for l in 0..L {
-                let lane = &mut self.lanes[l];
-                if !active[l] {
-                    keep_old[l] = true;
-                    continue;
-                }
-                let accept = ok[l] && err[l] <= 1.0;
-                if accept {
-                    lane.accepted += 1;
-                    let landed = h[l] == t_end - lane.t;
-                    lane.regular_steps = lane.regular_steps.map(|k| k + 1);
-                    lane.t = match (landed, fixed_h, lane.regular_steps) {
-                        (true, _, _) => t_end,
-                        (false, Some(hf), Some(k)) => t_start + k as f64 * hf,
-                        _ => lane.t + h[l],
-                    };
-                    if let Some(hf) = fixed_h {
-                        lane.dt = (2.0 * lane.dt).min(hf);
-                    } else {
-                        let factor =
-                            (SAFETY * err[l].max(1e-10).powf(-0.5)).clamp(MAX_SHRINK, MAX_GROWTH);
-                        // A step shortened to land on an output time says little about dt.
-                        lane.dt = if landed {
-                            lane.dt.max(h[l] * factor)
-                        } else {
-                            h[l] * factor
-                        };
-                    }
-                } else {
-                    keep_old[l] = true;
-                    lane.rejected += 1;
-                    lane.regular_steps = None;
-                    lane.dt = if ok[l] {
-                        h[l] * (SAFETY * err[l].powf(-0.5)).clamp(MAX_SHRINK, 1.0)
-                    } else {
-                        h[l] * REJECT_SHRINK
-                    };
-                    if lane.dt < dt_min {
-                        let reason = if ok[l] {
-                            format!("step size collapsed below dt_min = {dt_min:e} (error estimate too large)")
-                        } else {
-                            format!("step size collapsed below dt_min = {dt_min:e}: every smaller step closed a gap or gave a non-finite value")
-                        };
-                        lane.failed = Some((reason, lane.t));
-                    }
-                }
+                keep_old[l] = !active[l]
+                    || !self.lanes[l]
+                        .control
+                        .conclude_attempt(&rules, h[l], ok[l], err[l]);
             }
             // Lanes that did not move keep their old state in the candidate buffers.
             if keep_old.iter().any(|&k| k) {
@@ -375,7 +307,7 @@ impl<const L: usize> Block<L> {
         let mut out = Vec::new();
         for (l, lane) in self.lanes.iter().enumerate() {
             let Some(member) = lane.member else { continue };
-            if lane.failed.is_some() {
+            if lane.control.failure != Failure::None {
                 out.push((member, Snapshot::failed(plan)));
                 continue;
             }
@@ -400,7 +332,7 @@ impl<const L: usize> Block<L> {
         out
     }
 
-    fn reports(&self, params: &[MemberParams]) -> Vec<MemberReport> {
+    fn reports(&self, params: &[MemberParams], dt_min: f64) -> Vec<MemberReport> {
         self.lanes
             .iter()
             .filter_map(|lane| {
@@ -409,16 +341,16 @@ impl<const L: usize> Block<L> {
                     index: m,
                     mu: params[m].mu,
                     gamma: params[m].gamma,
-                    status: match &lane.failed {
-                        None => MemberStatus::Ok,
-                        Some((reason, time)) => MemberStatus::Failed {
-                            reason: reason.clone(),
-                            time: *time,
+                    status: match lane.control.failure {
+                        Failure::None => MemberStatus::Ok,
+                        f => MemberStatus::Failed {
+                            reason: f.describe(dt_min),
+                            time: lane.control.failure_time,
                         },
                     },
-                    steps_accepted: lane.accepted,
-                    steps_rejected: lane.rejected,
-                    last_dt: lane.dt,
+                    steps_accepted: lane.control.accepted,
+                    steps_rejected: lane.control.rejected,
+                    last_dt: lane.control.dt,
                 })
             })
             .collect()
@@ -513,11 +445,11 @@ impl CpuSolver {
         let mut r: Vec<MemberReport> = match &self.blocks {
             Blocks::Single(bs) => bs
                 .iter()
-                .flat_map(|b| b.reports(&self.plan.members))
+                .flat_map(|b| b.reports(&self.plan.members, self.plan.stepping.dt_min()))
                 .collect(),
             Blocks::Eight(bs) => bs
                 .iter()
-                .flat_map(|b| b.reports(&self.plan.members))
+                .flat_map(|b| b.reports(&self.plan.members, self.plan.stepping.dt_min()))
                 .collect(),
         };
         r.sort_by_key(|m| m.index);

@@ -7,6 +7,7 @@
 
 pub mod context;
 pub mod kernel;
+pub mod solver;
 
 pub use context::{
     acquire_for_tests, describe_adapters, run_compute_f64, run_compute_raw, validate_wgsl,

@@ -1,0 +1,169 @@
+//! Per-member step-size control: which step to try next, and what to do with its outcome.
+//! CPU twin of the control functions in `shaders/step.wgsl` (`trial_step`, `conclude_attempt`);
+//! keep the two in sync. (err^-1/2 is written 1/sqrt(err): sqrt is exact on every backend, pow
+//! is not, and the GPU must take the same accepted steps.)
+
+/// Why a member stopped (a code, so the GPU can store it in a u32).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum Failure {
+    None = 0,
+    /// The step fell below dt_min while every trial closed (or halved) a gap or gave a
+    /// non-finite value.
+    Inadmissible = 1,
+    /// The step fell below dt_min while the error estimate stayed above the tolerance.
+    ErrorTooLarge = 2,
+}
+
+impl Failure {
+    pub fn from_code(code: u32) -> Failure {
+        match code {
+            0 => Failure::None,
+            1 => Failure::Inadmissible,
+            _ => Failure::ErrorTooLarge,
+        }
+    }
+
+    pub fn describe(self, dt_min: f64) -> String {
+        match self {
+            Failure::None => "ok".into(),
+            Failure::Inadmissible => format!(
+                "step size collapsed below dt_min = {dt_min:e}: every smaller step closed a gap, shrank one below half, or gave a non-finite value"
+            ),
+            Failure::ErrorTooLarge => {
+                format!("step size collapsed below dt_min = {dt_min:e} (error estimate stayed too large)")
+            }
+        }
+    }
+}
+
+/// How steps are chosen within one output interval [t_start, t_end].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rules {
+    pub t_start: f64,
+    pub t_end: f64,
+    /// Fixed steps: the interval cut into equal steps no longer than dt; `None` when adaptive.
+    pub fixed_h: Option<f64>,
+    pub dt_min: f64,
+}
+
+impl Rules {
+    pub fn new(t_start: f64, t_end: f64, fixed_dt: Option<f64>, dt_min: f64) -> Rules {
+        let fixed_h = fixed_dt.map(|dt| {
+            let count = ((t_end - t_start) / dt * (1.0 - 1e-12)).ceil().max(1.0);
+            (t_end - t_start) / count
+        });
+        Rules {
+            t_start,
+            t_end,
+            fixed_h,
+            dt_min,
+        }
+    }
+}
+
+pub const REJECT_SHRINK: f64 = 0.25;
+pub const SAFETY: f64 = 0.9;
+pub const MAX_GROWTH: f64 = 5.0;
+pub const MAX_SHRINK: f64 = 0.2;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepControl {
+    pub t: f64,
+    pub dt: f64,
+    pub accepted: u64,
+    pub rejected: u64,
+    /// Fixed steps: accepted steps since the interval start while no step was rejected, so that
+    /// t = t_start + k·h exactly (time is a count of steps, not an accumulated sum).
+    pub regular_steps: u64,
+    pub regular: bool,
+    pub failure: Failure,
+    pub failure_time: f64,
+}
+
+impl StepControl {
+    pub fn new(dt: f64) -> StepControl {
+        StepControl {
+            t: 0.0,
+            dt,
+            accepted: 0,
+            rejected: 0,
+            regular_steps: 0,
+            regular: true,
+            failure: Failure::None,
+            failure_time: 0.0,
+        }
+    }
+
+    pub fn begin_interval(&mut self, rules: &Rules) {
+        if self.failure != Failure::None {
+            return;
+        }
+        self.regular_steps = 0;
+        self.regular = true;
+        if let Some(h) = rules.fixed_h {
+            self.dt = h;
+        }
+    }
+
+    pub fn running(&self, rules: &Rules) -> bool {
+        self.failure == Failure::None && self.t < rules.t_end
+    }
+
+    /// The step to try: dt, or exactly what is left when that is within rounding of dt (no
+    /// sliver steps before an output time).
+    pub fn trial_step(&self, rules: &Rules) -> f64 {
+        let remaining = rules.t_end - self.t;
+        if remaining <= self.dt * (1.0 + 1e-9) {
+            remaining
+        } else {
+            self.dt
+        }
+    }
+
+    /// Records the outcome of a trial step h: `admissible` (gaps kept positive, finite) and the
+    /// scaled error estimate (0 for fixed steps). Returns whether the step is accepted.
+    pub fn conclude_attempt(&mut self, rules: &Rules, h: f64, admissible: bool, err: f64) -> bool {
+        if admissible && err <= 1.0 {
+            self.accepted += 1;
+            let landed = h == rules.t_end - self.t;
+            self.regular_steps += 1;
+            self.t = if landed {
+                rules.t_end
+            } else if let (Some(hf), true) = (rules.fixed_h, self.regular) {
+                rules.t_start + self.regular_steps as f64 * hf
+            } else {
+                self.t + h
+            };
+            if let Some(hf) = rules.fixed_h {
+                self.dt = (2.0 * self.dt).min(hf);
+            } else {
+                let factor = (SAFETY / err.max(1e-10).sqrt()).clamp(MAX_SHRINK, MAX_GROWTH);
+                // A step shortened to land on an output time says little about dt.
+                self.dt = if landed {
+                    self.dt.max(h * factor)
+                } else {
+                    h * factor
+                };
+            }
+            true
+        } else {
+            self.rejected += 1;
+            self.regular = false;
+            self.dt = if admissible {
+                h * (SAFETY / err.sqrt()).clamp(MAX_SHRINK, 1.0)
+            } else {
+                h * REJECT_SHRINK
+            };
+            if self.dt < rules.dt_min {
+                self.failure = if admissible {
+                    Failure::ErrorTooLarge
+                } else {
+                    Failure::Inadmissible
+                };
+                self.failure_time = self.t;
+            }
+            false
+        }
+    }
+}
