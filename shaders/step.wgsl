@@ -1,37 +1,68 @@
-// One linearly implicit Euler step for the whole batch, fused with the Thomas solve: the WGSL
-// twin of `euler_step` in src/cpu/step.rs (read its header for the equations). One invocation
-// per member; member b's element i sits at `i * batch + b`. Keep the two in sync, loop for loop.
+// The batch advanced on the GPU, one invocation per member (member b's element i at
+// `i * batch + b`), each member with its own time, step size and status. WGSL twin of
+// src/cpu/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas solve; read
+// its header for the equations), of `Block::error_norm` / `Block::extrapolate` in
+// src/cpu/mod.rs and of `StepControl` in src/cpu/control.rs. Keep them in sync, loop for loop.
+//
+// Entry points: `begin_interval` (StepControl::begin_interval), `advance` (up to
+// config.max_attempts trial steps per member per dispatch, as the lane loop of Block::advance:
+// one Euler step for order 1 with fixed steps, else one full and two half steps, the error
+// estimate and/or the extrapolation, then accept or reject), `gather` (copies each member's
+// current state into the output buffers for read-back at output times).
+// A member's state lives in one of two buffer sets (its `parity`); the candidate goes to the
+// other set and an accepted step only flips the parity, so nothing is copied.
 //
 // This file is a TEMPLATE, filled by `generate_step_wgsl` (src/gpu/kernel.rs), line by line:
 //  - the line declaring the alias `real` is replaced by the element type (f32 or f64);
 //  - blocks between the marker lines BEGIN NAME and END NAME (comment lines starting with
-//    slash-slash-at) are kept or removed: REPULSION, CLUSTERS, FREE (= no clusters), FORCING;
+//    slash-slash-at) are kept or removed: REPULSION, CLUSTERS, FREE (= no clusters), FORCING,
+//    EULER (order 1, fixed steps), RICHARDSON (else), ADAPTIVE, ORDER2;
 //    terms the plan leaves out are not compiled at all;
 //  - the marker line GENERATED is replaced by the generated code: REAL_MAX, `power(r, gamma)`
 //    (integer gamma: a fixed square-and-multiply chain, the sequence of `powi_by_squaring`;
 //    per-member gamma: the same chain when gamma is an integer <= 64 as `Power::of` does, else
-//    exp/pow), `gamma_of(m)`, the forcing function `forcing(x, t)` and the unrolled
+//    exp/pow), `gamma_of(gamma)`, the forcing function `forcing(x, t)` and the unrolled
 //    Gauss–Legendre sum `particle_force(eps, t, q)`; the f64 math library is prepended when the
 //    generated code calls it.
 //
-// Bindings (group 0): 0 config (uniform), 1 gaps_in, 2 vel_in, 3 members, 4 gaps_out, 5 vel_out,
-// 6 scratch (w | lambda | y, each (N-1)·batch), 7 ok (u32 per member), 8 dstar (repulsion only),
-// 9 bonded (u32, clusters only).
+// Bindings (group 0): 0 config (uniform), 1 gap sets, 2 velocity sets, 3 member parameters,
+// 4 controls, 5 scratch (w | lambda | y, each (N-1)·batch), 6 running counter (atomic),
+// 7 gathered gaps, 8 dstar (repulsion only), 9 bonded (u32, clusters only), 10 gathered velocities.
+// Keep the Config, Param and Control layouts in sync with `src/gpu/solver.rs`.
 
 alias real = f64;
 
 struct Config {
     batch: u32,
     particles: u32,
+    max_attempts: u32,
+    padding: u32,
     eps: real,
+    t_start: real,
+    t_end: real,
+    // > 0: fixed steps of this size (Rules::fixed_h); 0: adaptive steps.
+    fixed_h: real,
+    dt_min: real,
+    tolerance: real,
 }
 
-struct Member {
+struct Param {
     mu: real,
-    h: real,
-    t: real,
     // Used only with a per-member gamma (GammaSpec::PerMember).
     gamma: real,
+}
+
+// StepControl of src/cpu/control.rs (counters in u32, flags as u32).
+struct Control {
+    t: real,
+    dt: real,
+    failure_time: real,
+    accepted: u32,
+    rejected: u32,
+    regular_steps: u32,
+    regular: u32,
+    failure: u32,
+    parity: u32,
 }
 
 struct GapTerms {
@@ -40,19 +71,31 @@ struct GapTerms {
 }
 
 @group(0) @binding(0) var<uniform> config: Config;
-@group(0) @binding(1) var<storage, read> gaps_in: array<real>;
-@group(0) @binding(2) var<storage, read> vel_in: array<real>;
-@group(0) @binding(3) var<storage, read> members: array<Member>;
-@group(0) @binding(4) var<storage, read_write> gaps_out: array<real>;
-@group(0) @binding(5) var<storage, read_write> vel_out: array<real>;
-@group(0) @binding(6) var<storage, read_write> scratch: array<real>;
-@group(0) @binding(7) var<storage, read_write> ok_flags: array<u32>;
+@group(0) @binding(1) var<storage, read_write> gap_sets: array<real>;
+@group(0) @binding(2) var<storage, read_write> vel_sets: array<real>;
+@group(0) @binding(3) var<storage, read> params: array<Param>;
+@group(0) @binding(4) var<storage, read_write> controls: array<Control>;
+@group(0) @binding(5) var<storage, read_write> scratch: array<real>;
+@group(0) @binding(6) var<storage, read_write> running: atomic<u32>;
+@group(0) @binding(7) var<storage, read_write> gathered_gaps: array<real>;
+@group(0) @binding(10) var<storage, read_write> gathered_vel: array<real>;
 //@BEGIN REPULSION
 @group(0) @binding(8) var<storage, read> dstar: array<real>;
 //@END REPULSION
 //@BEGIN CLUSTERS
 @group(0) @binding(9) var<storage, read> bonded: array<u32>;
 //@END CLUSTERS
+
+// Buffer sets: 0 and 1 hold a member's state and candidate (by parity); 2 and 3 the full and
+// half steps of Richardson extrapolation.
+const FULL_SET: u32 = 2u;
+const HALF_SET: u32 = 3u;
+
+// Step control constants of src/cpu/control.rs.
+const REJECT_SHRINK: real = 0.25;
+const SAFETY: real = 0.9;
+const MAX_GROWTH: real = 5.0;
+const MAX_SHRINK: real = 0.2;
 
 // MIN_GAP_RATIO of src/cpu/step.rs.
 const MIN_GAP_RATIO: real = 0.5;
@@ -75,40 +118,42 @@ fn is_free(index: u32) -> bool {
 }
 
 // Coupling c and repulsion G of one gap (`gap_terms`).
-fn gap_terms(index: u32, d: real, m: Member, eps2: real) -> GapTerms {
+fn gap_terms(index: u32, d: real, p: Param, h: real, eps2: real) -> GapTerms {
 //@BEGIN CLUSTERS
     if bonded[index] != 0u {
         return GapTerms(0.0, 0.0);
     }
 //@END CLUSTERS
-    var c: real = m.mu / d;
+    var c: real = p.mu / d;
     var g: real = 0.0;
 //@BEGIN REPULSION
     let inv_s = 1.0 / (d + eps2);
     let ratio = (dstar[index] + eps2) * inv_s;
-    g = power(ratio, m.gamma);
-    c = c + m.h * gamma_of(m) * g * inv_s;
+    g = power(ratio, p.gamma);
+    c = c + h * gamma_of(p.gamma) * g * inv_s;
 //@END REPULSION
     return GapTerms(c, g);
 }
 
-@compute @workgroup_size(64)
-fn euler_step(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let b = gid.x;
+// `euler_step`: one step h from time t, reading set `src` and writing set `dst`. Returns
+// whether the result is admissible (every free gap finite and above MIN_GAP_RATIO of its old
+// value).
+fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> bool {
     let batch = config.batch;
-    if b >= batch {
-        return;
-    }
     let n = config.particles;
     let eps = config.eps;
-    let m = members[b];
     let mass = 2.0 * eps;
     let eps2 = 2.0 * eps;
-    let m_over_h = mass / m.h;
+    let m_over_h = mass / h;
     let rows = (n - 1u) * batch;
+    // Offsets of the two sets in the gap and velocity buffers.
+    let gi = src * n * batch;
+    let go = dst * n * batch;
+    let vi = src * rows;
+    let vo = dst * rows;
 
     // Row 0 is the wall: u_0 = 0, so y_0 = 0; lambda_prev = 1 (infinite pivot excess).
-    let first = gap_terms(b, gaps_in[b], m, eps2);
+    let first = gap_terms(b, gap_sets[gi + b], p, h, eps2);
     var c_prev: real = first.c;
     var g_prev: real = first.g;
     var y_prev: real = 0.0;
@@ -124,13 +169,13 @@ fn euler_step(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var i: u32 = 1u; i < n; i++) {
         let row = (i - 1u) * batch + b;
         let next_gap = i * batch + b;
-        let next = gap_terms(next_gap, gaps_in[next_gap], m, eps2);
+        let next = gap_terms(next_gap, gap_sets[gi + next_gap], p, h, eps2);
         var f: real = 0.0;
 //@BEGIN FORCING
-        q = q + gaps_in[row] + mass;
-        f = particle_force(eps, m.t, q);
+        q = q + gap_sets[gi + row] + mass;
+        f = particle_force(eps, t, q);
 //@END FORCING
-        let rhs = m_over_h * vel_in[row] + g_prev - next.g + f;
+        let rhs = m_over_h * vel_sets[vi + row] + g_prev - next.g + f;
 //@BEGIN FREE
         let excess = m_over_h + c_prev * lambda_prev;
         let delta = rhs + c_prev * y_prev;
@@ -192,14 +237,196 @@ fn euler_step(@builtin(global_invocation_id) gid: vec3<u32>) {
         let u = y + w * u_next;
         // u_{i+1} - u_i without cancelling two large velocities.
         let relative = lambda * u_next - y;
-        let d = gaps_in[gap] + m.h * relative;
-        vel_out[row] = u;
-        gaps_out[gap] = d;
-        ok = ok && (!is_free(gap) || gap_step_admissible(gaps_in[gap], d));
+        let d = gap_sets[gi + gap] + h * relative;
+        vel_sets[vo + row] = u;
+        gap_sets[go + gap] = d;
+        ok = ok && (!is_free(gap) || gap_step_admissible(gap_sets[gi + gap], d));
         u_next = u;
     }
-    let d0 = gaps_in[b] + m.h * u_next;
-    gaps_out[b] = d0;
-    ok = ok && (!is_free(b) || gap_step_admissible(gaps_in[b], d0));
-    ok_flags[b] = select(0u, 1u, ok);
+    let d0 = gap_sets[gi + b] + h * u_next;
+    gap_sets[go + b] = d0;
+    ok = ok && (!is_free(b) || gap_step_admissible(gap_sets[gi + b], d0));
+    return ok;
+}
+
+// Block::error_norm: scaled max-norm of (two half steps - one full step), relative on free gaps,
+// mixed absolute/relative on velocities; a NaN counts as REAL_MAX (the CPU's infinity: both
+// reject with the largest shrink).
+fn error_norm(b: u32, two_halves: u32, full: u32) -> real {
+    let batch = config.batch;
+    let n = config.particles;
+    let rows = (n - 1u) * batch;
+    let tol = config.tolerance;
+    var err: real = 0.0;
+    for (var i: u32 = 0u; i < n; i++) {
+        let k = i * batch + b;
+        let a = gap_sets[two_halves * n * batch + k];
+        let e = abs(a - gap_sets[full * n * batch + k]) / (tol * abs(a));
+        // Bonded gaps (0/0) do not count; no `continue`, so the loop stays uniform.
+        err = select(err, select(REAL_MAX, max(err, e), e <= REAL_MAX), is_free(k));
+    }
+    for (var i: u32 = 0u; i + 1u < n; i++) {
+        let k = i * batch + b;
+        let a = vel_sets[two_halves * rows + k];
+        let e = abs(a - vel_sets[full * rows + k]) / (tol * (1.0 + abs(a)));
+        err = select(REAL_MAX, max(err, e), e <= REAL_MAX);
+    }
+    return err;
+}
+
+// Block::extrapolate: cand <- 2 cand - full; free gaps must stay admissible against the state
+// `cur` the step started from, velocities finite.
+fn extrapolate(b: u32, cand: u32, full: u32, cur: u32, ok_in: bool) -> bool {
+    let batch = config.batch;
+    let n = config.particles;
+    let rows = (n - 1u) * batch;
+    var ok = ok_in;
+    for (var i: u32 = 0u; i < n; i++) {
+        let k = i * batch + b;
+        let a = 2.0 * gap_sets[cand * n * batch + k] - gap_sets[full * n * batch + k];
+        gap_sets[cand * n * batch + k] = a;
+        ok = ok && (!is_free(k) || gap_step_admissible(gap_sets[cur * n * batch + k], a));
+    }
+    for (var i: u32 = 0u; i + 1u < n; i++) {
+        let k = i * batch + b;
+        let a = 2.0 * vel_sets[cand * rows + k] - vel_sets[full * rows + k];
+        vel_sets[cand * rows + k] = a;
+        ok = ok && abs(a) <= REAL_MAX;
+    }
+    return ok;
+}
+
+// StepControl::trial_step: dt, or exactly what is left when that is within rounding of dt.
+fn trial_step(c: Control) -> real {
+    let remaining = config.t_end - c.t;
+    if remaining <= c.dt * (1.0 + 1e-9) {
+        return remaining;
+    }
+    return c.dt;
+}
+
+// StepControl::conclude_attempt. Returns whether the step is accepted.
+fn conclude_attempt(c: ptr<function, Control>, h: real, admissible: bool, err: real) -> bool {
+    if admissible && err <= 1.0 {
+        (*c).accepted += 1u;
+        let landed = h == config.t_end - (*c).t;
+        (*c).regular_steps += 1u;
+        if landed {
+            (*c).t = config.t_end;
+        } else if config.fixed_h > 0.0 && (*c).regular == 1u {
+            (*c).t = config.t_start + real((*c).regular_steps) * config.fixed_h;
+        } else {
+            (*c).t = (*c).t + h;
+        }
+        if config.fixed_h > 0.0 {
+            (*c).dt = min(2.0 * (*c).dt, config.fixed_h);
+        } else {
+            let factor = clamp(SAFETY / sqrt(max(err, 1e-10)), MAX_SHRINK, MAX_GROWTH);
+            // A step shortened to land on an output time says little about dt.
+            if landed {
+                (*c).dt = max((*c).dt, h * factor);
+            } else {
+                (*c).dt = h * factor;
+            }
+        }
+        return true;
+    }
+    (*c).rejected += 1u;
+    (*c).regular = 0u;
+    if admissible {
+        (*c).dt = h * clamp(SAFETY / sqrt(err), MAX_SHRINK, 1.0);
+    } else {
+        (*c).dt = h * REJECT_SHRINK;
+    }
+    if (*c).dt < config.dt_min {
+        // Failure::Inadmissible = 1, Failure::ErrorTooLarge = 2.
+        (*c).failure = select(1u, 2u, admissible);
+        (*c).failure_time = (*c).t;
+    }
+    return false;
+}
+
+fn is_running(c: Control) -> bool {
+    return c.failure == 0u && c.t < config.t_end;
+}
+
+@compute @workgroup_size(64)
+fn begin_interval(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let b = gid.x;
+    if b >= config.batch {
+        return;
+    }
+    var c = controls[b];
+    if c.failure != 0u {
+        return;
+    }
+    c.regular_steps = 0u;
+    c.regular = 1u;
+    if config.fixed_h > 0.0 {
+        c.dt = config.fixed_h;
+    }
+    controls[b] = c;
+}
+
+@compute @workgroup_size(64)
+fn advance(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let b = gid.x;
+    if b >= config.batch {
+        return;
+    }
+    var c = controls[b];
+    let p = params[b];
+    // A loop of fixed trip count with the attempt inside an `if`: members finish after different
+    // numbers of attempts, and a data-dependent loop exit miscompiled on lavapipe (measured:
+    // members diverged from the CPU); a uniform loop does not.
+    for (var attempt: u32 = 0u; attempt < config.max_attempts; attempt++) {
+        if is_running(c) {
+            let h = trial_step(c);
+            let cur = c.parity;
+            let cand = 1u - cur;
+            var ok: bool;
+            var err: real = 0.0;
+//@BEGIN EULER
+            ok = euler(b, cur, cand, h, c.t, p);
+//@END EULER
+//@BEGIN RICHARDSON
+            let ok_full = euler(b, cur, FULL_SET, h, c.t, p);
+            let half = 0.5 * h;
+            let ok_half = euler(b, cur, HALF_SET, half, c.t, p);
+            let ok_two = euler(b, HALF_SET, cand, half, c.t + half, p);
+            ok = ok_full && ok_half && ok_two;
+//@END RICHARDSON
+//@BEGIN ADAPTIVE
+            err = error_norm(b, cand, FULL_SET);
+//@END ADAPTIVE
+//@BEGIN ORDER2
+            ok = extrapolate(b, cand, FULL_SET, cur, ok);
+//@END ORDER2
+            if conclude_attempt(&c, h, ok, err) {
+                c.parity = cand;
+            }
+        }
+    }
+    controls[b] = c;
+    if is_running(c) {
+        atomicAdd(&running, 1u);
+    }
+}
+
+// Copies each member's current state (set `parity`) to the read-back buffers.
+@compute @workgroup_size(64)
+fn gather(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let b = gid.x;
+    let batch = config.batch;
+    if b >= batch {
+        return;
+    }
+    let n = config.particles;
+    let current = controls[b].parity;
+    for (var i: u32 = 0u; i < n; i++) {
+        gathered_gaps[i * batch + b] = gap_sets[current * n * batch + i * batch + b];
+    }
+    for (var i: u32 = 0u; i + 1u < n; i++) {
+        gathered_vel[i * batch + b] = vel_sets[current * (n - 1u) * batch + i * batch + b];
+    }
 }

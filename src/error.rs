@@ -64,6 +64,15 @@ pub enum Error {
 
     #[error(transparent)]
     Gpu(#[from] GpuError),
+
+    /// A GPU error with what was being done (`context`, e.g. `solver.backend = "gpu"`) and what
+    /// the user can do about it (`advice`, empty or starting with "; ").
+    #[error("{context}: {source}{advice}")]
+    GpuBackend {
+        context: String,
+        source: GpuError,
+        advice: String,
+    },
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
@@ -87,6 +96,14 @@ impl Error {
         Error::MissingField {
             field: field.into(),
             message: message.into(),
+        }
+    }
+
+    pub fn gpu(context: impl Into<String>, source: GpuError, advice: impl Into<String>) -> Self {
+        Error::GpuBackend {
+            context: context.into(),
+            source,
+            advice: advice.into(),
         }
     }
 

@@ -17,3 +17,4 @@ pub use error::{Error, Result};
 pub mod ensemble;
 pub mod output;
 pub mod run;
+pub mod stats;

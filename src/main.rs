@@ -69,10 +69,11 @@ fn main() -> ExitCode {
                 Ok(summary) => {
                     if !quiet {
                         eprintln!(
-                            "{} members ({} failed) on {} in {:.2} s; outputs in {}",
+                            "{} members ({} failed) on {} ({}) in {:.2} s; outputs in {}",
                             summary.members,
                             summary.failed,
                             summary.backend,
+                            summary.adapter,
                             summary.wall_seconds,
                             summary.out_dir.display()
                         );

@@ -8,6 +8,8 @@ use serde_json::json;
 
 use crate::cpu::{CpuSolver, MemberReport, MemberStatus};
 use crate::error::{Error, Result};
+use crate::gpu::solver::GpuSolver;
+use crate::gpu::{GpuContext, GpuError};
 use crate::initial::{chain_from_particle_file, chain_from_profiles, Chain};
 use crate::observables::Snapshot;
 use crate::output::{prepare_dir, write_manifest, write_npy, NpyStream};
@@ -27,6 +29,8 @@ pub struct RunOptions {
 pub struct RunSummary {
     pub out_dir: PathBuf,
     pub backend: String,
+    /// The adapter that ran it, "name (backend)", or the CPU description.
+    pub adapter: String,
     pub members: usize,
     pub failed: usize,
     pub wall_seconds: f64,
@@ -51,29 +55,104 @@ pub fn initial_chain(scene: &Scene) -> Result<Chain> {
     }
 }
 
-/// The backend that will run: (name for the manifest, a line for stderr).
-fn choose_backend(requested: Backend, precision: Precision) -> Result<(String, String)> {
-    match (requested, precision) {
-        (Backend::Cpu | Backend::Auto, Precision::F64) => Ok((
-            "cpu".into(),
-            if requested == Backend::Auto {
-                "backend auto: the GPU path is not built into this version; running on the CPU (f64, rayon)".into()
-            } else {
-                "backend cpu (f64, rayon)".into()
-            },
-        )),
-        (Backend::Cpu | Backend::Auto, Precision::F32) => Err(Error::invalid(
-            "solver.precision",
-            "\"f32\"",
-            "the CPU reference path computes in f64 only",
-            "\"f64\" with backend \"cpu\"",
-        )),
-        (Backend::Gpu, _) => Err(Error::invalid(
-            "solver.backend",
-            "\"gpu\"",
-            "the GPU path is not available in this version",
-            "\"cpu\" or \"auto\"",
-        )),
+/// The CPU path, described like a GPU adapter (for stderr and the manifest).
+fn cpu_adapter(fallback_reason: Option<&str>) -> (String, serde_json::Value) {
+    let threads = rayon::current_num_threads();
+    let name = format!("cpu (rayon, {threads} threads)");
+    let value = json!({
+        "name": name,
+        "backend": "cpu",
+        "driver": "rayon",
+        "device_type": "Cpu",
+        "threads": threads,
+        "supports_f64": true,
+        "fallback_reason": fallback_reason,
+    });
+    (name, value)
+}
+
+/// Why `backend = "auto"` did not use the GPU, from the error of [`GpuContext::acquire`].
+fn fallback_reason(e: &GpuError) -> String {
+    match e {
+        // The message already starts "no GPU adapter found".
+        GpuError::NoAdapter { .. } => e.to_string(),
+        GpuError::NoF64 { .. } => format!("no GPU adapter with f64 shaders: {e}"),
+        _ => format!("no usable GPU adapter: {e}"),
+    }
+}
+
+/// `GpuContext::acquire` failed for `backend = "gpu"`: name the setting and what to do.
+fn gpu_acquire_error(e: GpuError, precision: Precision) -> Error {
+    match (&e, precision) {
+        (GpuError::NoF64 { .. }, Precision::F64) => Error::gpu(
+            "solver.precision = \"f64\" with backend \"gpu\"",
+            e,
+            "; use precision \"f32\" on this adapter, or backend \"cpu\" for f64",
+        ),
+        _ => Error::gpu(
+            "solver.backend = \"gpu\"",
+            e,
+            "; or use backend \"cpu\" (or \"auto\", which falls back to the CPU)",
+        ),
+    }
+}
+
+/// The solver that runs: one output loop for both backends.
+#[allow(clippy::large_enum_variant)] // one value per run, on the stack
+enum Solver<'a> {
+    Cpu(CpuSolver),
+    Gpu(GpuSolver<'a>),
+}
+
+impl Solver<'_> {
+    /// Next output time's snapshots (see `CpuSolver::next_output`); advances `progress` by one
+    /// per member and output interval.
+    fn next_output(
+        &mut self,
+        progress: &ProgressBar,
+    ) -> std::result::Result<Option<Vec<Snapshot>>, GpuError> {
+        match self {
+            Solver::Cpu(s) => Ok(s.next_output(Some(progress))),
+            Solver::Gpu(s) => {
+                let snaps = s.next_output()?;
+                if let Some(v) = &snaps {
+                    progress.inc(v.len() as u64);
+                }
+                Ok(snaps)
+            }
+        }
+    }
+
+    fn grid(&self) -> &[f64] {
+        match self {
+            Solver::Cpu(s) => s.grid(),
+            Solver::Gpu(s) => s.grid(),
+        }
+    }
+
+    fn reports(&self) -> Vec<MemberReport> {
+        match self {
+            Solver::Cpu(s) => s.reports(),
+            Solver::Gpu(s) => s.reports(),
+        }
+    }
+
+    /// The GPU's work counters, for the manifest (`None` on the CPU).
+    fn gpu_stats(&self) -> Option<serde_json::Value> {
+        match self {
+            Solver::Cpu(_) => None,
+            Solver::Gpu(s) => {
+                let st = s.stats();
+                Some(json!({
+                    "dispatches": st.dispatches,
+                    "steps": st.steps,
+                    "submits": st.submits,
+                    "readbacks": st.readbacks,
+                    "bytes_read": st.bytes_read,
+                    "bytes_written": st.bytes_written,
+                }))
+            }
+        }
     }
 }
 
@@ -81,11 +160,123 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let started = Instant::now();
     let requested = options.backend.unwrap_or(scene.backend);
     let precision = options.precision.unwrap_or(scene.precision);
-    let (backend_name, backend_line) = choose_backend(requested, precision)?;
+    if requested == Backend::Cpu && precision == Precision::F32 {
+        return Err(Error::invalid(
+            "solver.precision",
+            "\"f32\"",
+            "the CPU reference path computes in f64 only",
+            "\"f64\" with backend \"cpu\"; \"f32\" with backend \"gpu\" or \"auto\" and a GPU adapter",
+        ));
+    }
+    let auto_f32_error = |why: String| {
+        Error::invalid(
+            "solver.precision",
+            "\"f32\"",
+            format!(
+                "backend \"auto\" cannot use the GPU ({why}) and the CPU path computes in f64 only"
+            ),
+            "\"f64\" without a usable GPU adapter",
+        )
+    };
 
     // Everything a user supplies is validated before the directory is touched.
     let chain = initial_chain(scene)?;
     let plan = Plan::new(scene, &chain);
+    let b_members = plan.members.len();
+
+    // The GPU context (when one is used) outlives the solver, which borrows it.
+    let mut fallback: Option<String> = None;
+    let ctx: Option<GpuContext> = match requested {
+        Backend::Cpu => None,
+        Backend::Gpu => Some(
+            GpuContext::acquire(precision == Precision::F64)
+                .map_err(|e| gpu_acquire_error(e, precision))?,
+        ),
+        Backend::Auto => match GpuContext::acquire(precision == Precision::F64) {
+            Ok(c) => Some(c),
+            Err(e) => {
+                let why = fallback_reason(&e);
+                if precision == Precision::F32 {
+                    return Err(auto_f32_error(why));
+                }
+                fallback = Some(why);
+                None
+            }
+        },
+    };
+    let mut solver = match &ctx {
+        Some(c) => match GpuSolver::new(c, plan.clone(), vec![chain.clone(); b_members], precision)
+        {
+            Ok(s) => Solver::Gpu(s),
+            Err(e) if requested == Backend::Auto => {
+                let why = format!(
+                    "the GPU backend cannot run this scene on {}: {e}",
+                    c.description.short()
+                );
+                if precision == Precision::F32 {
+                    return Err(auto_f32_error(why));
+                }
+                fallback = Some(why);
+                Solver::Cpu(CpuSolver::new(plan.clone(), vec![chain; b_members]))
+            }
+            Err(e) => {
+                return Err(Error::gpu(
+                    format!("solver.backend = \"gpu\" on {}", c.description.short()),
+                    e,
+                    "; use backend \"cpu\" (or \"auto\", which falls back to the CPU)",
+                ))
+            }
+        },
+        None => Solver::Cpu(CpuSolver::new(plan.clone(), vec![chain; b_members])),
+    };
+
+    let (backend_name, adapter_json, adapter_short, backend_line) = match (&solver, &ctx) {
+        (Solver::Gpu(_), Some(c)) => {
+            let d = &c.description;
+            let how = if requested == Backend::Auto {
+                "backend auto: a GPU adapter is present; running on the GPU"
+            } else {
+                "backend gpu"
+            };
+            (
+                "gpu",
+                serde_json::to_value(d).unwrap_or(serde_json::Value::Null),
+                d.short(),
+                format!(
+                    "{how}: {} ({}, driver {} {}, {}), precision {}",
+                    d.name,
+                    d.backend,
+                    d.driver,
+                    d.driver_info,
+                    d.device_type,
+                    precision_name(precision)
+                ),
+            )
+        }
+        _ => {
+            let (name, value) = cpu_adapter(fallback.as_deref());
+            let line = match &fallback {
+                Some(why) => format!(
+                    "backend auto: {why}; running on the CPU: {name}, precision {}",
+                    precision_name(precision)
+                ),
+                None if requested == Backend::Auto => format!(
+                    "backend auto: running on the CPU: {name}, precision {}",
+                    precision_name(precision)
+                ),
+                None => format!(
+                    "backend cpu: {name}, precision {}",
+                    precision_name(precision)
+                ),
+            };
+            (
+                "cpu",
+                value,
+                format!("rayon, {} threads", rayon::current_num_threads()),
+                line,
+            )
+        }
+    };
     if !options.quiet {
         eprintln!("{backend_line}");
     }
@@ -120,8 +311,6 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let mut plot_u: Vec<Vec<Vec<f64>>> = vec![Vec::new(); plotted];
     let mut plot_rho_star: Vec<Vec<Vec<f64>>> = vec![Vec::new(); plotted];
 
-    let chains = vec![chain; plan.members.len()];
-    let mut solver = CpuSolver::new(plan.clone(), chains);
     let progress = ProgressBar::with_draw_target(Some(b * t_count), ProgressDrawTarget::hidden());
     progress.set_style(
         ProgressStyle::with_template(
@@ -131,7 +320,13 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     );
     let mut shown = false;
     let mut k = 0;
-    while let Some(snaps) = solver.next_output(Some(&progress)) {
+    while let Some(snaps) = solver.next_output(&progress).map_err(|e| {
+        Error::gpu(
+            format!("backend gpu on {adapter_short}"),
+            e,
+            "; the outputs written so far are incomplete (no manifest)",
+        )
+    })? {
         // The bar appears only for runs longer than a second.
         if !options.quiet && !shown && started.elapsed() > Duration::from_secs(1) {
             progress.set_draw_target(ProgressDrawTarget::stderr());
@@ -244,7 +439,12 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let manifest = manifest_json(
         scene,
         &plan,
-        &backend_name,
+        &BackendRecord {
+            requested,
+            name: backend_name,
+            adapter: adapter_json,
+            gpu_stats: solver.gpu_stats(),
+        },
         precision,
         wall,
         &reports,
@@ -254,7 +454,8 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     write_manifest(dir, &manifest)?;
     Ok(RunSummary {
         out_dir: dir.clone(),
-        backend: backend_name,
+        backend: backend_name.to_string(),
+        adapter: adapter_short,
         members: reports.len(),
         failed,
         wall_seconds: wall,
@@ -291,11 +492,28 @@ fn record_for_plot(
     });
 }
 
+fn precision_name(p: Precision) -> &'static str {
+    match p {
+        Precision::F64 => "f64",
+        Precision::F32 => "f32",
+    }
+}
+
+/// What ran the scene, for the manifest.
+struct BackendRecord {
+    requested: Backend,
+    /// "cpu" or "gpu".
+    name: &'static str,
+    /// The GPU's `AdapterDescription`, or the CPU described the same way.
+    adapter: serde_json::Value,
+    gpu_stats: Option<serde_json::Value>,
+}
+
 #[allow(clippy::too_many_arguments)]
 fn manifest_json(
     scene: &Scene,
     plan: &Plan,
-    backend: &str,
+    backend: &BackendRecord,
     precision: Precision,
     wall: f64,
     reports: &[MemberReport],
@@ -314,8 +532,10 @@ fn manifest_json(
             "path": scene.source_path.display().to_string(),
             "text": scene.source_text,
         },
-        "backend": backend,
-        "adapter": serde_json::Value::Null,
+        "backend": backend.name,
+        "backend_requested": backend.requested,
+        "adapter": backend.adapter,
+        "gpu_stats": backend.gpu_stats,
         "precision": precision,
         "wall_seconds": wall,
         "particles": plan.particles,

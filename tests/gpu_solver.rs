@@ -1,31 +1,26 @@
-//! The GPU backend (`roughlub::gpu::solver::GpuSolver`, order 1, fixed steps) against the CPU
-//! backend on the paper's case 1 (N = 200, rho0 = 0.7, u0 = 0.5 sin(2 pi x), rho*0 = 0.7), a
-//! 16-member mu × gamma sweep, dt = 1e-3, outputs at t = 0, 0.1, 0.2 (200 steps). GPU tests go
-//! through `acquire_for_tests(true)` (skipped without an f64 adapter unless
-//! `ROUGHLUB_REQUIRE_GPU=1`).
+//! The GPU backend (`roughlub::gpu::solver::GpuSolver`) against the CPU backend. GPU tests go
+//! through `acquire_for_tests(true)`: skipped without an f64 adapter unless
+//! `ROUGHLUB_REQUIRE_GPU=1` (CI), which turns a missing adapter into a failure.
 
 mod common;
 
-use common::plan_for;
-use roughlub::cpu::{CpuSolver, MemberStatus};
+use common::{plan_for, random_chain, Rng};
+use roughlub::cpu::{CpuSolver, MemberReport, MemberStatus};
 use roughlub::expr::Expr;
 use roughlub::gpu::acquire_for_tests;
 use roughlub::gpu::solver::GpuSolver;
-use roughlub::gpu::{GpuContext, GpuError};
+use roughlub::gpu::GpuContext;
 use roughlub::initial::{chain_from_profiles, Chain};
 use roughlub::observables::Snapshot;
 use roughlub::plan::Plan;
 use roughlub::scene::{MemberParams, Precision, Stepping};
 
-const DT: f64 = 1e-3;
-const TIMES: [f64; 3] = [0.0, 0.1, 0.2];
-
-fn case1_chain() -> Chain {
+fn profile_chain(n: usize, rho: &str, u: &str, rho_star: Option<&str>) -> Chain {
     chain_from_profiles(
-        200,
-        &Expr::parse("0.7").unwrap(),
-        &Expr::parse("0.5*sin(2*pi*x)").unwrap(),
-        Some(&Expr::parse("0.7").unwrap()),
+        n,
+        &Expr::parse(rho).unwrap(),
+        &Expr::parse(u).unwrap(),
+        rho_star.map(|s| Expr::parse(s).unwrap()).as_ref(),
     )
     .unwrap()
 }
@@ -41,195 +36,239 @@ fn sweep() -> Vec<MemberParams> {
     members
 }
 
-fn case1_plan(order: u8, dt: f64) -> (Plan, Vec<Chain>) {
-    let chain = case1_chain();
-    let members = sweep();
-    let chains = vec![chain.clone(); members.len()];
-    let plan = plan_for(
-        &chain,
-        members,
-        order,
-        Stepping::Fixed { dt, dt_min: 1e-9 },
-        TIMES.to_vec(),
-        None,
-    );
-    (plan, chains)
-}
-
-fn run_cpu(dt: f64) -> Vec<Vec<Snapshot>> {
-    let (plan, chains) = case1_plan(1, dt);
-    let mut solver = CpuSolver::new(plan, chains);
+fn run_cpu(plan: &Plan, chains: &[Chain]) -> (Vec<Vec<Snapshot>>, Vec<MemberReport>) {
+    let mut solver = CpuSolver::new(plan.clone(), chains.to_vec());
     let mut out = Vec::new();
     while let Some(s) = solver.next_output(None) {
         out.push(s);
     }
-    for r in solver.reports() {
-        assert_eq!(r.status, MemberStatus::Ok, "CPU member {}", r.index);
-        assert_eq!(r.steps_rejected, 0, "CPU member {}: rejections", r.index);
-    }
-    out
+    (out, solver.reports())
 }
 
-fn run_gpu(ctx: &GpuContext, precision: Precision) -> Vec<Vec<Snapshot>> {
-    let (plan, chains) = case1_plan(1, DT);
-    let mut solver = GpuSolver::new(ctx, plan, chains, precision).unwrap_or_else(|e| panic!("{e}"));
+fn run_gpu(
+    ctx: &GpuContext,
+    plan: &Plan,
+    chains: &[Chain],
+    precision: Precision,
+) -> (Vec<Vec<Snapshot>>, Vec<MemberReport>) {
+    let mut solver = GpuSolver::new(ctx, plan.clone(), chains.to_vec(), precision)
+        .unwrap_or_else(|e| panic!("{e}"));
     let mut out = Vec::new();
     while let Some(s) = solver.next_output().unwrap_or_else(|e| panic!("{e}")) {
         out.push(s);
     }
-    let stats = solver.stats();
-    eprintln!("{precision:?}: {stats:?}");
-    assert_eq!(stats.steps, 200);
-    assert_eq!(stats.dispatches, 400);
-    assert_eq!(stats.submits, 2, "one submit per output interval");
-    for r in solver.reports() {
-        assert_eq!(r.status, MemberStatus::Ok, "GPU member {}", r.index);
-        assert_eq!(r.steps_accepted, 200, "GPU member {}", r.index);
-        assert!((r.last_dt - DT).abs() < 1e-15, "GPU member {}", r.index);
-    }
+    eprintln!("{precision:?}: {:?}", solver.stats());
     let errors = ctx.take_uncaptured_errors();
     assert!(errors.is_empty(), "{errors:?}");
-    out
+    (out, solver.reports())
 }
 
-/// Largest |a - b| / max_member |b| over the members, for gaps and for velocities, at each
-/// output time.
-fn max_rel_diff(a: &[Vec<Snapshot>], b: &[Vec<Snapshot>]) -> Vec<(f64, f64)> {
+/// Largest |a - b| / max_member |b| over members (each member scaled by its own largest value),
+/// for gaps and for velocities, over all output times. NaN rows (failed members) must match.
+fn max_rel_diff(a: &[Vec<Snapshot>], b: &[Vec<Snapshot>]) -> (f64, f64) {
     assert_eq!(a.len(), b.len());
     let rel = |x: &[f64], y: &[f64]| {
         assert_eq!(x.len(), y.len());
         let scale = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        x.iter()
-            .zip(y)
-            .fold(0.0f64, |m, (p, q)| m.max((p - q).abs() / scale))
-    };
-    a.iter()
-        .zip(b)
-        .map(|(sa, sb)| {
-            assert_eq!(sa.len(), sb.len());
-            sa.iter()
-                .zip(sb)
-                .fold((0.0f64, 0.0f64), |(g, v), (ma, mb)| {
-                    (
-                        g.max(rel(&ma.gaps, &mb.gaps)),
-                        v.max(rel(&ma.velocities, &mb.velocities)),
-                    )
-                })
+        x.iter().zip(y).fold(0.0f64, |m, (p, q)| {
+            if p.is_nan() || q.is_nan() {
+                assert!(
+                    p.is_nan() && q.is_nan(),
+                    "one backend failed, the other did not"
+                );
+                m
+            } else {
+                m.max((p - q).abs() / scale)
+            }
         })
-        .collect()
-}
-
-/// The tolerance for f32 against f64 (see `gpu_f32_matches_cpu_f64_within_derived_tolerance`):
-/// u_f32 = 2^-24 ≈ 6e-8 per operation; the initial data alone differ by u; each of the 200
-/// steps adds a rounding error of a few u (the Thomas sweep and the update), which the implicit,
-/// dissipative step does not amplify, but the repulsion G = ratio^gamma turns a relative error
-/// e of a gap into gamma·e in G (gamma up to 20). Bound: steps × gamma_max × u ≈ 200 × 20 × 6e-8
-/// ≈ 2.4e-4.
-const F32_TOLERANCE: f64 = 200.0 * 20.0 * 5.96e-8;
-
-#[test]
-fn gpu_f64_matches_cpu_f64() {
-    let Some(ctx) = acquire_for_tests(true) else {
-        return;
     };
-    let cpu = run_cpu(DT);
-    let gpu = run_gpu(&ctx, Precision::F64);
-    assert_eq!(gpu.len(), TIMES.len());
-    let diffs = max_rel_diff(&gpu, &cpu);
-    for (t, (g, v)) in TIMES.iter().zip(&diffs) {
-        eprintln!("f64 GPU vs CPU at t = {t}: gaps {g:.2e}, velocities {v:.2e}");
-        assert!(*g <= 1e-10, "t = {t}: gaps {g:e}");
-        assert!(*v <= 1e-10, "t = {t}: velocities {v:e}");
-    }
-    // Something happened between the outputs.
-    assert!(max_rel_diff(&cpu[2..], &cpu[..1])[0].1 > 1e-3);
-}
-
-#[test]
-fn gpu_f32_matches_cpu_f64_within_derived_tolerance() {
-    let Some(ctx) = acquire_for_tests(true) else {
-        return;
-    };
-    let cpu = run_cpu(DT);
-    let cpu_half = run_cpu(DT / 2.0);
-    let gpu = run_gpu(&ctx, Precision::F32);
-    let diffs = max_rel_diff(&gpu, &cpu);
-    let scheme = max_rel_diff(&cpu_half, &cpu);
-    for ((t, (g, v)), (sg, sv)) in TIMES.iter().zip(&diffs).zip(&scheme) {
-        eprintln!(
-            "f32 GPU vs f64 CPU at t = {t}: gaps {g:.2e}, velocities {v:.2e}; \
-             scheme (CPU dt/2 vs dt): gaps {sg:.2e}, velocities {sv:.2e}; \
-             tolerance {F32_TOLERANCE:.2e}"
-        );
-        assert!(*g <= F32_TOLERANCE, "t = {t}: gaps {g:e}");
-        assert!(*v <= F32_TOLERANCE, "t = {t}: velocities {v:e}");
-    }
-    // f32 rounding stays well below the time discretisation error at this dt.
-    let (sg, sv) = scheme[2];
-    let (g, v) = diffs[2];
-    assert!(
-        g < 0.1 * sg && v < 0.1 * sv,
-        "f32 {g:e}/{v:e} vs scheme {sg:e}/{sv:e}"
-    );
-}
-
-fn expect_unsupported(result: Result<GpuSolver<'_>, GpuError>, what: &str) {
-    match result {
-        Ok(_) => panic!("{what}: expected an error"),
-        Err(e) => {
-            let message = e.to_string();
-            eprintln!("{what}: {message}");
-            assert!(
-                message.contains("not yet supported on the GPU backend"),
-                "{what}: {message}"
-            );
-            assert!(matches!(e, GpuError::Validation { .. }), "{what}: {e:?}");
+    let mut worst = (0.0f64, 0.0f64);
+    for (sa, sb) in a.iter().zip(b) {
+        for (ma, mb) in sa.iter().zip(sb) {
+            worst.0 = worst.0.max(rel(&ma.gaps, &mb.gaps));
+            worst.1 = worst.1.max(rel(&ma.velocities, &mb.velocities));
         }
     }
+    worst
 }
 
+/// GPU f64 against CPU f64: 1e-10 relative on gaps and velocities (rounding only: the same
+/// operations in the same order; lavapipe does not fuse, a real GPU may contract to fma), and the
+/// same accepted and rejected steps and status for every member.
+fn assert_f64_agreement(ctx: &GpuContext, label: &str, plan: &Plan, chains: &[Chain]) {
+    let (cpu, cpu_reports) = run_cpu(plan, chains);
+    let (gpu, gpu_reports) = run_gpu(ctx, plan, chains, Precision::F64);
+    let (dg, dv) = max_rel_diff(&gpu, &cpu);
+    eprintln!("{label}: GPU f64 vs CPU f64: gaps {dg:.2e}, velocities {dv:.2e}");
+    assert!(
+        dg <= 1e-10 && dv <= 1e-10,
+        "{label}: gaps {dg:e}, velocities {dv:e}"
+    );
+    for (g, c) in gpu_reports.iter().zip(&cpu_reports) {
+        assert_eq!(
+            g.steps_accepted, c.steps_accepted,
+            "{label}: member {} accepted steps",
+            c.index
+        );
+        assert_eq!(
+            g.steps_rejected, c.steps_rejected,
+            "{label}: member {} rejected steps",
+            c.index
+        );
+        assert_eq!(
+            std::mem::discriminant(&g.status),
+            std::mem::discriminant(&c.status),
+            "{label}: member {} status {:?} vs {:?}",
+            c.index,
+            g.status,
+            c.status
+        );
+        assert!(
+            (g.last_dt - c.last_dt).abs() <= 1e-9 * c.last_dt,
+            "{label}: member {} last dt {} vs {}",
+            c.index,
+            g.last_dt,
+            c.last_dt
+        );
+    }
+}
+
+fn case1_plan(order: u8, stepping: Stepping) -> (Plan, Vec<Chain>) {
+    let chain = profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7"));
+    let members = sweep();
+    let chains = vec![chain.clone(); members.len()];
+    let plan = plan_for(&chain, members, order, stepping, vec![0.0, 0.1, 0.2], None);
+    (plan, chains)
+}
+
+const FIXED: Stepping = Stepping::Fixed {
+    dt: 1e-3,
+    dt_min: 1e-9,
+};
+const ADAPTIVE: Stepping = Stepping::Adaptive {
+    tolerance: 1e-5,
+    dt_initial: 1e-4,
+    dt_min: 1e-12,
+};
+
 #[test]
-fn order_two_and_adaptive_are_refused_clearly() {
+fn paper_case1_sweep_agrees_for_both_orders_fixed_and_adaptive() {
     let Some(ctx) = acquire_for_tests(true) else {
         return;
     };
-    let (plan, chains) = case1_plan(2, DT);
-    expect_unsupported(
-        GpuSolver::new(&ctx, plan, chains, Precision::F64),
-        "order 2",
-    );
-    let (mut plan, chains) = case1_plan(1, DT);
-    plan.stepping = Stepping::Adaptive {
-        tolerance: 1e-4,
-        dt_initial: DT,
-        dt_min: 1e-9,
-    };
-    expect_unsupported(
-        GpuSolver::new(&ctx, plan, chains, Precision::F64),
-        "adaptive",
-    );
+    for (order, stepping, label) in [
+        (1, FIXED, "case 1, order 1, 200 fixed steps"),
+        (2, FIXED, "case 1, order 2, 200 fixed steps"),
+        (1, ADAPTIVE, "case 1, order 1, adaptive"),
+        (2, ADAPTIVE, "case 1, order 2, adaptive"),
+    ] {
+        let (plan, chains) = case1_plan(order, stepping);
+        assert_f64_agreement(&ctx, label, &plan, &chains);
+    }
 }
 
-/// A step far too large for a member with little lubrication closes a gap: the CPU halves and
-/// retries, the GPU backend (no halving yet) fails that member at the interval start, says why,
-/// and leaves the other members alone.
 #[test]
-fn rejected_fixed_step_fails_the_member_honestly() {
+fn paper_cases_2a_and_3_agree() {
     let Some(ctx) = acquire_for_tests(true) else {
         return;
     };
-    let chain = case1_chain();
+    let members = vec![
+        MemberParams {
+            mu: 0.01,
+            gamma: 1.0,
+        },
+        MemberParams {
+            mu: 0.005,
+            gamma: 1.0,
+        },
+    ];
+    let g = "exp(-(x-0.5)^2/(2*0.1^2))";
+    for (label, chain) in [
+        (
+            "case 2a (no repulsion)",
+            profile_chain(300, "0.7", "0.5*sin(2*pi*x)", None),
+        ),
+        (
+            "case 3",
+            profile_chain(
+                300,
+                &format!("0.6 + 0.2*{g}"),
+                "0.5*sin(2*pi*x)",
+                Some(&format!("0.6 - 0.2*{g}")),
+            ),
+        ),
+    ] {
+        let plan = plan_for(
+            &chain,
+            members.clone(),
+            2,
+            FIXED,
+            vec![0.0, 0.15, 0.3],
+            None,
+        );
+        assert_f64_agreement(&ctx, label, &plan, &vec![chain.clone(); 2]);
+    }
+}
+
+/// Members with their own random roughness and forcing; order 1 and 2, fixed and adaptive
+/// (the adaptive runs must take the same accepted and rejected steps as on the CPU).
+#[test]
+fn random_roughness_and_forcing_agree_including_adaptive_step_sequences() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let mut rng = Rng(2024);
+    let n = 60;
+    let eps = 0.35 / n as f64;
+    let chains: Vec<Chain> = (0..12)
+        .map(|_| random_chain(&mut rng, n, eps, Some(0.6 * eps)))
+        .collect();
+    let members: Vec<MemberParams> = (0..12)
+        .map(|_| MemberParams {
+            mu: rng.uniform(0.005, 0.05),
+            gamma: [1.0, 2.0, 3.5][rng.next_u64() as usize % 3],
+        })
+        .collect();
+    for (order, stepping) in [(1, FIXED), (2, FIXED), (1, ADAPTIVE), (2, ADAPTIVE)] {
+        let plan = plan_for(
+            &chains[0],
+            members.clone(),
+            order,
+            stepping,
+            (0..=4).map(|k| 0.05 * k as f64).collect(),
+            Some(("0.3*sin(2*pi*x)*cos(3*t)", 3)),
+        );
+        assert_f64_agreement(
+            &ctx,
+            &format!("random roughness + forcing, order {order}, {stepping:?}"),
+            &plan,
+            &chains,
+        );
+    }
+}
+
+/// A fixed step far too large for a member with almost no lubrication: both backends reject,
+/// shrink and retry the same way; a member whose dt collapses fails on both with the same time.
+#[test]
+fn rejection_retry_and_failure_agree() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let chain = profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7"));
     let members = vec![
         MemberParams {
             mu: 0.02,
             gamma: 2.0,
         },
         MemberParams {
+            mu: 1e-4,
+            gamma: 1.0,
+        },
+        MemberParams {
             mu: 1e-6,
             gamma: 1.0,
         },
     ];
-    let chains = vec![chain.clone(); members.len()];
     let plan = plan_for(
         &chain,
         members,
@@ -241,116 +280,291 @@ fn rejected_fixed_step_fails_the_member_honestly() {
         vec![0.0, 0.1, 0.2],
         None,
     );
-    let mut cpu = CpuSolver::new(plan.clone(), chains.clone());
-    let mut cpu_out = Vec::new();
-    while let Some(s) = cpu.next_output(None) {
-        cpu_out.push(s);
-    }
-    let cpu_reports = cpu.reports();
+    let chains = vec![chain; 3];
+    let (_, cpu_reports) = run_cpu(&plan, &chains);
     eprintln!("CPU: {cpu_reports:?}");
-    let mut gpu = GpuSolver::new(&ctx, plan, chains, Precision::F64).unwrap();
-    let mut gpu_out = Vec::new();
-    while let Some(s) = gpu.next_output().unwrap() {
-        gpu_out.push(s);
-    }
-    let reports = gpu.reports();
-    eprintln!("GPU: {reports:?}");
-    assert_eq!(
-        cpu_reports[0].steps_rejected, 0,
-        "test data: member 0 never rejected"
-    );
     assert!(
-        cpu_reports[1].steps_rejected > 0,
-        "test data: member 1 rejected"
+        cpu_reports.iter().any(|r| r.steps_rejected > 0),
+        "test data: some rejection"
     );
-    assert_eq!(reports[0].status, MemberStatus::Ok);
-    match &reports[1].status {
-        MemberStatus::Failed { reason, time } => {
-            assert!(
-                reason.contains("step halving is not yet implemented"),
-                "{reason}"
-            );
-            assert_eq!(*time, 0.0);
-        }
-        other => panic!("member 1: {other:?}"),
-    }
-    for (k, s) in gpu_out.iter().enumerate() {
-        if k > 0 {
-            assert!(
-                s[1].gaps.iter().all(|g| g.is_nan()),
-                "failed member at output {k}"
-            );
-        }
-    }
-    let diffs = max_rel_diff(
-        &gpu_out
-            .iter()
-            .map(|s| vec![s[0].clone()])
-            .collect::<Vec<_>>(),
-        &cpu_out
-            .iter()
-            .map(|s| vec![s[0].clone()])
-            .collect::<Vec<_>>(),
-    );
-    eprintln!("member 0, GPU vs CPU: {diffs:?}");
-    assert!(diffs.iter().all(|&(g, v)| g <= 1e-10 && v <= 1e-10));
+    assert_f64_agreement(&ctx, "rejections", &plan, &chains);
 }
 
-/// An interval of 300 steps is submitted in two chunks (256 + 44); the step times and sizes
-/// carry on across the chunk boundary exactly as on the CPU.
 #[test]
-fn long_interval_is_chunked_and_still_matches_cpu() {
+fn clusters_agree_and_stay_rigid_on_the_gpu() {
     let Some(ctx) = acquire_for_tests(true) else {
         return;
     };
-    let chain = case1_chain();
+    let n = 30;
+    let eps = 0.01;
+    let mut bonded = vec![false; n];
+    for g in [0usize, 7, 8, 20, 29] {
+        bonded[g] = true; // glued to both walls, and two clusters inside
+    }
+    let free = 1.0 - 2.0 * eps * n as f64;
+    let free_count = bonded.iter().filter(|b| !**b).count() as f64;
+    let gaps: Vec<f64> = bonded
+        .iter()
+        .map(|&b| if b { 0.0 } else { free / free_count })
+        .collect();
+    let mut u_all: Vec<f64> = (0..=n)
+        .map(|i| 0.3 * (2.0 * std::f64::consts::PI * i as f64 / n as f64).sin())
+        .collect();
+    u_all[0] = 0.0;
+    u_all[n] = 0.0;
+    for g in 1..=n {
+        if bonded[g - 1] {
+            u_all[g] = u_all[g - 1];
+        }
+    }
+    for g in (1..=n).rev() {
+        if bonded[g - 1] && g == n {
+            u_all[g - 1] = 0.0;
+        }
+    }
+    let velocities = u_all[1..n].to_vec();
+    let dstar = Some((0..n).map(|i| 0.004 + 0.001 * (i % 4) as f64).collect());
+    let chain = Chain {
+        eps,
+        gaps,
+        velocities,
+        dstar,
+        bonded: Some(bonded.clone()),
+    };
     let members = vec![
         MemberParams {
             mu: 0.01,
-            gamma: 5.0,
+            gamma: 2.0,
         },
         MemberParams {
-            mu: 0.005,
-            gamma: 5.0,
+            mu: 0.03,
+            gamma: 2.0,
         },
     ];
-    let chains = vec![chain.clone(); members.len()];
-    let plan = plan_for(
-        &chain,
-        members,
-        1,
-        Stepping::Fixed {
-            dt: DT,
-            dt_min: 1e-9,
+    for (order, stepping) in [(1, FIXED), (2, ADAPTIVE)] {
+        let plan = plan_for(
+            &chain,
+            members.clone(),
+            order,
+            stepping,
+            vec![0.0, 0.1, 0.2],
+            Some(("sin(6*x)*(1+t)", 4)),
+        );
+        let chains = vec![chain.clone(); 2];
+        assert_f64_agreement(&ctx, &format!("clusters, order {order}"), &plan, &chains);
+        let (gpu, _) = run_gpu(&ctx, &plan, &chains, Precision::F64);
+        for s in &gpu {
+            for m in s {
+                for (g, &b) in bonded.iter().enumerate() {
+                    if b {
+                        assert_eq!(m.gaps[g], 0.0, "bonded gap {} opened on the GPU", g + 1);
+                    }
+                }
+                assert_eq!(m.velocities[0], 0.0, "wall-glued particle moved");
+                assert_eq!(m.velocities[7], m.velocities[6], "cluster 7-8");
+            }
+        }
+    }
+}
+
+/// The specialised kernels give the general kernel's result: an integer gamma as a chain of
+/// multiplications against the per-member path (exp/log or the same chain read at run time),
+/// a forcing term that is present but zero against no forcing term, and the cluster-aware
+/// sweep with no bonded gap against the plain sweep — all to rounding.
+#[test]
+fn specialised_kernels_match_the_general_kernel() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let chain = profile_chain(
+        100,
+        "0.7",
+        "0.5*sin(2*pi*x)",
+        Some("0.65 + 0.05*cos(2*pi*x)"),
+    );
+    let members = vec![
+        MemberParams {
+            mu: 0.01,
+            gamma: 3.0,
         },
-        vec![0.0, 0.3],
-        Some(("0.3*sin(2*pi*x)*cos(3*t)", 3)),
+        MemberParams {
+            mu: 0.02,
+            gamma: 3.0,
+        },
+    ];
+    let times = vec![0.0, 0.1, 0.2];
+    let special = plan_for(&chain, members.clone(), 1, FIXED, times.clone(), None);
+    let (reference, _) = run_gpu(&ctx, &special, &vec![chain.clone(); 2], Precision::F64);
+
+    // gamma = 3 integer but members differ → PerMember path: use gamma 3 and 3 + 0 via a third
+    // member with another gamma, then compare the first two members.
+    let mut general_members = members.clone();
+    general_members.push(MemberParams {
+        mu: 0.01,
+        gamma: 2.5,
+    });
+    let general = plan_for(&chain, general_members, 1, FIXED, times.clone(), None);
+    let (per_member, _) = run_gpu(&ctx, &general, &vec![chain.clone(); 3], Precision::F64);
+    let first_two: Vec<Vec<Snapshot>> = per_member.iter().map(|s| s[..2].to_vec()).collect();
+    let (dg, dv) = max_rel_diff(&first_two, &reference);
+    eprintln!("per-member gamma vs integer chain: {dg:.2e} {dv:.2e}");
+    assert!(dg <= 1e-13 && dv <= 1e-13);
+
+    let zero_forcing = plan_for(
+        &chain,
+        members.clone(),
+        1,
+        FIXED,
+        times.clone(),
+        Some(("0*x", 3)),
     );
-    let mut cpu = CpuSolver::new(plan.clone(), chains.clone());
-    let mut cpu_out = Vec::new();
-    while let Some(s) = cpu.next_output(None) {
-        cpu_out.push(s);
-    }
-    let mut gpu = GpuSolver::new(&ctx, plan, chains, Precision::F64).unwrap();
-    let mut gpu_out = Vec::new();
-    while let Some(s) = gpu.next_output().unwrap() {
-        gpu_out.push(s);
-    }
-    let stats = gpu.stats();
-    eprintln!("{stats:?}");
-    assert_eq!(stats.steps, 300);
-    assert_eq!(stats.submits, 2);
-    let diffs = max_rel_diff(&gpu_out, &cpu_out);
-    eprintln!("forced, uniform gamma = 5, 300 steps, GPU vs CPU: {diffs:?}");
-    assert!(diffs.iter().all(|&(g, v)| g <= 1e-10 && v <= 1e-10));
-    assert_eq!(
-        gpu.reports()
+    let (forced, _) = run_gpu(&ctx, &zero_forcing, &vec![chain.clone(); 2], Precision::F64);
+    let (dg, dv) = max_rel_diff(&forced, &reference);
+    eprintln!("zero forcing vs no forcing: {dg:.2e} {dv:.2e}");
+    assert!(dg <= 1e-13 && dv <= 1e-13);
+
+    let mut clustered = special.clone();
+    clustered.clusters = true;
+    let mut with_flags = chain.clone();
+    with_flags.bonded = Some(vec![false; chain.particles()]);
+    let (cl, _) = run_gpu(&ctx, &clustered, &vec![with_flags; 2], Precision::F64);
+    let (dg, dv) = max_rel_diff(&cl, &reference);
+    eprintln!("cluster-aware sweep without bonds vs plain sweep: {dg:.2e} {dv:.2e}");
+    assert!(dg <= 1e-13 && dv <= 1e-13);
+}
+
+/// f32 on the GPU against f64 on the CPU, including a dense member (rho0 = 0.99) and a gamma = 20
+/// member. Tolerance, derived: u = 2^-24 ≈ 6e-8 per operation; the stored gaps keep their relative
+/// precision, each step adds a few u of rounding that the implicit, dissipative step does not
+/// amplify, but G = ratio^gamma turns a relative error e of a gap into gamma·e; over K steps the
+/// bound is K·gamma_max·u. The test also checks that this is far below the scheme's own error at
+/// that dt (CPU at dt against dt/2), i.e. f32 costs nothing the scheme has not already lost.
+#[test]
+fn f32_agrees_with_f64_within_the_derived_tolerance() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let u32_eps = 2f64.powi(-24);
+    for (label, chain, members) in [
+        (
+            "case 1 sweep",
+            profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7")),
+            sweep(),
+        ),
+        (
+            "dense rho0 = 0.99, gamma 20",
+            profile_chain(200, "0.99", "0.05*sin(2*pi*x)", Some("0.99")),
+            vec![
+                MemberParams {
+                    mu: 1e-3,
+                    gamma: 20.0,
+                },
+                MemberParams {
+                    mu: 1e-2,
+                    gamma: 20.0,
+                },
+            ],
+        ),
+    ] {
+        let dt = 1e-3;
+        let steps = 200.0;
+        let gamma_max = members.iter().fold(1.0f64, |m, p| m.max(p.gamma));
+        let tolerance = steps * gamma_max * u32_eps;
+        let b = members.len();
+        let plan = plan_for(
+            &chain,
+            members.clone(),
+            1,
+            Stepping::Fixed { dt, dt_min: 1e-9 },
+            vec![0.0, 0.1, 0.2],
+            None,
+        );
+        let chains = vec![chain.clone(); b];
+        let (cpu, cpu_reports) = run_cpu(&plan, &chains);
+        assert!(cpu_reports
             .iter()
-            .map(|r| r.steps_accepted)
-            .collect::<Vec<_>>(),
-        cpu.reports()
-            .iter()
-            .map(|r| r.steps_accepted)
-            .collect::<Vec<_>>()
-    );
+            .all(|r| r.status == MemberStatus::Ok && r.steps_rejected == 0));
+        let (gpu32, reports32) = run_gpu(&ctx, &plan, &chains, Precision::F32);
+        assert!(
+            reports32.iter().all(|r| r.status == MemberStatus::Ok),
+            "{label}: {reports32:?}"
+        );
+        let (dg, dv) = max_rel_diff(&gpu32, &cpu);
+        let half = plan_for(
+            &chain,
+            members,
+            1,
+            Stepping::Fixed {
+                dt: dt / 2.0,
+                dt_min: 1e-9,
+            },
+            vec![0.0, 0.1, 0.2],
+            None,
+        );
+        let (cpu_half, _) = run_cpu(&half, &chains);
+        let (sg, sv) = max_rel_diff(&cpu_half, &cpu);
+        eprintln!(
+            "{label}: f32 vs f64 gaps {dg:.2e}, velocities {dv:.2e}; tolerance {tolerance:.2e}; scheme error (dt vs dt/2) gaps {sg:.2e}, velocities {sv:.2e}"
+        );
+        assert!(
+            dg <= tolerance && dv <= tolerance,
+            "{label}: {dg:e} {dv:e} > {tolerance:e}"
+        );
+        assert!(
+            dg <= 0.1 * sg && dv <= 0.1 * sv,
+            "{label}: f32 error should be far below the scheme error"
+        );
+    }
+}
+
+/// N = 10^6 in one member: runs and agrees with the CPU where the device allows one invocation to
+/// sweep a million particles; on lavapipe (a loop budget of 65535 iterations per invocation) it
+/// is refused with an error naming the limit and what to change, and the largest N the error
+/// names does run and agree.
+#[test]
+fn a_million_particles_run_or_are_refused_clearly() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let plan_of = |n: usize| {
+        let chain = profile_chain(n, "0.5 + 0.2*sin(2*pi*x)", "0.3*sin(2*pi*x)", Some("0.6"));
+        let plan = plan_for(
+            &chain,
+            vec![MemberParams {
+                mu: 0.01,
+                gamma: 2.0,
+            }],
+            1,
+            Stepping::Fixed {
+                dt: 1e-4,
+                dt_min: 1e-12,
+            },
+            vec![0.0, 3e-4],
+            None,
+        );
+        (plan, vec![chain])
+    };
+    let (plan, chains) = plan_of(1_000_000);
+    match GpuSolver::new(&ctx, plan.clone(), chains.clone(), Precision::F64) {
+        Ok(_) => assert_f64_agreement(&ctx, "N = 1e6", &plan, &chains),
+        Err(roughlub::gpu::GpuError::LoopLimit { max_particles, .. }) => {
+            let message = GpuSolver::new(&ctx, plan, chains, Precision::F64)
+                .err()
+                .unwrap()
+                .to_string();
+            eprintln!("{message}");
+            assert!(
+                message.contains("65535") && message.contains("--backend cpu"),
+                "{message}"
+            );
+            let (plan, chains) = plan_of(max_particles as usize);
+            assert_f64_agreement(
+                &ctx,
+                &format!("N = {max_particles} (largest allowed here)"),
+                &plan,
+                &chains,
+            );
+        }
+        Err(e) => panic!("unexpected error: {e}"),
+    }
 }

@@ -61,6 +61,16 @@ pub enum GpuError {
         /// wgpu's message.
         message: String,
     },
+    /// A chain too long for one invocation per member on a driver that bounds the loop iterations
+    /// of an invocation (llvmpipe/lavapipe).
+    #[error("N = {particles} particles is too long for one shader invocation per member on {adapter}: this scheme needs {iterations} loop iterations per invocation and the driver stops after {limit}; use N <= {max_particles} on this device, the CPU backend (--backend cpu), or a hardware GPU")]
+    LoopLimit {
+        adapter: String,
+        particles: usize,
+        iterations: u64,
+        limit: u64,
+        max_particles: u64,
+    },
     /// A buffer exceeds a device limit.
     #[error("{what} needs {bytes} bytes, more than the device limit {limit_name} = {limit} bytes")]
     BufferTooLarge {

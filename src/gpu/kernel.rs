@@ -13,26 +13,43 @@ use crate::scene::Precision;
 /// The template (`shaders/step.wgsl`).
 pub const STEP_TEMPLATE_WGSL: &str = include_str!("../../shaders/step.wgsl");
 
-/// Entry point of the generated kernel.
-pub const STEP_ENTRY: &str = "euler_step";
+/// Entry points of the generated kernel.
+pub const BEGIN_ENTRY: &str = "begin_interval";
+pub const ADVANCE_ENTRY: &str = "advance";
+pub const GATHER_ENTRY: &str = "gather";
 /// Workgroup size of the generated kernel (one invocation per member).
 pub const STEP_WORKGROUP_SIZE: u32 = 64;
 
-/// Binding numbers (all in group 0). `CONFIG` is a uniform `{ batch: u32, particles: u32,
-/// eps: real }`; `MEMBERS` holds `{ mu, h, t, gamma }` (reals) per member; `SCRATCH` holds w,
-/// lambda and y one after the other, (N-1)·batch each; `OK` one u32 per member; `DSTAR` exists
+/// Binding numbers (all in group 0); see the header of `shaders/step.wgsl`. `DSTAR` exists
 /// only with repulsion and `BONDED` (u32 per gap) only with clusters.
 pub mod binding {
     pub const CONFIG: u32 = 0;
-    pub const GAPS_IN: u32 = 1;
-    pub const VEL_IN: u32 = 2;
-    pub const MEMBERS: u32 = 3;
-    pub const GAPS_OUT: u32 = 4;
-    pub const VEL_OUT: u32 = 5;
-    pub const SCRATCH: u32 = 6;
-    pub const OK: u32 = 7;
+    pub const GAP_SETS: u32 = 1;
+    pub const VEL_SETS: u32 = 2;
+    pub const PARAMS: u32 = 3;
+    pub const CONTROLS: u32 = 4;
+    pub const SCRATCH: u32 = 5;
+    pub const RUNNING: u32 = 6;
+    pub const GATHERED_GAPS: u32 = 7;
     pub const DSTAR: u32 = 8;
     pub const BONDED: u32 = 9;
+    pub const GATHERED_VEL: u32 = 10;
+}
+
+/// The time scheme compiled into the kernel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SchemeSpec {
+    /// Richardson extrapolation (order 2).
+    pub order2: bool,
+    /// Adaptive steps from the error estimate.
+    pub adaptive: bool,
+}
+
+impl SchemeSpec {
+    /// One Euler step per trial (order 1, fixed steps); otherwise a full and two half steps.
+    pub fn richardson(&self) -> bool {
+        self.order2 || self.adaptive
+    }
 }
 
 /// How G = ratio^gamma is evaluated in the kernel.
@@ -54,6 +71,7 @@ pub struct KernelSpec {
     pub clusters: bool,
     /// The forcing f(x, t) and the Gauss–Legendre nodes and weights on [-1, 1].
     pub forcing: Option<(Expr, Vec<f64>, Vec<f64>)>,
+    pub scheme: SchemeSpec,
 }
 
 fn wgsl_float(precision: Precision) -> WgslFloat {
@@ -127,12 +145,17 @@ fn generated(spec: &KernelSpec) -> String {
             out.push_str("}\n\n");
             let _ = writeln!(
                 out,
-                "fn gamma_of(m: Member) -> real {{\n    return {};\n}}\n",
+                "fn gamma_of(gamma: real) -> real {{\n    return {};\n}}\n",
                 literal(n as f64, float)
             );
         }
         Some(GammaSpec::PerMember) => {
             // Power::of: integer gamma <= 64 by square and multiply, else exp(gamma ln r).
+            let unrolled = "                 \
+                 result = select(result, result * base, (e & 1u) == 1u);\n\
+                 e = e >> 1u;\n\
+                 base = select(base, base * base, e > 0u);\n"
+                .repeat(7);
             let real_pow = match spec.precision {
                 Precision::F32 => "exp(gamma * log(r))",
                 Precision::F64 => "pow_f64(r, gamma)",
@@ -142,23 +165,17 @@ fn generated(spec: &KernelSpec) -> String {
                 "// G = ratio^gamma with a per-member gamma, as Power::of(gamma).apply(ratio).\n\
                  fn power(r: real, gamma: real) -> real {{\n\
                  \x20   if gamma == floor(gamma) && gamma <= 64.0 {{\n\
+                 \x20       // The same multiplications as powi_by_squaring, unrolled over the 7 bits of\n\
+                 \x20       // gamma <= 64 with selects: no data-dependent loop (members with different\n\
+                 \x20       // gammas do not diverge, and lavapipe's per-invocation loop budget is spared).\n\
                  \x20       var result: real = 1.0;\n\
                  \x20       var base: real = r;\n\
                  \x20       var e: u32 = u32(gamma);\n\
-                 \x20       while e > 0u {{\n\
-                 \x20           if (e & 1u) == 1u {{\n\
-                 \x20               result = result * base;\n\
-                 \x20           }}\n\
-                 \x20           e = e >> 1u;\n\
-                 \x20           if e > 0u {{\n\
-                 \x20               base = base * base;\n\
-                 \x20           }}\n\
-                 \x20       }}\n\
-                 \x20       return result;\n\
+{unrolled}                 \x20       return result;\n\
                  \x20   }}\n\
                  \x20   return {real_pow};\n\
                  }}\n\n\
-                 fn gamma_of(m: Member) -> real {{\n    return m.gamma;\n}}\n"
+                 fn gamma_of(gamma: real) -> real {{\n    return gamma;\n}}\n"
             );
         }
     }
@@ -230,13 +247,18 @@ fn select_blocks(template: &str, keep: impl Fn(&str) -> bool) -> String {
     out
 }
 
-/// The WGSL source of the step kernel for `spec` (entry point [`STEP_ENTRY`]).
+/// The WGSL source of the step kernel for `spec` (entry points [`BEGIN_ENTRY`],
+/// [`ADVANCE_ENTRY`], [`GATHER_ENTRY`]).
 pub fn generate_step_wgsl(spec: &KernelSpec) -> String {
     let body = select_blocks(STEP_TEMPLATE_WGSL, |name| match name {
         "REPULSION" => spec.repulsion.is_some(),
         "CLUSTERS" => spec.clusters,
         "FREE" => !spec.clusters,
         "FORCING" => spec.forcing.is_some(),
+        "EULER" => !spec.scheme.richardson(),
+        "RICHARDSON" => spec.scheme.richardson(),
+        "ADAPTIVE" => spec.scheme.adaptive,
+        "ORDER2" => spec.scheme.order2,
         other => panic!("unknown block {other} in step.wgsl"),
     });
     let real = match spec.precision {

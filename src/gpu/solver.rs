@@ -1,119 +1,80 @@
-//! A first GPU backend: the batch stepped by the generated WGSL step kernel
-//! ([`super::kernel::generate_step_wgsl`]), state kept on the GPU between output times.
+//! The GPU backend: the batch advanced by the generated WGSL kernel (`shaders/step.wgsl`, the
+//! twin of `crate::cpu::step`, `Block::{error_norm, extrapolate}` and `crate::cpu::control`),
+//! state kept on the GPU between output times.
 //!
-//! Scope (everything else is refused by [`GpuSolver::new`] with "not yet supported on the GPU
-//! backend: ..."): order 1, fixed steps, f64 or f32, whatever terms the kernel supports
-//! (repulsion with integer or per-member gamma, clusters, forcing).
+//! Every scheme of the CPU backend runs here: orders 1 and 2, fixed and adaptive steps (each
+//! member its own dt), rejection and retry of a step that closes or halves a gap, per-member
+//! failure status without stopping the others, clusters, repulsion, forcing; f64 (on adapters
+//! with SHADER_F64) or f32.
 //!
-//! Layout: element i of member b sits at `i·B + b` (B members). The gaps and velocities live in
-//! two buffer sets A and B; step k reads one set and writes the other (two bind groups,
-//! alternating). Each step is two dispatches in one compute pass:
-//!
-//! 1. the step kernel (`euler_step`), which reads each member's `{mu, h, t, gamma}`;
-//! 2. a small bookkeeping kernel (`advance_schedule`, below) that makes a member's failure sticky
-//!    (`status[b] = 1` once its `ok` flag is 0: the kernel overwrites `ok` every step) and writes
-//!    the next step's `t` and `h` from a per-chunk schedule into the member parameters, so that
-//!    every step has exactly the time and step size of the CPU backend (`Block::advance`: equal
-//!    steps h = interval / ceil(interval / dt · (1 − 1e-12)), t = t_start + k·h, the last step
-//!    landing exactly on the output time).
-//!
-//! The steps of an output interval are encoded into one command encoder and submitted once per
-//! chunk of at most [`MAX_STEPS_PER_SUBMIT`] steps. Gaps, velocities and the failure flags are
-//! read back only at output times.
-//!
-//! Rejection: the CPU backend halves a rejected fixed step and retries; this backend does not
-//! yet. A member whose step closed or collapsed a gap (or gave a non-finite value) during an
-//! interval is marked failed, with the interval start as its time, and its snapshots are
-//! [`Snapshot::failed`] from then on.
+//! Layout: element i of member b sits at `i·B + b` (B members). Per output interval the host
+//! writes the interval into the uniform config, then submits command buffers of
+//! `begin_interval` (first submit only) and [`DISPATCHES_PER_SUBMIT`] dispatches of `advance`,
+//! each of which lets every running member try one step (see [`attempts_per_dispatch`]): many
+//! steps per submit. After each submit the host reads back
+//! one u32, the number of members still running; when it is 0, `gather` copies each member's
+//! current state into the read-back buffers, which are read once (readback only at output
+//! times).
 
 use wgpu::util::DeviceExt;
 
 use super::context::{GpuContext, GpuError};
 use super::kernel::{
-    binding, generate_step_wgsl, GammaSpec, KernelSpec, STEP_ENTRY, STEP_WORKGROUP_SIZE,
+    binding, generate_step_wgsl, GammaSpec, KernelSpec, SchemeSpec, ADVANCE_ENTRY, BEGIN_ENTRY,
+    GATHER_ENTRY, STEP_WORKGROUP_SIZE,
 };
+use crate::cpu::control::Failure;
 use crate::cpu::{MemberReport, MemberStatus};
 use crate::initial::Chain;
 use crate::observables::{grid_points, observe, Snapshot};
 use crate::plan::{Plan, Power};
 use crate::scene::{Precision, Stepping};
 
-/// Most steps encoded into one command buffer before it is submitted.
-pub const MAX_STEPS_PER_SUBMIT: usize = 256;
+/// `advance` dispatches encoded into one command buffer (one trial step per member each, by
+/// default): many steps per submit, one read-back of 4 bytes per submit.
+pub const DISPATCHES_PER_SUBMIT: u32 = 64;
 
-/// Entry point of the bookkeeping kernel.
-const SCHEDULE_ENTRY: &str = "advance_schedule";
-
-/// The bookkeeping kernel, run after every step (the `real` alias is replaced like in
-/// `step.wgsl`). `status` holds B failure flags, then B step cursors (steps done in the chunk).
-const SCHEDULE_WGSL: &str = r#"
-alias real = f64;
-
-struct Member {
-    mu: real,
-    h: real,
-    t: real,
-    gamma: real,
+/// Trial steps per member per `advance` dispatch. The kernel loops over up to this many; the
+/// default is 1 because lavapipe's loop budget per invocation ([`LAVAPIPE_LOOP_LIMIT`]) is
+/// otherwise exhausted after a few steps (measured: wrong results from 30 order-2 steps of
+/// N = 300 in one invocation, bit-identical to the CPU with one attempt per dispatch). `ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH` overrides it, for experiments on
+/// other drivers.
+fn attempts_per_dispatch() -> u32 {
+    std::env::var("ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH")
+        .ok()
+        .and_then(|v| v.parse::<u32>().ok())
+        .filter(|&k| (1..=4096).contains(&k))
+        .unwrap_or(1)
 }
-
-struct Slot {
-    t: real,
-    h: real,
-}
-
-@group(0) @binding(0) var<storage, read> ok_flags: array<u32>;
-@group(0) @binding(1) var<storage, read_write> members: array<Member>;
-@group(0) @binding(2) var<storage, read_write> status: array<u32>;
-@group(0) @binding(3) var<storage, read> schedule: array<Slot>;
-
-@compute @workgroup_size(64)
-fn advance_schedule(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let b = gid.x;
-    let batch = arrayLength(&ok_flags);
-    if b >= batch {
-        return;
-    }
-    if ok_flags[b] == 0u {
-        status[b] = 1u;
-    }
-    let k = status[batch + b] + 1u;
-    status[batch + b] = k;
-    let slot = schedule[min(k, arrayLength(&schedule) - 1u)];
-    members[b].t = slot.t;
-    members[b].h = slot.h;
-}
-"#;
-
-/// Reason recorded for a member rejected on the GPU.
-pub const GPU_REJECTION_REASON: &str = "a fixed step closed or collapsed a gap on the GPU \
-     (step halving is not yet implemented on the GPU backend)";
 
 /// Work counters of a [`GpuSolver`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct GpuStats {
-    /// Compute dispatches (two per step: the step kernel and the bookkeeping kernel).
+    /// Compute dispatches (begin_interval, advance, gather).
     pub dispatches: u64,
-    /// Steps taken (one step kernel dispatch each).
+    /// Accepted steps summed over members.
     pub steps: u64,
-    /// Command buffers submitted for stepping.
+    /// Command buffers submitted.
     pub submits: u64,
     /// Read-backs (each one a copy submission and a wait).
     pub readbacks: u64,
     /// Bytes read back from the GPU.
     pub bytes_read: u64,
-    /// Bytes written to the GPU (initial upload, schedules, member parameters).
+    /// Bytes written to the GPU (initial upload, configs).
     pub bytes_written: u64,
 }
 
-#[derive(Debug, Clone)]
-struct MemberState {
-    accepted: u64,
-    rejected: u64,
-    last_dt: f64,
-    failed: Option<(String, f64)>,
+/// A member's step control as read back (the `Control` struct of step.wgsl).
+#[derive(Debug, Clone, Copy)]
+struct ControlState {
+    t: f64,
+    dt: f64,
+    failure_time: f64,
+    accepted: u32,
+    rejected: u32,
+    failure: u32,
 }
 
-/// The GPU backend (order 1, fixed steps).
 pub struct GpuSolver<'a> {
     ctx: &'a GpuContext,
     plan: Plan,
@@ -123,29 +84,20 @@ pub struct GpuSolver<'a> {
     bonded: Vec<Option<Vec<bool>>>,
     grid_x: Vec<f64>,
     time_index: usize,
-    /// Index of the buffer set holding the current state (0 = A, 1 = B).
-    current: usize,
-    gaps: [wgpu::Buffer; 2],
-    vel: [wgpu::Buffer; 2],
-    members: wgpu::Buffer,
-    status: wgpu::Buffer,
-    schedule: wgpu::Buffer,
-    step_pipeline: wgpu::ComputePipeline,
-    schedule_pipeline: wgpu::ComputePipeline,
-    /// `step_groups[s]` reads set s and writes set 1 - s.
-    step_groups: [wgpu::BindGroup; 2],
-    schedule_group: wgpu::BindGroup,
-    states: Vec<MemberState>,
+    max_attempts: u32,
+    config: wgpu::Buffer,
+    controls: wgpu::Buffer,
+    running: wgpu::Buffer,
+    gathered_gaps: wgpu::Buffer,
+    gathered_vel: wgpu::Buffer,
+    begin: wgpu::ComputePipeline,
+    advance: wgpu::ComputePipeline,
+    gather: wgpu::ComputePipeline,
+    group: wgpu::BindGroup,
+    last_controls: Vec<ControlState>,
     stats: GpuStats,
-    // Kept alive for the bind groups.
-    _other: Vec<wgpu::Buffer>,
-}
-
-fn unsupported(what: &str) -> GpuError {
-    GpuError::Validation {
-        label: "GpuSolver::new".to_string(),
-        message: format!("not yet supported on the GPU backend: {what}"),
-    }
+    // Kept alive for the bind group.
+    _buffers: Vec<wgpu::Buffer>,
 }
 
 fn invalid(message: String) -> GpuError {
@@ -184,6 +136,48 @@ fn real_size(precision: Precision) -> u64 {
     }
 }
 
+/// Size of the `Control` struct of step.wgsl: three reals and six u32.
+fn control_size(precision: Precision) -> u64 {
+    3 * real_size(precision) + 6 * 4
+}
+
+/// llvmpipe (lavapipe) stops every shader invocation after 65535 loop iterations in total
+/// (measured: `gather` over 2 loops of N = 40000 left the tail unwritten; N = 20000 was right).
+/// One invocation per member sweeps the whole chain, so on that driver N is bounded; other
+/// drivers have no such limit. Returns a clear error instead of silently wrong results.
+pub const LAVAPIPE_LOOP_LIMIT: u64 = 65_535;
+
+fn check_loop_budget(
+    ctx: &GpuContext,
+    n: usize,
+    scheme: SchemeSpec,
+    attempts: u32,
+) -> Result<(), GpuError> {
+    let d = &ctx.description;
+    let lavapipe =
+        d.driver.to_lowercase().contains("llvmpipe") || d.name.to_lowercase().contains("llvmpipe");
+    if !lavapipe {
+        return Ok(());
+    }
+    // Loop iterations of one `advance` invocation: two sweeps per Euler step, plus the error
+    // norm and the extrapolation (two loops each); `gather` has two loops.
+    let per_attempt = if scheme.richardson() { 6 } else { 2 }
+        + if scheme.adaptive { 2 } else { 0 }
+        + if scheme.order2 { 2 } else { 0 };
+    let iterations = (attempts as u64 * per_attempt).max(2) * n as u64;
+    if iterations > LAVAPIPE_LOOP_LIMIT {
+        let max_n = LAVAPIPE_LOOP_LIMIT / (attempts as u64 * per_attempt).max(2);
+        return Err(GpuError::LoopLimit {
+            adapter: d.short(),
+            particles: n,
+            iterations,
+            limit: LAVAPIPE_LOOP_LIMIT,
+            max_particles: max_n,
+        });
+    }
+    Ok(())
+}
+
 /// Interleaves per-member vectors of equal length: element i of member b at i·B + b.
 fn interleave<T: Copy>(per_member: &[&[T]]) -> Vec<T> {
     let len = per_member.first().map_or(0, |v| v.len());
@@ -196,54 +190,41 @@ fn interleave<T: Copy>(per_member: &[&[T]]) -> Vec<T> {
     out
 }
 
-/// The steps (t, h) of one output interval, exactly as the CPU backend takes them with fixed
-/// steps and no rejection.
-pub fn fixed_schedule(dt: f64, t_start: f64, t_end: f64) -> (f64, Vec<(f64, f64)>) {
-    let count = ((t_end - t_start) / dt * (1.0 - 1e-12)).ceil().max(1.0);
-    let hf = (t_end - t_start) / count;
-    let mut steps = Vec::with_capacity(count as usize + 1);
-    let mut t = t_start;
-    let mut k: u64 = 0;
-    while t < t_end {
-        let remaining = t_end - t;
-        let h = if remaining <= hf * (1.0 + 1e-9) {
-            remaining
-        } else {
-            hf
-        };
-        steps.push((t, h));
-        k += 1;
-        t = if h == remaining {
-            t_end
-        } else {
-            t_start + k as f64 * hf
-        };
+/// The uniform `Config` of step.wgsl (keep in sync): 4 u32, then eps, t_start, t_end, fixed_h
+/// (0 = adaptive), dt_min, tolerance; padded to 64 bytes.
+#[allow(clippy::too_many_arguments)]
+fn config_bytes(
+    precision: Precision,
+    batch: u32,
+    particles: u32,
+    max_attempts: u32,
+    eps: f64,
+    t_start: f64,
+    t_end: f64,
+    fixed_h: f64,
+    dt_min: f64,
+    tolerance: f64,
+) -> Vec<u8> {
+    let mut out = Vec::with_capacity(64);
+    for v in [batch, particles, max_attempts, 0] {
+        out.extend_from_slice(&v.to_le_bytes());
     }
-    (hf, steps)
+    out.extend_from_slice(&real_bytes(
+        &[eps, t_start, t_end, fixed_h, dt_min, tolerance],
+        precision,
+    ));
+    out.resize(64, 0);
+    out
 }
 
 impl<'a> GpuSolver<'a> {
     /// Uploads the batch (`chains[m]` is member m's initial chain) and builds the kernels.
-    /// Plans outside this backend's scope (order 2, adaptive stepping) give a
-    /// [`GpuError::Validation`] saying "not yet supported on the GPU backend: ...".
     pub fn new(
         ctx: &'a GpuContext,
         plan: Plan,
         chains: Vec<Chain>,
         precision: Precision,
     ) -> Result<GpuSolver<'a>, GpuError> {
-        if plan.order != 1 {
-            return Err(unsupported(&format!(
-                "order {} (Richardson extrapolation); only order 1 runs on the GPU for now, \
-                 use the CPU backend",
-                plan.order
-            )));
-        }
-        if let Stepping::Adaptive { .. } = plan.stepping {
-            return Err(unsupported(
-                "adaptive stepping; only fixed steps run on the GPU for now, use the CPU backend",
-            ));
-        }
         if precision == Precision::F64 && !ctx.f64 {
             return Err(GpuError::NoF64 {
                 adapter: ctx.description.short(),
@@ -251,18 +232,17 @@ impl<'a> GpuSolver<'a> {
         }
         let bsz = plan.members.len();
         let n = plan.particles;
-        if bsz == 0 {
-            return Err(invalid("the plan has no members".to_string()));
-        }
-        if n < 2 {
+        if bsz == 0 || n < 2 || chains.len() != bsz {
             return Err(invalid(format!(
-                "{n} particles: the kernel needs at least 2"
+                "{bsz} members, N = {n}, {} chains: need members >= 1, N >= 2, one chain per member",
+                chains.len()
             )));
         }
-        if chains.len() != bsz {
+        if n as u64 * bsz as u64 > u32::MAX as u64 / 4 {
             return Err(invalid(format!(
-                "{} chains for {bsz} members: one chain per member",
-                chains.len()
+                "N·B = {} elements: the kernel indexes buffers with u32 (at most {}); use fewer members per run",
+                n as u64 * bsz as u64,
+                u32::MAX / 4
             )));
         }
         for (m, c) in chains.iter().enumerate() {
@@ -290,6 +270,18 @@ impl<'a> GpuSolver<'a> {
                 _ => GammaSpec::PerMember,
             }
         });
+        let (dt0, fixed) = match plan.stepping {
+            Stepping::Fixed { dt, .. } => (dt, true),
+            Stepping::Adaptive {
+                tolerance: _,
+                dt_initial,
+                ..
+            } => (dt_initial, false),
+        };
+        let scheme = SchemeSpec {
+            order2: plan.order == 2,
+            adaptive: !fixed,
+        };
         let spec = KernelSpec {
             precision,
             repulsion,
@@ -298,25 +290,23 @@ impl<'a> GpuSolver<'a> {
                 .forcing
                 .as_ref()
                 .map(|f| (f.expr.clone(), f.rule.nodes.clone(), f.rule.weights.clone())),
+            scheme,
         };
-        let step_pipeline =
-            ctx.compute_pipeline("step.wgsl", &generate_step_wgsl(&spec), STEP_ENTRY, None)?;
-        let real_alias = match precision {
-            Precision::F64 => "alias real = f64;",
-            Precision::F32 => "alias real = f32;",
-        };
-        let schedule_src = SCHEDULE_WGSL.replace("alias real = f64;", real_alias);
-        let schedule_pipeline =
-            ctx.compute_pipeline("advance_schedule", &schedule_src, SCHEDULE_ENTRY, None)?;
+        let source = generate_step_wgsl(&spec);
 
         let rs = real_size(precision);
+        let sets: u64 = if scheme.richardson() { 4 } else { 2 };
         let gaps_bytes = (n * bsz) as u64 * rs;
         let vel_bytes = ((n - 1) * bsz) as u64 * rs;
-        let member_bytes = bsz as u64 * 4 * rs;
-        let schedule_bytes = (MAX_STEPS_PER_SUBMIT as u64 + 1) * 2 * rs;
-        ctx.check_storage_size("gaps", gaps_bytes)?;
-        ctx.check_storage_size("velocities", vel_bytes)?;
-        ctx.check_storage_size("step scratch", 3 * vel_bytes)?;
+        ctx.check_storage_size(
+            "gap sets (state, candidate, full and half steps)",
+            sets * gaps_bytes,
+        )?;
+        ctx.check_storage_size("velocity sets", sets * vel_bytes)?;
+        ctx.check_storage_size("Thomas scratch", 3 * vel_bytes)?;
+
+        let max_attempts = attempts_per_dispatch();
+        check_loop_budget(ctx, n, scheme, max_attempts)?;
 
         // Host-side data.
         let gaps0 =
@@ -345,21 +335,25 @@ impl<'a> GpuSolver<'a> {
                     .then(|| c.bonded.clone().unwrap_or_else(|| no_bonds.clone()))
             })
             .collect();
-        let mut config = Vec::with_capacity(16);
-        config.extend_from_slice(&(bsz as u32).to_le_bytes());
-        config.extend_from_slice(&(n as u32).to_le_bytes());
-        config.extend_from_slice(&real_bytes(&[plan.eps], precision));
-        config.resize(16, 0);
-        let dt = match plan.stepping {
-            Stepping::Fixed { dt, .. } => dt,
-            Stepping::Adaptive { .. } => unreachable!("refused above"),
-        };
+        let mut gap_sets = real_bytes(&gaps0, precision);
+        gap_sets.resize((sets * gaps_bytes) as usize, 0);
+        let mut vel_sets = real_bytes(&vel0, precision);
+        vel_sets.resize((sets * vel_bytes) as usize, 0);
+        let params: Vec<f64> = plan.members.iter().flat_map(|p| [p.mu, p.gamma]).collect();
+        let mut controls = Vec::with_capacity((control_size(precision) * bsz as u64) as usize);
+        for _ in 0..bsz {
+            // t, dt, failure_time; accepted, rejected, regular_steps, regular, failure, parity.
+            controls.extend_from_slice(&real_bytes(&[0.0, dt0, 0.0], precision));
+            for v in [0u32, 0, 0, 1, 0, 0] {
+                controls.extend_from_slice(&v.to_le_bytes());
+            }
+        }
 
         let device = &ctx.device;
         let storage = wgpu::BufferUsages::STORAGE;
-        let state_usage = storage | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let readable = storage | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
         let mut bytes_written = 0u64;
-        let ((buffers, groups, other), error) = ctx.scoped(|| {
+        let (built, error) = ctx.scoped(|| {
             let mut init = |label: &str, bytes: &[u8], usage: wgpu::BufferUsages| {
                 bytes_written += bytes.len() as u64;
                 device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -376,98 +370,97 @@ impl<'a> GpuSolver<'a> {
                     mapped_at_creation: false,
                 })
             };
-            let config = init("config", &config, wgpu::BufferUsages::UNIFORM);
-            let gaps_a = init("gaps A", &real_bytes(&gaps0, precision), state_usage);
-            let vel_a = init("velocities A", &real_bytes(&vel0, precision), state_usage);
-            let gaps_b = empty("gaps B", gaps_bytes, state_usage);
-            let vel_b = empty("velocities B", vel_bytes, state_usage);
-            let members = empty(
-                "members",
-                member_bytes,
-                storage | wgpu::BufferUsages::COPY_DST,
+            let config = empty(
+                "config",
+                64,
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             );
+            let gap_sets = init("gap sets", &gap_sets, storage);
+            let vel_sets = init("velocity sets", &vel_sets, storage);
+            let params = init(
+                "member parameters",
+                &real_bytes(&params, precision),
+                storage,
+            );
+            let controls = init("controls", &controls, readable);
             let scratch = empty("scratch", 3 * vel_bytes, storage);
-            let ok = empty("ok", bsz as u64 * 4, storage);
-            let status = empty("status", 2 * bsz as u64 * 4, state_usage);
-            let schedule = empty(
-                "schedule",
-                schedule_bytes,
-                storage | wgpu::BufferUsages::COPY_DST,
-            );
+            let running = empty("running", 4, readable);
+            let gathered_gaps = empty("gathered gaps", gaps_bytes, readable);
+            let gathered_vel = empty("gathered velocities", vel_bytes, readable);
             let dstar_buf = plan.repulsion.then(|| {
-                let refs: Vec<&[f64]> = dstar.iter().map(|d| d.as_deref().unwrap()).collect();
+                let refs: Vec<&[f64]> = dstar.iter().map(|d| d.as_deref().unwrap_or(&[])).collect();
                 init("dstar", &real_bytes(&interleave(&refs), precision), storage)
             });
             let bonded_buf = plan.clusters.then(|| {
-                let refs: Vec<&[bool]> = bonded.iter().map(|d| d.as_deref().unwrap()).collect();
+                let refs: Vec<&[bool]> =
+                    bonded.iter().map(|d| d.as_deref().unwrap_or(&[])).collect();
                 let flags: Vec<u32> = interleave(&refs).into_iter().map(u32::from).collect();
                 init("bonded", bytemuck::cast_slice(&flags), storage)
             });
-            let step_group = |gin: &wgpu::Buffer,
-                              vin: &wgpu::Buffer,
-                              gout: &wgpu::Buffer,
-                              vout: &wgpu::Buffer,
-                              label: &str| {
-                let mut entries = vec![
-                    (binding::CONFIG, &config),
-                    (binding::GAPS_IN, gin),
-                    (binding::VEL_IN, vin),
-                    (binding::MEMBERS, &members),
-                    (binding::GAPS_OUT, gout),
-                    (binding::VEL_OUT, vout),
-                    (binding::SCRATCH, &scratch),
-                    (binding::OK, &ok),
-                ];
-                if let Some(d) = &dstar_buf {
-                    entries.push((binding::DSTAR, d));
-                }
-                if let Some(b) = &bonded_buf {
-                    entries.push((binding::BONDED, b));
-                }
-                let entries: Vec<wgpu::BindGroupEntry> = entries
-                    .into_iter()
-                    .map(|(binding, buffer)| wgpu::BindGroupEntry {
+            let mut entries = vec![
+                (binding::CONFIG, &config, true, false),
+                (binding::GAP_SETS, &gap_sets, false, false),
+                (binding::VEL_SETS, &vel_sets, false, false),
+                (binding::PARAMS, &params, false, true),
+                (binding::CONTROLS, &controls, false, false),
+                (binding::SCRATCH, &scratch, false, false),
+                (binding::RUNNING, &running, false, false),
+                (binding::GATHERED_GAPS, &gathered_gaps, false, false),
+                (binding::GATHERED_VEL, &gathered_vel, false, false),
+            ];
+            if let Some(d) = &dstar_buf {
+                entries.push((binding::DSTAR, d, false, true));
+            }
+            if let Some(b) = &bonded_buf {
+                entries.push((binding::BONDED, b, false, true));
+            }
+            let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = entries
+                .iter()
+                .map(
+                    |&(binding, _, uniform, read_only)| wgpu::BindGroupLayoutEntry {
+                        binding,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Buffer {
+                            ty: if uniform {
+                                wgpu::BufferBindingType::Uniform
+                            } else {
+                                wgpu::BufferBindingType::Storage { read_only }
+                            },
+                            has_dynamic_offset: false,
+                            min_binding_size: None,
+                        },
+                        count: None,
+                    },
+                )
+                .collect();
+            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("roughlub step"),
+                entries: &layout_entries,
+            });
+            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("roughlub step"),
+                layout: &layout,
+                entries: &entries
+                    .iter()
+                    .map(|&(binding, buffer, _, _)| wgpu::BindGroupEntry {
                         binding,
                         resource: buffer.as_entire_binding(),
                     })
-                    .collect();
-                device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some(label),
-                    layout: &step_pipeline.get_bind_group_layout(0),
-                    entries: &entries,
-                })
-            };
-            let group_ab = step_group(&gaps_a, &vel_a, &gaps_b, &vel_b, "step A->B");
-            let group_ba = step_group(&gaps_b, &vel_b, &gaps_a, &vel_a, "step B->A");
-            let schedule_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("advance_schedule"),
-                layout: &schedule_pipeline.get_bind_group_layout(0),
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: ok.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: members.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: status.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: schedule.as_entire_binding(),
-                    },
-                ],
+                    .collect::<Vec<_>>(),
             });
-            let mut other = vec![config, scratch, ok];
-            other.extend(dstar_buf);
-            other.extend(bonded_buf);
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("roughlub step"),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+            let mut keep = vec![gap_sets, vel_sets, params, scratch];
+            keep.extend(dstar_buf);
+            keep.extend(bonded_buf);
             (
-                ([gaps_a, gaps_b], [vel_a, vel_b], members, status, schedule),
-                ([group_ab, group_ba], schedule_group),
-                other,
+                (config, controls, running, gathered_gaps, gathered_vel),
+                group,
+                pipeline_layout,
+                keep,
             )
         });
         if let Some(message) = error {
@@ -476,18 +469,24 @@ impl<'a> GpuSolver<'a> {
                 message,
             });
         }
-        let (gaps, vel, members, status, schedule) = buffers;
-        let (step_groups, schedule_group) = groups;
-        let states = vec![
-            MemberState {
+        let ((config, controls, running, gathered_gaps, gathered_vel), group, layout, keep) = built;
+        let pipeline =
+            |entry: &str| ctx.compute_pipeline("step.wgsl", &source, entry, Some(&layout));
+        let begin = pipeline(BEGIN_ENTRY)?;
+        let advance = pipeline(ADVANCE_ENTRY)?;
+        let gather = pipeline(GATHER_ENTRY)?;
+        let grid_x = grid_points(plan.grid);
+        let last_controls = vec![
+            ControlState {
+                t: 0.0,
+                dt: dt0,
+                failure_time: 0.0,
                 accepted: 0,
                 rejected: 0,
-                last_dt: dt,
-                failed: None,
+                failure: 0,
             };
             bsz
         ];
-        let grid_x = grid_points(plan.grid);
         Ok(GpuSolver {
             ctx,
             plan,
@@ -496,22 +495,22 @@ impl<'a> GpuSolver<'a> {
             bonded,
             grid_x,
             time_index: 0,
-            current: 0,
-            gaps,
-            vel,
-            members,
-            status,
-            schedule,
-            step_pipeline,
-            schedule_pipeline,
-            step_groups,
-            schedule_group,
-            states,
+            max_attempts,
+            config,
+            controls,
+            running,
+            gathered_gaps,
+            gathered_vel,
+            begin,
+            advance,
+            gather,
+            group,
+            last_controls,
             stats: GpuStats {
                 bytes_written,
                 ..GpuStats::default()
             },
-            _other: other,
+            _buffers: keep,
         })
     }
 
@@ -532,10 +531,99 @@ impl<'a> GpuSolver<'a> {
         self.stats
     }
 
+    fn workgroups(&self) -> u32 {
+        (self.plan.members.len() as u32).div_ceil(STEP_WORKGROUP_SIZE)
+    }
+
+    /// Encodes `begin_interval` (when `begin`) and [`DISPATCHES_PER_SUBMIT`] `advance`
+    /// dispatches, the running counter cleared before the last one, and submits them.
+    fn submit_advance(&mut self, begin: bool) -> Result<(), GpuError> {
+        let ctx = self.ctx;
+        let workgroups = self.workgroups();
+        let ((), error) = ctx.scoped(|| {
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("advance"),
+                });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("advance"),
+                    timestamp_writes: None,
+                });
+                pass.set_bind_group(0, &self.group, &[]);
+                if begin {
+                    pass.set_pipeline(&self.begin);
+                    pass.dispatch_workgroups(workgroups, 1, 1);
+                }
+                pass.set_pipeline(&self.advance);
+                for _ in 1..DISPATCHES_PER_SUBMIT {
+                    pass.dispatch_workgroups(workgroups, 1, 1);
+                }
+            }
+            // The counter then holds the members still running after the last dispatch.
+            encoder.clear_buffer(&self.running, 0, None);
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("advance (last)"),
+                    timestamp_writes: None,
+                });
+                pass.set_bind_group(0, &self.group, &[]);
+                pass.set_pipeline(&self.advance);
+                pass.dispatch_workgroups(workgroups, 1, 1);
+            }
+            ctx.queue.submit([encoder.finish()]);
+        });
+        if let Some(message) = error {
+            return Err(GpuError::Validation {
+                label: "GpuSolver advance".to_string(),
+                message,
+            });
+        }
+        self.stats.submits += 1;
+        self.stats.dispatches += DISPATCHES_PER_SUBMIT as u64 + u64::from(begin);
+        Ok(())
+    }
+
+    fn read(&mut self, which: Which, bytes: u64) -> Result<Vec<u8>, GpuError> {
+        let buffer = match which {
+            Which::Running => &self.running,
+            Which::Controls => &self.controls,
+            Which::Gaps => &self.gathered_gaps,
+            Which::Vel => &self.gathered_vel,
+        };
+        let data = self.ctx.read_buffer(buffer, bytes)?;
+        self.stats.readbacks += 1;
+        self.stats.bytes_read += bytes;
+        Ok(data)
+    }
+
+    fn parse_controls(&self, bytes: &[u8]) -> Vec<ControlState> {
+        let size = control_size(self.precision) as usize;
+        let rs = real_size(self.precision) as usize;
+        bytes
+            .chunks_exact(size)
+            .map(|c| {
+                let reals = reals_from_bytes(&c[..3 * rs], self.precision);
+                let word = |k: usize| {
+                    let o = 3 * rs + 4 * k;
+                    u32::from_le_bytes([c[o], c[o + 1], c[o + 2], c[o + 3]])
+                };
+                ControlState {
+                    t: reals[0],
+                    dt: reals[1],
+                    failure_time: reals[2],
+                    accepted: word(0),
+                    rejected: word(1),
+                    failure: word(4),
+                }
+            })
+            .collect()
+    }
+
     /// Advances to the next output time and returns every member's snapshot there, in member
     /// order (the first call returns the initial state); `Ok(None)` after the last output time.
-    /// Same semantics as `CpuSolver::next_output`, except that a rejected step fails the
-    /// member (see the module documentation).
+    /// Same semantics as `CpuSolver::next_output`.
     pub fn next_output(&mut self) -> Result<Option<Vec<Snapshot>>, GpuError> {
         let k = self.time_index;
         let Some(&t_end) = self.plan.output_times.get(k) else {
@@ -547,26 +635,77 @@ impl<'a> GpuSolver<'a> {
             self.plan.output_times[k - 1]
         };
         self.time_index += 1;
-        let dt = match self.plan.stepping {
-            Stepping::Fixed { dt, .. } => dt,
-            Stepping::Adaptive { .. } => unreachable!("refused by new"),
-        };
-        let mut steps_taken = 0u64;
-        let mut hf = None;
-        if t_end > t_start {
-            let (h, steps) = fixed_schedule(dt, t_start, t_end);
-            hf = Some(h);
-            for chunk in steps.chunks(MAX_STEPS_PER_SUBMIT) {
-                self.run_chunk(chunk)?;
-            }
-            steps_taken = steps.len() as u64;
-        }
-        // Read back the state and the failure flags.
         let bsz = self.plan.members.len();
         let n = self.plan.particles;
+        let fixed_dt = match self.plan.stepping {
+            Stepping::Fixed { dt, .. } => Some(dt),
+            Stepping::Adaptive { .. } => None,
+        };
+        let rules =
+            crate::cpu::control::Rules::new(t_start, t_end, fixed_dt, self.plan.stepping.dt_min());
+        let tolerance = match self.plan.stepping {
+            Stepping::Adaptive { tolerance, .. } => tolerance,
+            Stepping::Fixed { .. } => 0.0,
+        };
+        let config = config_bytes(
+            self.precision,
+            bsz as u32,
+            n as u32,
+            self.max_attempts,
+            self.plan.eps,
+            t_start,
+            t_end,
+            rules.fixed_h.unwrap_or(0.0),
+            rules.dt_min,
+            tolerance,
+        );
+        self.ctx.queue.write_buffer(&self.config, 0, &config);
+        self.stats.bytes_written += config.len() as u64;
+        if t_end > t_start {
+            let mut first = true;
+            loop {
+                self.submit_advance(first)?;
+                first = false;
+                let running: Vec<u32> =
+                    bytemuck::pod_collect_to_vec(&self.read(Which::Running, 4)?);
+                if running[0] == 0 {
+                    break;
+                }
+            }
+        }
+        // Gather each member's current state and read it back with the controls.
+        let ctx = self.ctx;
+        let workgroups = self.workgroups();
+        let ((), error) = ctx.scoped(|| {
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("gather"),
+                });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("gather"),
+                    timestamp_writes: None,
+                });
+                pass.set_bind_group(0, &self.group, &[]);
+                pass.set_pipeline(&self.gather);
+                pass.dispatch_workgroups(workgroups, 1, 1);
+            }
+            ctx.queue.submit([encoder.finish()]);
+        });
+        if let Some(message) = error {
+            return Err(GpuError::Validation {
+                label: "GpuSolver gather".to_string(),
+                message,
+            });
+        }
+        self.stats.submits += 1;
+        self.stats.dispatches += 1;
         let rs = real_size(self.precision);
-        let flags: Vec<u32> =
-            bytemuck::pod_collect_to_vec(&self.read(Which::Status, bsz as u64 * 4)?);
+        let control_bytes =
+            self.read(Which::Controls, control_size(self.precision) * bsz as u64)?;
+        self.last_controls = self.parse_controls(&control_bytes);
+        self.stats.steps = self.last_controls.iter().map(|c| c.accepted as u64).sum();
         let gaps = reals_from_bytes(
             &self.read(Which::Gaps, (n * bsz) as u64 * rs)?,
             self.precision,
@@ -576,20 +715,8 @@ impl<'a> GpuSolver<'a> {
             self.precision,
         );
         let mut out = Vec::with_capacity(bsz);
-        for (b, (state, &flag)) in self.states.iter_mut().zip(&flags).enumerate() {
-            if state.failed.is_none() {
-                if flag != 0 {
-                    // Some step of this interval was inadmissible: fail honestly at its start.
-                    state.failed = Some((GPU_REJECTION_REASON.to_string(), t_start));
-                    state.rejected += 1;
-                } else {
-                    state.accepted += steps_taken;
-                    if let Some(h) = hf {
-                        state.last_dt = h;
-                    }
-                }
-            }
-            if state.failed.is_some() {
+        for (b, control) in self.last_controls.iter().enumerate() {
+            if control.failure != 0 {
                 out.push(Snapshot::failed(&self.plan));
                 continue;
             }
@@ -608,108 +735,41 @@ impl<'a> GpuSolver<'a> {
         Ok(Some(out))
     }
 
-    /// Encodes the steps of `chunk` (at most [`MAX_STEPS_PER_SUBMIT`]) and submits them once.
-    fn run_chunk(&mut self, chunk: &[(f64, f64)]) -> Result<(), GpuError> {
-        let ctx = self.ctx;
-        let precision = self.precision;
-        let bsz = self.plan.members.len();
-        // Schedule slots (t, h), plus the last one repeated (read after the last step).
-        let mut slots = Vec::with_capacity(2 * (chunk.len() + 1));
-        for &(t, h) in chunk.iter().chain(chunk.last()) {
-            slots.push(t);
-            slots.push(h);
-        }
-        let (t0, h0) = chunk[0];
-        let mut params = Vec::with_capacity(4 * bsz);
-        for p in &self.plan.members {
-            params.extend_from_slice(&[p.mu, h0, t0, p.gamma]);
-        }
-        let slot_bytes = real_bytes(&slots, precision);
-        let param_bytes = real_bytes(&params, precision);
-        self.stats.bytes_written += (slot_bytes.len() + param_bytes.len()) as u64;
-        let workgroups = (bsz as u32).div_ceil(STEP_WORKGROUP_SIZE);
-        let mut current = self.current;
-        let ((), error) = ctx.scoped(|| {
-            ctx.queue.write_buffer(&self.schedule, 0, &slot_bytes);
-            ctx.queue.write_buffer(&self.members, 0, &param_bytes);
-            let mut encoder = ctx
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("fixed steps"),
-                });
-            // Step cursors back to 0 (the failure flags stay).
-            encoder.clear_buffer(&self.status, bsz as u64 * 4, Some(bsz as u64 * 4));
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("fixed steps"),
-                    timestamp_writes: None,
-                });
-                for _ in chunk {
-                    pass.set_pipeline(&self.step_pipeline);
-                    pass.set_bind_group(0, &self.step_groups[current], &[]);
-                    pass.dispatch_workgroups(workgroups, 1, 1);
-                    pass.set_pipeline(&self.schedule_pipeline);
-                    pass.set_bind_group(0, &self.schedule_group, &[]);
-                    pass.dispatch_workgroups(workgroups, 1, 1);
-                    current = 1 - current;
-                }
-            }
-            ctx.queue.submit([encoder.finish()]);
-        });
-        if let Some(message) = error {
-            return Err(GpuError::Validation {
-                label: "GpuSolver fixed steps".to_string(),
-                message,
-            });
-        }
-        self.current = current;
-        self.stats.steps += chunk.len() as u64;
-        self.stats.dispatches += 2 * chunk.len() as u64;
-        self.stats.submits += 1;
-        Ok(())
-    }
-
-    fn read(&mut self, which: Which, bytes: u64) -> Result<Vec<u8>, GpuError> {
-        let buffer = match which {
-            Which::Gaps => &self.gaps[self.current],
-            Which::Vel => &self.vel[self.current],
-            Which::Status => &self.status,
-        };
-        let data = self.ctx.read_buffer(buffer, bytes)?;
-        self.stats.readbacks += 1;
-        self.stats.bytes_read += bytes;
-        Ok(data)
-    }
-
-    /// Every member's bookkeeping, in member order (like `CpuSolver::reports`). Steps are
-    /// counted per output interval: a member that failed during an interval has the accepted
-    /// steps of the intervals before it and one rejected step.
+    /// Every member's bookkeeping as of the last output, in member order (like
+    /// `CpuSolver::reports`).
     pub fn reports(&self) -> Vec<MemberReport> {
-        self.states
+        let dt_min = self.plan.stepping.dt_min();
+        self.last_controls
             .iter()
             .enumerate()
-            .map(|(m, s)| MemberReport {
+            .map(|(m, c)| MemberReport {
                 index: m,
                 mu: self.plan.members[m].mu,
                 gamma: self.plan.members[m].gamma,
-                status: match &s.failed {
-                    None => MemberStatus::Ok,
-                    Some((reason, time)) => MemberStatus::Failed {
-                        reason: reason.clone(),
-                        time: *time,
+                status: match Failure::from_code(c.failure) {
+                    Failure::None => MemberStatus::Ok,
+                    f => MemberStatus::Failed {
+                        reason: f.describe(dt_min),
+                        time: c.failure_time,
                     },
                 },
-                steps_accepted: s.accepted,
-                steps_rejected: s.rejected,
-                last_dt: s.last_dt,
+                steps_accepted: c.accepted as u64,
+                steps_rejected: c.rejected as u64,
+                last_dt: c.dt,
             })
             .collect()
+    }
+
+    /// Member times as of the last output (for tests and progress).
+    pub fn member_times(&self) -> Vec<f64> {
+        self.last_controls.iter().map(|c| c.t).collect()
     }
 }
 
 #[derive(Clone, Copy)]
 enum Which {
+    Running,
+    Controls,
     Gaps,
     Vel,
-    Status,
 }

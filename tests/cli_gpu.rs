@@ -1,0 +1,374 @@
+//! End-to-end tests of backend and precision selection in `roughlub run`: the GPU backend in f64
+//! and f32 against the CPU backend, `auto` choosing the GPU when there is one and falling back to
+//! the CPU (saying why) when there is none, and the clear errors (exit status 2, no manifest) for
+//! `gpu` without an adapter and for f32 on the CPU.
+//!
+//! Tests that need a GPU adapter ask `roughlub::gpu::acquire_for_tests`: without an adapter they
+//! skip with a message, unless `ROUGHLUB_REQUIRE_GPU=1` (CI), where they fail. The "no adapter"
+//! cases hide every adapter with `WGPU_ADAPTER_NAME=no-such-adapter` (a substring filter that
+//! `GpuContext::acquire` applies), so they run everywhere.
+//!
+//! The scene is `tests/data/small.toml`: paper case 1 with N = 40, three members (gamma = 1, 2,
+//! 5), order 1, fixed dt = 1e-3 up to t = 0.05 (50 steps), outputs at 0, 0.025, 0.05.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use roughlub::gpu::context::NO_ADAPTER_HINT;
+use serde_json::Value;
+
+const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
+
+fn small_scene() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests")
+        .join("data")
+        .join("small.toml")
+}
+
+/// `roughlub run SCENE --out OUT [extra...]` with extra environment variables.
+fn run_env(scene: &Path, out: &Path, extra: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(BIN);
+    cmd.arg("run").arg(scene).arg("--out").arg(out).args(extra);
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output()
+        .unwrap_or_else(|e| panic!("cannot start {BIN}: {e}"))
+}
+
+fn run(scene: &Path, out: &Path, extra: &[&str]) -> Output {
+    run_env(scene, out, extra, &[])
+}
+
+fn stderr_of(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn assert_success(out: &Output) {
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "roughlub failed; stderr:\n{}",
+        stderr_of(out)
+    );
+}
+
+/// Exit status 2, an `error:` line containing every one of `needles`, and no output directory.
+fn assert_rejected(out: &Output, out_dir: &Path, needles: &[&str]) {
+    let stderr = stderr_of(out);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "expected exit 2; stderr:\n{stderr}"
+    );
+    assert!(
+        stderr.contains("error: "),
+        "no error line; stderr:\n{stderr}"
+    );
+    for needle in needles {
+        assert!(
+            stderr.contains(needle),
+            "the error does not mention {needle:?}; stderr:\n{stderr}"
+        );
+    }
+    assert!(
+        !out_dir.join("manifest.json").exists(),
+        "a rejected run wrote a manifest"
+    );
+    assert!(
+        !out_dir.exists(),
+        "a run rejected before it started created its output directory"
+    );
+}
+
+/// Values of an .npy file (f64, C order) and its shape.
+fn read_npy(path: &Path) -> (Vec<u64>, Vec<f64>) {
+    let file = File::open(path).unwrap_or_else(|e| panic!("cannot open {path:?}: {e}"));
+    let npy = npyz::NpyFile::new(file).unwrap_or_else(|e| panic!("{path:?} is not an .npy: {e}"));
+    assert_eq!(npy.order(), npyz::Order::C, "{path:?} is not in C order");
+    let shape = npy.shape().to_vec();
+    let values = npy
+        .into_vec::<f64>()
+        .unwrap_or_else(|e| panic!("{path:?}: cannot read f64 values: {e}"));
+    (shape, values)
+}
+
+fn read_manifest(dir: &Path) -> Value {
+    let path = dir.join("manifest.json");
+    let text =
+        std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("cannot read {path:?}: {e}"));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{path:?} is not JSON: {e}"))
+}
+
+/// Whether a GPU adapter (with f64 shaders when `want_f64`) exists; `false` means "skip this
+/// test" (and panics instead under ROUGHLUB_REQUIRE_GPU=1).
+fn have_gpu(want_f64: bool, test: &str) -> bool {
+    match roughlub::gpu::acquire_for_tests(want_f64) {
+        Some(ctx) => {
+            drop(ctx);
+            true
+        }
+        None => {
+            eprintln!(
+                "{test}: skipped (no GPU adapter{})",
+                if want_f64 { " with f64" } else { "" }
+            );
+            false
+        }
+    }
+}
+
+/// Compares two gap arrays element by element: |a - b| <= rel |b|. Returns the largest relative
+/// difference.
+fn assert_gaps_close(gpu: &Path, cpu: &Path, rel: f64, what: &str) -> f64 {
+    let (shape_g, g) = read_npy(&gpu.join("gaps.npy"));
+    let (shape_c, c) = read_npy(&cpu.join("gaps.npy"));
+    assert_eq!(shape_g, shape_c, "{what}: gaps.npy shapes differ");
+    assert_eq!(shape_g, vec![3, 3, 40], "{what}: gaps.npy shape [T, B, N]");
+    let mut worst: f64 = 0.0;
+    for (i, (a, b)) in g.iter().zip(&c).enumerate() {
+        assert!(
+            a.is_finite() && *b > 0.0,
+            "{what}: gap {i}: gpu {a}, cpu {b}"
+        );
+        let r = (a - b).abs() / b.abs();
+        assert!(
+            r <= rel,
+            "{what}: gap {i} (t {}, member {}, d_{}): gpu {a:e}, cpu {b:e}, relative difference \
+             {r:e} > {rel:e}",
+            i / 120,
+            (i / 40) % 3,
+            i % 40 + 1
+        );
+        worst = worst.max(r);
+    }
+    worst
+}
+
+/// Checks what every GPU run's manifest must say.
+fn assert_gpu_manifest(m: &Value, requested: &str, precision: &str) {
+    assert_eq!(m["backend"], "gpu", "manifest: {m}");
+    assert_eq!(m["backend_requested"], requested);
+    assert_eq!(m["precision"], precision);
+    let adapter = &m["adapter"];
+    for key in ["name", "backend", "driver"] {
+        assert!(
+            adapter[key].is_string(),
+            "adapter.{key} missing; adapter: {adapter}"
+        );
+    }
+    assert!(
+        !adapter["name"].as_str().unwrap().is_empty(),
+        "empty adapter name; adapter: {adapter}"
+    );
+    let stats = &m["gpu_stats"];
+    assert!(
+        stats["submits"].as_u64().is_some_and(|s| s >= 1),
+        "gpu_stats.submits: {stats}"
+    );
+    // How many steps one dispatch takes is the solver's business; at least one ran.
+    assert!(
+        stats["dispatches"].as_u64().is_some_and(|d| d >= 1),
+        "gpu_stats.dispatches: {stats}"
+    );
+    assert!(
+        stats["bytes_read"].as_u64().is_some_and(|b| b > 0),
+        "gpu_stats.bytes_read: {stats}"
+    );
+    for member in m["members"].as_array().expect("members") {
+        assert_eq!(member["status"], "ok", "{member}");
+    }
+}
+
+/// Runs the scene on the CPU (the reference) into `dir`.
+fn cpu_reference(dir: &Path) {
+    let out = run(&small_scene(), dir, &["--backend", "cpu", "--quiet"]);
+    assert_success(&out);
+    let m = read_manifest(dir);
+    assert_eq!(m["backend"], "cpu");
+    assert!(m["gpu_stats"].is_null(), "a CPU run has gpu_stats: {m}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 1. --backend gpu --precision f64 matches the CPU
+
+#[test]
+fn gpu_f64_matches_cpu() {
+    if !have_gpu(true, "gpu_f64_matches_cpu") {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (gpu, cpu) = (tmp.path().join("gpu"), tmp.path().join("cpu"));
+    let out = run(
+        &small_scene(),
+        &gpu,
+        &["--backend", "gpu", "--precision", "f64"],
+    );
+    assert_success(&out);
+    let stderr = stderr_of(&out);
+    assert!(stderr.contains("backend gpu"), "stderr:\n{stderr}");
+    let m = read_manifest(&gpu);
+    assert_gpu_manifest(&m, "gpu", "f64");
+    assert!(
+        stderr.contains(m["adapter"]["name"].as_str().unwrap()),
+        "stderr does not name the adapter; stderr:\n{stderr}"
+    );
+
+    cpu_reference(&cpu);
+    // Same steps, same f64 arithmetic up to operation order and the f64 math library: the two
+    // backends agree to a few ulps per step.
+    let worst = assert_gaps_close(&gpu, &cpu, 1e-10, "gpu f64 vs cpu");
+    eprintln!("gpu f64 vs cpu: largest relative gap difference {worst:e}");
+    // Both took the same 50 fixed steps per member.
+    let mc = read_manifest(&cpu);
+    assert_eq!(m["steps_accepted_total"], mc["steps_accepted_total"]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// 2. --backend gpu --precision f32 is close to the CPU
+
+#[test]
+fn gpu_f32_close_to_cpu() {
+    if !have_gpu(false, "gpu_f32_close_to_cpu") {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (gpu, cpu) = (tmp.path().join("gpu"), tmp.path().join("cpu"));
+    let out = run(
+        &small_scene(),
+        &gpu,
+        &["--backend", "gpu", "--precision", "f32"],
+    );
+    assert_success(&out);
+    assert_gpu_manifest(&read_manifest(&gpu), "gpu", "f32");
+    // f32 output is still written as f64 .npy.
+    cpu_reference(&cpu);
+    // f32 has a unit roundoff of 6e-8: the initial gaps are rounded once (relative 6e-8), and
+    // each of the 50 steps adds rounding from the tridiagonal solve over 40 unknowns and the
+    // gap update d + h (u_i - u_{i-1}), which the implicit scheme damps rather than amplifies.
+    // A worst-case bound 50 steps x ~20 roundings x 6e-8 = 6e-5 stays below 1e-4; anything
+    // larger would be a kernel error, not rounding (gaps are ~7.5e-3, far from 0).
+    let worst = assert_gaps_close(&gpu, &cpu, 1e-4, "gpu f32 vs cpu");
+    eprintln!("gpu f32 vs cpu: largest relative gap difference {worst:e}");
+    // ...and f32 really is f32: not bit-identical to the f64 reference.
+    assert!(worst > 0.0, "f32 results equal the f64 ones exactly");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 3. --backend auto picks the GPU when there is one
+
+#[test]
+fn auto_picks_the_gpu_and_says_so() {
+    if !have_gpu(true, "auto_picks_the_gpu_and_says_so") {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("auto");
+    let out = run(&small_scene(), &dir, &["--backend", "auto"]);
+    assert_success(&out);
+    let m = read_manifest(&dir);
+    assert_gpu_manifest(&m, "auto", "f64");
+    let stderr = stderr_of(&out);
+    let name = m["adapter"]["name"].as_str().unwrap();
+    assert!(
+        stderr.contains("backend auto") && stderr.contains("GPU") && stderr.contains(name),
+        "stderr does not say that auto runs on the GPU adapter {name:?}; stderr:\n{stderr}"
+    );
+    assert!(
+        stderr.contains("on gpu"),
+        "the summary line does not name the GPU backend; stderr:\n{stderr}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// 4. --backend cpu --precision f32 is refused
+
+#[test]
+fn cpu_f32_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("out");
+    let out = run(
+        &small_scene(),
+        &dir,
+        &["--backend", "cpu", "--precision", "f32"],
+    );
+    assert_rejected(&out, &dir, &["solver.precision", "f32", "f64"]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// 5. no adapter: `gpu` is an error with the install hint, `auto` falls back to the CPU
+
+#[test]
+fn gpu_without_adapter_is_an_error_with_the_install_hint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("out");
+    let env = [("WGPU_ADAPTER_NAME", "no-such-adapter")];
+    for precision in ["f64", "f32"] {
+        let out = run_env(
+            &small_scene(),
+            &dir,
+            &["--backend", "gpu", "--precision", precision],
+            &env,
+        );
+        assert_rejected(
+            &out,
+            &dir,
+            &["solver.backend", "no GPU adapter", NO_ADAPTER_HINT],
+        );
+    }
+}
+
+#[test]
+fn auto_without_adapter_falls_back_to_the_cpu_and_says_why() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("auto");
+    let env = [("WGPU_ADAPTER_NAME", "no-such-adapter")];
+    let out = run_env(&small_scene(), &dir, &["--backend", "auto"], &env);
+    assert_success(&out);
+    let stderr = stderr_of(&out);
+    assert!(
+        stderr.contains("backend auto")
+            && stderr.contains("no GPU adapter")
+            && stderr.contains("running on the CPU")
+            && stderr.contains("rayon"),
+        "stderr does not say why auto runs on the CPU; stderr:\n{stderr}"
+    );
+    let m = read_manifest(&dir);
+    assert_eq!(m["backend"], "cpu");
+    assert_eq!(m["backend_requested"], "auto");
+    assert_eq!(m["precision"], "f64");
+    assert!(m["gpu_stats"].is_null());
+    let adapter = &m["adapter"];
+    assert_eq!(adapter["backend"], "cpu", "adapter: {adapter}");
+    assert!(
+        adapter["name"]
+            .as_str()
+            .is_some_and(|n| n.starts_with("cpu (rayon, ") && n.ends_with(" threads)")),
+        "adapter: {adapter}"
+    );
+    assert!(
+        adapter["fallback_reason"]
+            .as_str()
+            .is_some_and(|r| r.contains("no GPU adapter")),
+        "adapter: {adapter}"
+    );
+
+    // The fallback runs the same numbers as the CPU backend.
+    let cpu = tmp.path().join("cpu");
+    cpu_reference(&cpu);
+    let (_, a) = read_npy(&dir.join("gaps.npy"));
+    let (_, b) = read_npy(&cpu.join("gaps.npy"));
+    assert_eq!(a, b, "auto's CPU fallback differs from --backend cpu");
+
+    // f32 cannot fall back (the CPU path is f64 only): a clear error, not a silent f64 run.
+    let dir32 = tmp.path().join("auto32");
+    let out = run_env(
+        &small_scene(),
+        &dir32,
+        &["--backend", "auto", "--precision", "f32"],
+        &env,
+    );
+    assert_rejected(&out, &dir32, &["solver.precision", "f32", "no GPU adapter"]);
+}
