@@ -18,3 +18,4 @@ pub mod ensemble;
 pub mod output;
 pub mod run;
 pub mod stats;
+pub mod study;

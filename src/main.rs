@@ -4,8 +4,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use roughlub::error::Error;
 use roughlub::run::{run_scene, RunOptions};
 use roughlub::scene::{Backend, Precision, Scene};
+use roughlub::study::{merge_studies, run_study, StudyOptions, StudySummary};
 
 #[derive(Parser)]
 #[command(
@@ -20,7 +22,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Run a scene and write its outputs.
+    /// Run a scene and write its outputs (an ensemble study when the scene has [ensemble]).
     Run {
         /// Scene file (TOML).
         scene: PathBuf,
@@ -36,62 +38,147 @@ enum Command {
         /// No progress bar and no summary line.
         #[arg(long)]
         quiet: bool,
+        /// Ensembles only: solve shard K of N (K from 0), e.g. --shard 3/1000.
+        #[arg(long)]
+        shard: Option<String>,
+        /// Ensembles only: finish an interrupted run in the same directory, reusing its chunks.
+        #[arg(long)]
+        resume: bool,
     },
+    /// Merge the partial statistics of ensemble shards into the statistics of the whole study.
+    Merge {
+        /// Shard output directories.
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Output directory of the merged study.
+        #[arg(long)]
+        out: PathBuf,
+        /// Skip the plots.
+        #[arg(long)]
+        no_plots: bool,
+    },
+}
+
+fn parse_shard(text: &str) -> roughlub::Result<(u64, u64)> {
+    let bad = || {
+        Error::invalid(
+            "--shard",
+            format!("\"{text}\""),
+            "shard K of N, K counted from 0",
+            "K/N with 0 <= K < N, e.g. 0/10",
+        )
+    };
+    let (k, n) = text.split_once('/').ok_or_else(bad)?;
+    let k: u64 = k.trim().parse().map_err(|_| bad())?;
+    let n: u64 = n.trim().parse().map_err(|_| bad())?;
+    if n == 0 || k >= n {
+        return Err(bad());
+    }
+    Ok((k, n))
+}
+
+fn report_study(summary: &StudySummary, quiet: bool) {
+    if !quiet {
+        eprintln!(
+            "{} members ({} failed, {} chunks reused) in {:.2} s (statistics {:.1} %); outputs in {}",
+            summary.members,
+            summary.failed,
+            summary.chunks_reused,
+            summary.wall_seconds,
+            100.0 * summary.statistics_seconds / summary.wall_seconds.max(1e-12),
+            summary.out_dir.display()
+        );
+    }
+    if summary.failed > 0 {
+        eprintln!(
+            "warning: {} member(s) failed; they are counted and listed (\"failed_members\" in the manifest, status in members.csv), never averaged in",
+            summary.failed
+        );
+    }
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    match cli.command {
+    let result: roughlub::Result<()> = match cli.command {
         Command::Run {
             scene,
             out,
             backend,
             precision,
             quiet,
-        } => {
-            let result = (|| -> roughlub::Result<roughlub::run::RunSummary> {
-                let scene = Scene::from_file(&scene)?;
-                let backend: Option<Backend> = backend.as_deref().map(str::parse).transpose()?;
-                let precision: Option<Precision> =
-                    precision.as_deref().map(str::parse).transpose()?;
-                let out_dir = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
-                run_scene(
+            shard,
+            resume,
+        } => (|| {
+            let scene = Scene::from_file(&scene)?;
+            let backend: Option<Backend> = backend.as_deref().map(str::parse).transpose()?;
+            let precision: Option<Precision> = precision.as_deref().map(str::parse).transpose()?;
+            let out_dir = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
+            if scene.ensemble.is_some() {
+                let shard = shard
+                    .as_deref()
+                    .map(parse_shard)
+                    .transpose()?
+                    .unwrap_or((0, 1));
+                let summary = run_study(
                     &scene,
-                    &RunOptions {
+                    &StudyOptions {
                         out_dir,
                         backend,
                         precision,
                         quiet,
+                        shard,
+                        resume,
                     },
-                )
-            })();
-            match result {
-                Ok(summary) => {
-                    if !quiet {
-                        eprintln!(
-                            "{} members ({} failed) on {} ({}) in {:.2} s; outputs in {}",
-                            summary.members,
-                            summary.failed,
-                            summary.backend,
-                            summary.adapter,
-                            summary.wall_seconds,
-                            summary.out_dir.display()
-                        );
-                    }
-                    if summary.failed > 0 {
-                        // The run itself succeeded; failed members are data, listed in the manifest.
-                        eprintln!(
-                            "warning: {} member(s) failed; see \"failed_members\" in the manifest",
-                            summary.failed
-                        );
-                    }
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::from(2)
-                }
+                )?;
+                report_study(&summary, quiet);
+                return Ok(());
             }
+            if shard.is_some() || resume {
+                return Err(Error::missing(
+                    if resume { "--resume" } else { "--shard" },
+                    "only for ensemble scenes (with an [ensemble] section)",
+                ));
+            }
+            let summary = run_scene(
+                &scene,
+                &RunOptions {
+                    out_dir,
+                    backend,
+                    precision,
+                    quiet,
+                },
+            )?;
+            if !quiet {
+                eprintln!(
+                    "{} members ({} failed) on {} ({}) in {:.2} s; outputs in {}",
+                    summary.members,
+                    summary.failed,
+                    summary.backend,
+                    summary.adapter,
+                    summary.wall_seconds,
+                    summary.out_dir.display()
+                );
+            }
+            if summary.failed > 0 {
+                // The run itself succeeded; failed members are data, listed in the manifest.
+                eprintln!(
+                    "warning: {} member(s) failed; see \"failed_members\" in the manifest",
+                    summary.failed
+                );
+            }
+            Ok(())
+        })(),
+        Command::Merge {
+            dirs,
+            out,
+            no_plots,
+        } => merge_studies(&dirs, &out, !no_plots).map(|s| report_study(&s, false)),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(2)
         }
     }
 }

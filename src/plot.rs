@@ -1,5 +1,6 @@
-//! PNG plots of the macroscopic profiles of one ensemble member and of scalar observables over
-//! time (plotters, bitmap backend).
+//! PNG plots of the macroscopic profiles of one ensemble member, of scalar observables over
+//! time, of an ensemble's mean profile with a quantile band, and histograms (plotters, bitmap
+//! backend).
 //!
 //! Text is rendered with plotters' `ab_glyph` feature, which does not look for system fonts: the
 //! DejaVu Sans font shipped in `assets/` is embedded in the binary and registered on first use
@@ -23,7 +24,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 /// Width and height, in pixels, of every PNG written by this module.
 pub const PLOT_SIZE: (u32, u32) = (1000, 800);
 
-/// Error from [`plot_profiles`] or [`plot_series`].
+/// Error from [`plot_profiles`], [`plot_series`], [`plot_band`] or [`plot_histogram`].
 #[derive(Debug, thiserror::Error)]
 #[error("cannot draw plot {path}: {message}")]
 pub struct PlotError {
@@ -45,6 +46,31 @@ pub struct ProfilePlot<'a> {
     pub u: &'a [Vec<f64>],
     /// Rough-contact density: T rows of G values, when the model has roughness (drawn dashed).
     pub rho_star: Option<&'a [Vec<f64>]>,
+}
+
+/// Mean of a field over an ensemble with a quantile band, at a few times.
+pub struct BandPlot<'a> {
+    /// Title at the top of the figure.
+    pub title: &'a str,
+    /// Name of the field, used as the y axis label, e.g. "rho".
+    pub y_label: &'a str,
+    /// Grid, length G.
+    pub x: &'a [f64],
+    /// The times shown (one curve and one band each), length T (a handful: the colours of more
+    /// than about 6 are hard to tell apart).
+    pub times: &'a [f64],
+    /// Ensemble mean: T rows of G values (non-finite values are skipped).
+    pub mean: &'a [Vec<f64>],
+    /// Lower edge of the band (e.g. the 5 % quantile): T rows of G values. The band is left out
+    /// where a bound or x is not finite.
+    pub lower: &'a [Vec<f64>],
+    /// Upper edge of the band (e.g. the 95 % quantile): T rows of G values.
+    pub upper: &'a [Vec<f64>],
+    /// Legend label of the band, e.g. "5%-95% of members".
+    pub band_label: &'a str,
+    /// Optional reference curves (e.g. the mean of rho*), T rows of G values, drawn dashed in the
+    /// colour of their time and labelled "reference" in the legend.
+    pub reference: Option<&'a [Vec<f64>]>,
 }
 
 const FONT: &str = "sans-serif";
@@ -100,6 +126,42 @@ pub fn plot_series(
     draw_series(path, title, y_label, times, series).map_err(err)
 }
 
+/// Draws an ensemble's mean profile at a few times, each with its quantile band: one panel, one
+/// colour per time (the colormap of [`plot_profiles`]), the band `[lower, upper]` as a
+/// translucent area, the mean as a solid line and the optional reference dashed, with a legend
+/// "t = ..." per time plus an entry for the band. The y axis is [0, 1] when all values lie in
+/// it, otherwise fitted to the data.
+pub fn plot_band(path: &Path, plot: &BandPlot) -> Result<(), PlotError> {
+    let err = |message: String| PlotError {
+        path: path.to_path_buf(),
+        message,
+    };
+    check_band(plot).map_err(err)?;
+    register_fonts().map_err(err)?;
+    draw_band(path, plot).map_err(err)
+}
+
+/// Draws a histogram: one bar per bin `[edges[i], edges[i + 1])` of height `counts[i]`, the
+/// count axis starting at 0, and the optional `note` (e.g. "12 members never reached 0.9") in a
+/// top corner of the panel. `edges` must be finite and strictly increasing, with one more entry
+/// than `counts`.
+pub fn plot_histogram(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    edges: &[f64],
+    counts: &[u64],
+    note: Option<&str>,
+) -> Result<(), PlotError> {
+    let err = |message: String| PlotError {
+        path: path.to_path_buf(),
+        message,
+    };
+    check_histogram(edges, counts).map_err(err)?;
+    register_fonts().map_err(err)?;
+    draw_histogram(path, title, x_label, edges, counts, note).map_err(err)
+}
+
 // ---------------------------------------------------------------------------------------------
 // Input checks
 // ---------------------------------------------------------------------------------------------
@@ -153,6 +215,48 @@ fn check_series(times: &[f64], series: &[(String, Vec<f64>)]) -> Result<(), Stri
                 times.len()
             ));
         }
+    }
+    Ok(())
+}
+
+fn check_band(plot: &BandPlot) -> Result<(), String> {
+    if plot.x.is_empty() {
+        return Err("the grid x is empty".to_string());
+    }
+    if plot.times.is_empty() {
+        return Err("there are no times to show".to_string());
+    }
+    let (t, g) = (plot.times.len(), plot.x.len());
+    check_rows("mean", plot.mean, t, g)?;
+    check_rows("lower", plot.lower, t, g)?;
+    check_rows("upper", plot.upper, t, g)?;
+    if let Some(reference) = plot.reference {
+        check_rows("reference", reference, t, g)?;
+    }
+    Ok(())
+}
+
+fn check_histogram(edges: &[f64], counts: &[u64]) -> Result<(), String> {
+    if counts.is_empty() {
+        return Err("the histogram has no bins (counts is empty)".to_string());
+    }
+    if edges.len() != counts.len() + 1 {
+        return Err(format!(
+            "the histogram has {} bin edges but {} counts (it needs one edge more than counts)",
+            edges.len(),
+            counts.len()
+        ));
+    }
+    if let Some(i) = edges.iter().position(|e| !e.is_finite()) {
+        return Err(format!("bin edge {i} is not finite ({})", edges[i]));
+    }
+    if let Some(i) = edges.windows(2).position(|w| w[1] <= w[0]) {
+        return Err(format!(
+            "the bin edges are not strictly increasing (edge {} = {} is not above edge {i} = {})",
+            i + 1,
+            edges[i + 1],
+            edges[i]
+        ));
     }
     Ok(())
 }
@@ -351,6 +455,18 @@ fn build_chart<'a, 'b>(
     x_desc: &str,
     y_desc: &str,
 ) -> Result<Chart<'a, 'b>, String> {
+    build_chart_with_y_labels(area, x_range, y_range, x_desc, y_desc, 10)
+}
+
+/// Like [`build_chart`], with at most `y_labels` tick labels on the y axis.
+fn build_chart_with_y_labels<'a, 'b>(
+    area: &'a Area<'b>,
+    x_range: Range<f64>,
+    y_range: Range<f64>,
+    x_desc: &str,
+    y_desc: &str,
+    y_labels: usize,
+) -> Result<Chart<'a, 'b>, String> {
     let (x_span, y_span) = (x_range.end - x_range.start, y_range.end - y_range.start);
     let mut chart = ChartBuilder::on(area)
         .margin(12)
@@ -369,6 +485,7 @@ fn build_chart<'a, 'b>(
         .light_line_style(BLACK.mix(0.04))
         .x_label_formatter(&|v| format_tick(*v, x_span))
         .y_label_formatter(&|v| format_tick(*v, y_span))
+        .y_labels(y_labels)
         .draw()
         .map_err(msg)?;
     Ok(chart)
@@ -402,11 +519,18 @@ fn draw_line(
     Ok(())
 }
 
-/// One legend entry: a short line sample and a label.
+/// One legend entry: a short sample (line, dashed line or translucent band) and a label.
 struct LegendEntry {
     label: String,
     color: RGBColor,
-    dashed: bool,
+    mark: LegendMark,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum LegendMark {
+    Line,
+    Dashed,
+    Band,
 }
 
 const LEGEND_ROW: i32 = 24;
@@ -422,15 +546,31 @@ fn draw_legend(area: &Area, top: i32, title: &str, entries: &[LegendEntry]) -> R
     }
     for entry in entries {
         let style = entry.color.stroke_width(2);
-        if entry.dashed {
-            for k in 0..3 {
-                let a = x0 + 12 * k;
-                area.draw(&PathElement::new(vec![(a, y), (a + 7, y)], style))
+        match entry.mark {
+            LegendMark::Dashed => {
+                for k in 0..3 {
+                    let a = x0 + 12 * k;
+                    area.draw(&PathElement::new(vec![(a, y), (a + 7, y)], style))
+                        .map_err(msg)?;
+                }
+            }
+            LegendMark::Line => {
+                area.draw(&PathElement::new(vec![(x0, y), (x0 + 31, y)], style))
                     .map_err(msg)?;
             }
-        } else {
-            area.draw(&PathElement::new(vec![(x0, y), (x0 + 31, y)], style))
+            LegendMark::Band => {
+                let corners = [(x0, y - 7), (x0 + 31, y + 7)];
+                area.draw(&Rectangle::new(
+                    corners,
+                    entry.color.mix(BAND_ALPHA).filled(),
+                ))
                 .map_err(msg)?;
+                area.draw(&Rectangle::new(
+                    corners,
+                    entry.color.mix(0.5).stroke_width(1),
+                ))
+                .map_err(msg)?;
+            }
         }
         area.draw_text(&entry.label, &text, (x0 + 42, y))
             .map_err(msg)?;
@@ -448,6 +588,69 @@ fn shorten(label: &str, max_chars: usize) -> String {
         s.push('…');
         s
     }
+}
+
+/// Opacity of the quantile bands of [`plot_band`].
+const BAND_ALPHA: f64 = 0.2;
+
+/// Fills the band between `lower` and `upper` over the runs of points where `x` and both bounds
+/// are finite (a polygon along `upper`, back along `lower`); a run of one point becomes a vertical
+/// segment.
+fn draw_band_area(
+    chart: &mut Chart,
+    xs: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    color: RGBColor,
+) -> Result<(), String> {
+    let mut runs: Vec<Vec<(f64, f64, f64)>> = Vec::new();
+    let mut current = Vec::new();
+    for ((&x, &lo), &hi) in xs.iter().zip(lower).zip(upper) {
+        if x.is_finite() && lo.is_finite() && hi.is_finite() {
+            current.push((x, lo, hi));
+        } else if !current.is_empty() {
+            runs.push(std::mem::take(&mut current));
+        }
+    }
+    if !current.is_empty() {
+        runs.push(current);
+    }
+    for run in runs {
+        if run.len() == 1 {
+            let (x, lo, hi) = run[0];
+            chart
+                .draw_series(std::iter::once(PathElement::new(
+                    vec![(x, lo), (x, hi)],
+                    color.mix(0.5).stroke_width(2),
+                )))
+                .map_err(msg)?;
+            continue;
+        }
+        let points: Vec<(f64, f64)> = run
+            .iter()
+            .map(|&(x, _, hi)| (x, hi))
+            .chain(run.iter().rev().map(|&(x, lo, _)| (x, lo)))
+            .collect();
+        chart
+            .draw_series(std::iter::once(Polygon::new(
+                points,
+                color.mix(BAND_ALPHA).filled(),
+            )))
+            .map_err(msg)?;
+    }
+    Ok(())
+}
+
+/// Width of a legend column holding `labels`: the widest label plus the sample, within
+/// `[min, 400]` pixels.
+fn legend_width(area: &Area, labels: &[&str], min: i32) -> Result<i32, String> {
+    let style = TextStyle::from((FONT, 17).into_font());
+    let widest = labels
+        .iter()
+        .map(|l| area.estimate_text_size(l, &style).map(|(w, _)| w))
+        .try_fold(0u32, |acc, w| w.map(|w| acc.max(w)))
+        .map_err(msg)?;
+    Ok((widest.min(1000) as i32 + 60).clamp(min, 400))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -493,7 +696,7 @@ fn draw_profiles(path: &Path, plot: &ProfilePlot) -> Result<(), String> {
         .map(|i| LegendEntry {
             label: format!("t = {}", format_number(plot.times[i])),
             color: indexed_color(i, n_times),
-            dashed: false,
+            mark: LegendMark::Line,
         })
         .collect();
     draw_legend(&legend_area, 22, "time", &entries)?;
@@ -502,12 +705,12 @@ fn draw_profiles(path: &Path, plot: &ProfilePlot) -> Result<(), String> {
             LegendEntry {
                 label: "rho".to_string(),
                 color: RGBColor(60, 60, 60),
-                dashed: false,
+                mark: LegendMark::Line,
             },
             LegendEntry {
                 label: "rho*".to_string(),
                 color: RGBColor(60, 60, 60),
-                dashed: true,
+                mark: LegendMark::Dashed,
             },
         ];
         let top = 22 + LEGEND_ROW * (legend_indices(n_times, 10).len() as i32 + 2);
@@ -573,10 +776,194 @@ fn draw_series(
         .map(|i| LegendEntry {
             label: labels[i].clone(),
             color: color(i),
-            dashed: false,
+            mark: LegendMark::Line,
         })
         .collect();
     draw_legend(&legend_area, 22, "", &entries)?;
 
     root.present().map_err(msg)
+}
+
+fn draw_band(path: &Path, plot: &BandPlot) -> Result<(), String> {
+    let n_times = plot.times.len();
+
+    let x_range = match finite_min_max(plot.x) {
+        Some((lo, hi)) if lo >= 0.0 && hi <= 1.0 => 0.0..1.0,
+        Some((lo, hi)) if hi - lo > lo.abs().max(hi.abs()) * 1e-12 => lo..hi,
+        some => padded_range(some, "x")?,
+    };
+    if !(x_range.end - x_range.start).is_finite() {
+        return Err("the values of x are too large to plot".to_string());
+    }
+    let y_values = plot
+        .mean
+        .iter()
+        .chain(plot.lower)
+        .chain(plot.upper)
+        .chain(plot.reference.into_iter().flatten())
+        .flatten();
+    let y_range = match finite_min_max(y_values) {
+        None => 0.0..1.0,
+        Some((lo, hi)) if lo >= 0.0 && hi <= 1.0 => 0.0..1.0,
+        some => padded_range(some, plot.y_label)?,
+    };
+
+    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(msg)?;
+    let body = root
+        .titled(&shorten(plot.title, 90), (FONT, 26))
+        .map_err(msg)?;
+
+    const MAX_LABEL: usize = 32;
+    let band_label = shorten(plot.band_label, MAX_LABEL);
+    let shown = legend_indices(n_times, 10);
+    let mut entries: Vec<LegendEntry> = shown
+        .iter()
+        .map(|&i| LegendEntry {
+            label: shorten(&format!("t = {}", format_number(plot.times[i])), MAX_LABEL),
+            color: indexed_color(i, n_times),
+            mark: LegendMark::Line,
+        })
+        .collect();
+    let grey = RGBColor(60, 60, 60);
+    let mut extra = vec![LegendEntry {
+        label: band_label,
+        color: grey,
+        mark: LegendMark::Band,
+    }];
+    if plot.reference.is_some() {
+        extra.push(LegendEntry {
+            label: "reference".to_string(),
+            color: grey,
+            mark: LegendMark::Dashed,
+        });
+    }
+    let labels: Vec<&str> = entries
+        .iter()
+        .chain(&extra)
+        .map(|e| e.label.as_str())
+        .collect();
+    let width = legend_width(&body, &labels, 170)?;
+    let (panel, legend_area) = body.split_horizontally(body.dim_in_pixel().0 as i32 - width);
+
+    let mut chart = build_chart(&panel, x_range, y_range, "x", plot.y_label)?;
+    for i in 0..n_times {
+        let color = indexed_color(i, n_times);
+        draw_band_area(&mut chart, plot.x, &plot.lower[i], &plot.upper[i], color)?;
+    }
+    for i in 0..n_times {
+        let color = indexed_color(i, n_times);
+        if let Some(reference) = plot.reference {
+            draw_line(&mut chart, plot.x, &reference[i], color, true)?;
+        }
+        draw_line(&mut chart, plot.x, &plot.mean[i], color, false)?;
+    }
+
+    draw_legend(&legend_area, 22, "time", &entries)?;
+    let top = 22 + LEGEND_ROW * (shown.len() as i32 + 2);
+    entries = extra;
+    draw_legend(&legend_area, top, "", &entries)?;
+
+    root.present().map_err(msg)
+}
+
+fn draw_histogram(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    edges: &[f64],
+    counts: &[u64],
+    note: Option<&str>,
+) -> Result<(), String> {
+    let (lo, hi) = (edges[0], edges[edges.len() - 1]);
+    let span = hi - lo;
+    if !span.is_finite() {
+        return Err(format!(
+            "the bin edges (from {lo:e} to {hi:e}) are too large to plot"
+        ));
+    }
+    if span <= lo.abs().max(hi.abs()) * 1e-12 {
+        return Err(format!(
+            "the bin edges (from {lo:e} to {hi:e}) are too close together to plot"
+        ));
+    }
+    let max_count = counts.iter().copied().max().unwrap_or(0) as f64;
+    let headroom = if note.is_some() { 1.25 } else { 1.08 };
+    let y_top = (max_count * headroom).max(1.0);
+    // Whole-number ticks: at most one label per unit of count.
+    let y_labels = (y_top.floor().min(10.0) as usize + 1).clamp(2, 10);
+
+    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(msg)?;
+    let body = root.titled(&shorten(title, 90), (FONT, 26)).map_err(msg)?;
+    let mut chart =
+        build_chart_with_y_labels(&body, lo..hi, 0.0..y_top, x_label, "count", y_labels)?;
+
+    let (r, g, b) = TAB10[0];
+    let fill = RGBColor(r, g, b);
+    let edge = RGBColor(r / 2, g / 2, b / 2);
+    for (w, &c) in edges.windows(2).zip(counts) {
+        if c == 0 {
+            continue;
+        }
+        let corners = [(w[0], 0.0), (w[1], c as f64)];
+        chart
+            .draw_series([
+                Rectangle::new(corners, fill.mix(0.75).filled()),
+                Rectangle::new(corners, edge.stroke_width(1)),
+            ])
+            .map_err(msg)?;
+    }
+
+    if let Some(note) = note {
+        // In the top corner above the lower bars.
+        let mid = 0.5 * (lo + hi);
+        let half_max = |left: bool| {
+            edges
+                .windows(2)
+                .zip(counts)
+                .filter(|(w, _)| (0.5 * (w[0] + w[1]) < mid) == left)
+                .map(|(_, &c)| c)
+                .max()
+                .unwrap_or(0)
+        };
+        let left = half_max(true) < half_max(false);
+        draw_note(&chart.plotting_area().strip_coord_spec(), note, left)?;
+    }
+
+    root.present().map_err(msg)
+}
+
+/// Writes `note` (one line per line of the text, at most 6) in a framed white box in the top left
+/// or top right corner of `area`.
+fn draw_note(area: &Area, note: &str, left: bool) -> Result<(), String> {
+    let lines: Vec<String> = note.lines().take(6).map(|l| shorten(l, 80)).collect();
+    if lines.is_empty() {
+        return Ok(());
+    }
+    let style = TextStyle::from((FONT, 18).into_font()).pos(Pos::new(HPos::Left, VPos::Top));
+    let widest = lines
+        .iter()
+        .map(|l| area.estimate_text_size(l, &style).map(|(w, _)| w))
+        .try_fold(0u32, |acc, w| w.map(|w| acc.max(w)))
+        .map_err(msg)?
+        .min(2000) as i32;
+    let (pad, row, margin) = (8, 24, 10);
+    let (w, h) = (widest + 2 * pad, row * lines.len() as i32 + 2 * pad - 8);
+    let area_w = area.dim_in_pixel().0 as i32;
+    let x0 = if left {
+        margin
+    } else {
+        (area_w - margin - w).max(margin)
+    };
+    let (y0, corners) = (margin, [(x0, margin), (x0 + w, margin + h)]);
+    area.draw(&Rectangle::new(corners, WHITE.mix(0.9).filled()))
+        .map_err(msg)?;
+    area.draw(&Rectangle::new(corners, BLACK.mix(0.4).stroke_width(1)))
+        .map_err(msg)?;
+    for (k, line) in lines.iter().enumerate() {
+        area.draw_text(line, &style, (x0 + pad, y0 + pad + row * k as i32))
+            .map_err(msg)?;
+    }
+    Ok(())
 }

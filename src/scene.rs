@@ -25,6 +25,52 @@ struct SceneFile {
     batch: Option<BatchSection>,
     #[serde(default)]
     output: OutputSection,
+    ensemble: Option<EnsembleSection>,
+}
+
+/// `[ensemble]`: many members differing by random roughness and perturbed initial data, summarised
+/// by statistics (see `crate::study`).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnsembleSection {
+    members: i64,
+    seed: Option<u64>,
+    chunk: Option<i64>,
+    roughness: Option<crate::ensemble::RoughnessSpec>,
+    mean_radius: Option<f64>,
+    velocity_amplitude_spread: Option<f64>,
+    velocity_phase_spread: Option<f64>,
+    jitter: Option<f64>,
+    threshold: Option<f64>,
+    store_members: Option<bool>,
+    quantiles: Option<Vec<f64>>,
+    bins: Option<i64>,
+    u_range: Option<[f64; 2]>,
+}
+
+/// The validated `[ensemble]` section.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct EnsembleSpec {
+    /// Members per sweep point; the study has `members × (sweep points)` members, member m at
+    /// sweep point m mod (sweep points).
+    pub members: u64,
+    pub seed: u64,
+    /// Members solved (and kept in memory) at once.
+    pub chunk: usize,
+    #[serde(skip)]
+    pub roughness: Option<crate::ensemble::RoughnessSpec>,
+    /// Roughness radius when the scene has no rho* profile.
+    pub mean_radius: Option<f64>,
+    pub velocity_amplitude_spread: f64,
+    pub velocity_phase_spread: f64,
+    pub jitter: f64,
+    /// Density threshold of the first-hitting-time observable.
+    pub threshold: f64,
+    pub store_members: bool,
+    pub quantiles: Vec<f64>,
+    /// Histogram bins of the field quantile bands.
+    pub bins: usize,
+    pub u_range: Option<[f64; 2]>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -233,6 +279,7 @@ pub struct Scene {
     pub fields: OutputFields,
     pub plots: bool,
     pub plot_members: usize,
+    pub ensemble: Option<EnsembleSpec>,
 }
 
 pub const MAX_PARTICLES: i64 = 100_000_000;
@@ -686,6 +733,12 @@ impl Scene {
             }
         };
 
+        let ensemble = file
+            .ensemble
+            .as_ref()
+            .map(|e| validate_ensemble(e, &initial, path))
+            .transpose()?;
+
         Ok(Scene {
             name,
             description: file.description.clone(),
@@ -707,6 +760,7 @@ impl Scene {
             fields,
             plots: o.plots.unwrap_or(true),
             plot_members,
+            ensemble,
         })
     }
 
@@ -723,8 +777,170 @@ impl Scene {
     }
 }
 
+fn validate_ensemble(
+    e: &EnsembleSection,
+    initial: &InitialSpec,
+    scene_path: &Path,
+) -> Result<EnsembleSpec> {
+    if !(1..=1_000_000_000).contains(&e.members) {
+        return Err(Error::invalid(
+            "ensemble.members",
+            e.members,
+            "members per sweep point",
+            "1 ..= 1e9",
+        ));
+    }
+    let chunk = match e.chunk.unwrap_or(256) {
+        c @ 1..=1_000_000 => c as usize,
+        c => {
+            return Err(Error::invalid(
+                "ensemble.chunk",
+                c,
+                "members solved at once (memory)",
+                "1 ..= 1000000",
+            ))
+        }
+    };
+    let mut roughness = e.roughness.clone();
+    if let Some(r) = &mut roughness {
+        r.validate().map_err(|err| {
+            Error::invalid(
+                "ensemble.roughness",
+                format!("{r:?}"),
+                err.to_string(),
+                "see the scene reference",
+            )
+        })?;
+        // A radii file is relative to the scene, like the particle file.
+        if let crate::ensemble::RoughnessKind::File(p) = &mut r.kind {
+            if p.is_relative() {
+                *p = scene_path.parent().unwrap_or(Path::new(".")).join(&*p);
+            }
+        }
+    }
+    let has_rho_star = match initial {
+        InitialSpec::Profiles { rho_star, .. } => rho_star.is_some(),
+        InitialSpec::Particles { .. } => true,
+    };
+    if let Some(r) = e.mean_radius {
+        check_finite("ensemble.mean_radius", r)?;
+        if !(r >= 0.0) {
+            return Err(Error::invalid(
+                "ensemble.mean_radius",
+                r,
+                "the mean roughness radius",
+                ">= 0",
+            ));
+        }
+    }
+    if roughness.is_some() && !has_rho_star && e.mean_radius.is_none() {
+        return Err(Error::missing(
+            "ensemble.mean_radius",
+            "random roughness needs a mean profile: give initial.rho_star or ensemble.mean_radius (>= 0)",
+        ));
+    }
+    let spread = |field: &str, v: Option<f64>, max: f64| -> Result<f64> {
+        let v = v.unwrap_or(0.0);
+        check_finite(field, v)?;
+        if !(0.0..=max).contains(&v) {
+            return Err(Error::invalid(
+                field,
+                v,
+                "relative spread",
+                format!("0 <= value <= {max}"),
+            ));
+        }
+        Ok(v)
+    };
+    let velocity_amplitude_spread = spread(
+        "ensemble.velocity_amplitude_spread",
+        e.velocity_amplitude_spread,
+        10.0,
+    )?;
+    let velocity_phase_spread = spread(
+        "ensemble.velocity_phase_spread",
+        e.velocity_phase_spread,
+        1.0,
+    )?;
+    if velocity_phase_spread > 0.0 && matches!(initial, InitialSpec::Particles { .. }) {
+        return Err(Error::missing(
+            "ensemble.velocity_phase_spread",
+            "a phase shift needs a velocity profile u0(x); with a particle file only the amplitude can vary",
+        ));
+    }
+    let jitter = spread("ensemble.jitter", e.jitter, 2.0)?;
+    let threshold = e.threshold.unwrap_or(0.9);
+    check_finite("ensemble.threshold", threshold)?;
+    if !(threshold > 0.0 && threshold <= 1.0) {
+        return Err(Error::invalid(
+            "ensemble.threshold",
+            threshold,
+            "density threshold",
+            "0 < threshold <= 1",
+        ));
+    }
+    let quantiles = e
+        .quantiles
+        .clone()
+        .unwrap_or_else(|| vec![0.05, 0.25, 0.5, 0.75, 0.95]);
+    if quantiles.is_empty() {
+        return Err(Error::invalid(
+            "ensemble.quantiles",
+            "[]",
+            "no quantile",
+            "a non-empty list in [0, 1]",
+        ));
+    }
+    for (j, &q) in quantiles.iter().enumerate() {
+        if !(0.0..=1.0).contains(&q) {
+            return Err(Error::invalid(
+                format!("ensemble.quantiles[{j}]"),
+                q,
+                "a quantile level",
+                "0 <= q <= 1",
+            ));
+        }
+    }
+    let bins = match e.bins.unwrap_or(400) {
+        b @ 4..=100_000 => b as usize,
+        b => {
+            return Err(Error::invalid(
+                "ensemble.bins",
+                b,
+                "histogram bins of the field bands",
+                "4 ..= 100000",
+            ))
+        }
+    };
+    if let Some([lo, hi]) = e.u_range {
+        if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+            return Err(Error::invalid(
+                "ensemble.u_range",
+                format!("[{lo}, {hi}]"),
+                "velocity range of the u band",
+                "[lo, hi] with lo < hi",
+            ));
+        }
+    }
+    Ok(EnsembleSpec {
+        members: e.members as u64,
+        seed: e.seed.unwrap_or(0),
+        chunk,
+        roughness,
+        mean_radius: e.mean_radius,
+        velocity_amplitude_spread,
+        velocity_phase_spread,
+        jitter,
+        threshold,
+        store_members: e.store_members.unwrap_or(false),
+        quantiles,
+        bins,
+        u_range: e.u_range,
+    })
+}
+
 /// Per-member physical parameters.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MemberParams {
     pub mu: f64,
     pub gamma: f64,

@@ -194,6 +194,23 @@ impl RunningStats {
         }
     }
 
+    /// Statistics of `count` finite observations given their mean, sum of squared deviations and
+    /// extremes (e.g. accumulated in bulk by a caller); `count = 0` gives an empty accumulator.
+    pub fn from_moments(count: u64, mean: f64, m2: f64, min: f64, max: f64) -> Self {
+        if count == 0 {
+            return Self::new();
+        }
+        RunningStats {
+            count,
+            mean,
+            mean_lo: 0.0,
+            m2: m2.max(0.0),
+            min,
+            max,
+            non_finite: 0,
+        }
+    }
+
     /// Adds one observation. Returns `false` (and counts it in [`non_finite`](Self::non_finite))
     /// when `x` is NaN or infinite; such values are not part of any statistic.
     #[inline]
@@ -611,6 +628,37 @@ impl QuantileSketch {
     /// Number of finite observations.
     pub fn count(&self) -> u64 {
         self.count
+    }
+
+    /// Counts per bin of `edges` (ascending, at least 2), plus the counts below the first and
+    /// above the last edge. Each bucket's count goes to the bin of its representative value
+    /// (clamped to [min, max]), so a value is binned at most `alpha |x|` away from where it is:
+    /// the same guarantee as the quantiles, and identical for any sharding of the stream.
+    pub fn histogram(&self, edges: &[f64]) -> (Vec<u64>, u64, u64) {
+        let bins = edges.len().saturating_sub(1);
+        let mut counts = vec![0u64; bins];
+        let (mut under, mut over) = (0u64, 0u64);
+        let clamp = |v: f64| v.max(self.min).min(self.max);
+        let mut place = |v: f64, c: u64| {
+            if bins == 0 || v < edges[0] {
+                under += c;
+            } else if v > edges[bins] {
+                over += c;
+            } else {
+                let k = edges.partition_point(|&e| e <= v).clamp(1, bins) - 1;
+                counts[k] += c;
+            }
+        };
+        for (&k, &c) in &self.negative {
+            place(clamp(-self.representative(k)), c);
+        }
+        if self.zero_count > 0 {
+            place(clamp(0.0), self.zero_count);
+        }
+        for (&k, &c) in &self.positive {
+            place(clamp(self.representative(k)), c);
+        }
+        (counts, under, over)
     }
 
     /// Number of rejected (NaN or infinite) observations.

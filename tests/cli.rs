@@ -843,7 +843,13 @@ fn quiet_prints_nothing_and_default_names_the_backend() {
     assert_success(&out);
     let stderr = stderr_of(&out);
     assert!(stderr.contains("backend auto"), "stderr:\n{stderr}");
-    let backend = read_manifest(&tmp.path().join("w"))["backend"].as_str().unwrap().to_string();
+    let backend = read_manifest(&tmp.path().join("w"))["backend"]
+        .as_str()
+        .unwrap()
+        .to_string();
     assert!(backend == "cpu" || backend == "gpu", "{backend}");
-    assert!(stderr.contains(&format!("on {backend}")), "stderr:\n{stderr}");
+    assert!(
+        stderr.contains(&format!("on {backend}")),
+        "stderr:\n{stderr}"
+    );
 }

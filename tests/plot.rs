@@ -2,7 +2,9 @@
 
 use std::path::Path;
 
-use roughlub::plot::{plot_profiles, plot_series, PlotError, ProfilePlot};
+use roughlub::plot::{
+    plot_band, plot_histogram, plot_profiles, plot_series, BandPlot, PlotError, ProfilePlot,
+};
 
 const PNG_SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a];
 
@@ -274,5 +276,266 @@ fn series_errors() {
     // An unwritable destination is an error too.
     let missing = dir.path().join("no/such/dir/x.png");
     assert!(plot_series(&missing, "t", "y", &times, &series[..1]).is_err());
+    assert!(!path.exists());
+}
+
+/// Synthetic ensemble statistics: grid, times, mean, 5 % and 95 % quantiles, reference.
+fn synthetic_band(g: usize, t: usize) -> (Vec<f64>, Vec<f64>, Rows, Rows, Rows, Rows) {
+    let (x, times, rho, _, rho_star) = synthetic(g, t);
+    let spread = |k: usize, xi: f64| 0.04 + 0.08 * k as f64 * (std::f64::consts::PI * xi).sin();
+    let lower = rho
+        .iter()
+        .enumerate()
+        .map(|(k, r)| {
+            r.iter()
+                .zip(&x)
+                .map(|(&v, &xi)| v - spread(k, xi))
+                .collect()
+        })
+        .collect();
+    let upper = rho
+        .iter()
+        .enumerate()
+        .map(|(k, r)| {
+            r.iter()
+                .zip(&x)
+                .map(|(&v, &xi)| v + spread(k, xi))
+                .collect()
+        })
+        .collect();
+    (x, times, rho, lower, upper, rho_star)
+}
+
+#[test]
+fn band_png_has_requested_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let (x, times, mean, mut lower, mut upper, reference) = synthetic_band(200, 4);
+    // NaN gaps: one bound missing over a stretch, and a single isolated finite point.
+    lower[1][40..60].iter_mut().for_each(|v| *v = f64::NAN);
+    upper[2][100..198].iter_mut().for_each(|v| *v = f64::NAN);
+    upper[2][199] = f64::NAN;
+    let path = dir.path().join("band.png");
+    let plot = BandPlot {
+        title: "case1 — density, ensemble mean",
+        y_label: "rho",
+        x: &x,
+        times: &times,
+        mean: &mean,
+        lower: &lower,
+        upper: &upper,
+        band_label: "5%-95% of members",
+        reference: Some(&reference),
+    };
+    plot_band(&path, &plot).unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    keep(&path, "band.png");
+
+    // Data outside [0, 1], no reference, a single time.
+    let shifted: Rows = mean
+        .iter()
+        .map(|r| r.iter().map(|v| v - 0.5).collect())
+        .collect();
+    let path = dir.path().join("band_signed.png");
+    let plot = BandPlot {
+        title: "velocity",
+        y_label: "u",
+        times: &times[..1],
+        mean: &shifted[..1],
+        lower: &lower[..1],
+        upper: &upper[..1],
+        reference: None,
+        ..plot
+    };
+    plot_band(&path, &plot).unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    keep(&path, "band_signed.png");
+}
+
+#[test]
+fn band_degenerate_data_do_not_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let nan = f64::NAN;
+    let cases: Vec<(&str, Vec<f64>, Rows, Rows, Rows)> = vec![
+        (
+            "one_point",
+            vec![0.5],
+            vec![vec![0.3]],
+            vec![vec![0.2]],
+            vec![vec![0.4]],
+        ),
+        (
+            "all_nan",
+            vec![0.2, 0.8],
+            vec![vec![nan; 2]],
+            vec![vec![nan; 2]],
+            vec![vec![nan; 2]],
+        ),
+        (
+            "const",
+            vec![3.0, 3.0],
+            vec![vec![5.0; 2]],
+            vec![vec![5.0; 2]],
+            vec![vec![5.0; 2]],
+        ),
+        (
+            "crossed",
+            vec![0.0, 0.5, 1.0],
+            vec![vec![0.5; 3]],
+            vec![vec![0.9, nan, 0.9]],
+            vec![vec![0.1, 0.2, f64::INFINITY]],
+        ),
+    ];
+    for (name, x, mean, lower, upper) in cases {
+        let path = dir.path().join(format!("{name}.png"));
+        let plot = BandPlot {
+            title: name,
+            y_label: "y",
+            x: &x,
+            times: &[0.0],
+            mean: &mean,
+            lower: &lower,
+            upper: &upper,
+            band_label: "band",
+            reference: None,
+        };
+        plot_band(&path, &plot).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(png_size(&path), (1000, 800), "{name}");
+    }
+    let huge = vec![vec![-1.7e308, 1.7e308]];
+    let plot = BandPlot {
+        title: "overflow",
+        y_label: "y",
+        x: &[0.0, 1.0],
+        times: &[0.0],
+        mean: &huge,
+        lower: &huge,
+        upper: &huge,
+        band_label: "band",
+        reference: None,
+    };
+    let e = plot_band(&dir.path().join("overflow.png"), &plot).unwrap_err();
+    assert!(e.message.contains("too large"), "{e}");
+}
+
+fn band_error(plot: &BandPlot) -> PlotError {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.png");
+    let e = plot_band(&path, plot).unwrap_err();
+    assert_eq!(e.path, path);
+    assert!(!path.exists(), "no file should be written on bad input");
+    e
+}
+
+#[test]
+fn band_mismatched_lengths_are_errors() {
+    let (x, times, mean, lower, upper, reference) = synthetic_band(10, 3);
+    let base = BandPlot {
+        title: "bad",
+        y_label: "rho",
+        x: &x,
+        times: &times,
+        mean: &mean,
+        lower: &lower,
+        upper: &upper,
+        band_label: "band",
+        reference: Some(&reference),
+    };
+    let e = band_error(&BandPlot {
+        mean: &mean[..2],
+        ..base
+    });
+    assert!(
+        e.message.contains("mean has 2 rows") && e.message.contains("3 output times"),
+        "{e}"
+    );
+    let mut upper_bad = upper.clone();
+    upper_bad[1].push(0.0);
+    let e = band_error(&BandPlot {
+        upper: &upper_bad,
+        ..base
+    });
+    assert!(
+        e.message.contains("upper row 1 has 11 values") && e.message.contains("10 points"),
+        "{e}"
+    );
+    let e = band_error(&BandPlot {
+        lower: &lower[..0],
+        ..base
+    });
+    assert!(e.message.contains("lower has 0 rows"), "{e}");
+    let e = band_error(&BandPlot {
+        reference: Some(&reference[1..]),
+        ..base
+    });
+    assert!(e.message.contains("reference has 2 rows"), "{e}");
+    let e = band_error(&BandPlot { x: &[], ..base });
+    assert!(e.message.contains("grid x is empty"), "{e}");
+    let e = band_error(&BandPlot {
+        times: &[],
+        mean: &[],
+        lower: &[],
+        upper: &[],
+        reference: None,
+        ..base
+    });
+    assert!(e.message.contains("no times"), "{e}");
+}
+
+#[test]
+fn histogram_png_has_requested_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let edges: Vec<f64> = (0..=20).map(|i| 0.05 * i as f64).collect();
+    let counts: Vec<u64> = (0..20u64).map(|i| (i * (20 - i)) / 6).collect();
+    let path = dir.path().join("histogram.png");
+    plot_histogram(
+        &path,
+        "case1 — time to reach rho = 0.9",
+        "t",
+        &edges,
+        &counts,
+        Some("12 members never reached 0.9"),
+    )
+    .unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    keep(&path, "histogram.png");
+
+    // All zero counts, one bin, no note; huge counts; a multi-line note.
+    let path = dir.path().join("zero.png");
+    plot_histogram(&path, "zero", "x", &[1.0, 2.0], &[0], None).unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    let path = dir.path().join("huge.png");
+    plot_histogram(
+        &path,
+        "huge",
+        "x",
+        &[-1e9, 0.0, 1e9],
+        &[u64::MAX, 3],
+        Some("a\nb"),
+    )
+    .unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+    keep(&path, "histogram_huge.png");
+    let path = dir.path().join("empty_note.png");
+    plot_histogram(&path, "", "", &[0.0, 1e-300], &[1], Some("")).unwrap();
+    assert_eq!(png_size(&path), (1000, 800));
+}
+
+#[test]
+fn histogram_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.png");
+    let e = plot_histogram(&path, "h", "x", &[0.0, 1.0, 2.0], &[1, 2, 3], None).unwrap_err();
+    assert!(e.message.contains("3 bin edges but 3 counts"), "{e}");
+    assert_eq!(e.path, path);
+    let e = plot_histogram(&path, "h", "x", &[0.0], &[], None).unwrap_err();
+    assert!(e.message.contains("no bins"), "{e}");
+    let e = plot_histogram(&path, "h", "x", &[0.0, f64::NAN], &[1], None).unwrap_err();
+    assert!(e.message.contains("edge 1 is not finite"), "{e}");
+    let e = plot_histogram(&path, "h", "x", &[0.0, 1.0, 1.0], &[1, 1], None).unwrap_err();
+    assert!(e.message.contains("not strictly increasing"), "{e}");
+    let e = plot_histogram(&path, "h", "x", &[-1.7e308, 1.7e308], &[1], None).unwrap_err();
+    assert!(e.message.contains("too large"), "{e}");
+    let e = plot_histogram(&path, "h", "x", &[1e10, 1e10 + 1e-5], &[1], None).unwrap_err();
+    assert!(e.message.contains("too close"), "{e}");
     assert!(!path.exists());
 }
