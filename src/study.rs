@@ -44,6 +44,9 @@ pub const SCALARS: [&str; 5] = [
 ];
 /// Fields summarised pointwise over the grid at every output time.
 pub const FIELDS: [&str; 3] = ["rho", "u", "rho_star"];
+/// Relative accuracy of the scalar quantile sketches (values near 1, like densities, are then
+/// resolved to 0.001).
+pub const SCALAR_ALPHA: f64 = 0.001;
 /// Bins of the scalar histograms (over each time's [min, max]).
 pub const SCALAR_BINS: usize = 32;
 
@@ -270,7 +273,7 @@ impl StudyState {
         bins: usize,
     ) -> StudyState {
         let summary =
-            || ScalarSummary::new(QuantileSketch::DEFAULT_ALPHA).expect("default alpha is valid");
+            || ScalarSummary::new(SCALAR_ALPHA).expect("SCALAR_ALPHA is a valid accuracy");
         StudyState {
             ranges: Vec::new(),
             completed: 0,
@@ -981,7 +984,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
 
 fn quantile_method(header: &StudyHeader) -> serde_json::Value {
     json!({
-        "scalars": format!("DDSketch, relative accuracy {}: the value reported for level q is within alpha |x| of the sample x of rank floor(q (n-1)); merging shards is exact", QuantileSketch::DEFAULT_ALPHA),
+        "scalars": format!("DDSketch, relative accuracy alpha = {SCALAR_ALPHA}: the value reported for level q is within alpha |x| of the sample x of rank floor(q (n-1)); merging shards is exact"),
         "fields": "per grid point, a histogram of the given bins on the field's range: the midpoint of the bin holding the sample of rank floor(q (n-1)), within half a bin width of it; NaN where that sample lies outside the range",
         "field_ranges": header.field_ranges,
         "bins": header.bins,

@@ -331,18 +331,20 @@ fn band_png_has_requested_size() {
     keep(&path, "band.png");
 
     // Data outside [0, 1], no reference, a single time.
-    let shifted: Rows = mean
-        .iter()
-        .map(|r| r.iter().map(|v| v - 0.5).collect())
-        .collect();
+    let shift = |rows: &Rows| -> Rows {
+        rows.iter()
+            .map(|r| r.iter().map(|v| v - 0.5).collect())
+            .collect()
+    };
+    let (shifted, shifted_lower, shifted_upper) = (shift(&mean), shift(&lower), shift(&upper));
     let path = dir.path().join("band_signed.png");
     let plot = BandPlot {
         title: "velocity",
         y_label: "u",
         times: &times[..1],
         mean: &shifted[..1],
-        lower: &lower[..1],
-        upper: &upper[..1],
+        lower: &shifted_lower[..1],
+        upper: &shifted_upper[..1],
         reference: None,
         ..plot
     };

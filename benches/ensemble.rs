@@ -1,0 +1,89 @@
+//! Members per second of an ensemble study: 10^4 members at N = 200 to t = 0.2 (lognormal
+//! roughness, spread 0.3, case-1 data, order 1, dt = 1e-3, 3 output times, grid 100), on the CPU
+//! and on the GPU path where an adapter exists, with the statistics' share of the wall time
+//! (printed; it must stay under 10 %).
+
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use roughlub::scene::{Backend, Scene};
+use roughlub::study::{run_study, StudyOptions};
+
+const MEMBERS: u64 = 10_000;
+
+fn scene() -> Scene {
+    let text = format!(
+        r#"
+name = "bench_ensemble"
+[model]
+particles = 200
+mu = 0.01
+gamma = 1.0
+[initial]
+rho = "0.7"
+velocity = "0.5*sin(2*pi*x)"
+rho_star = "0.7"
+[time]
+end = 0.2
+outputs = 3
+dt = 1e-3
+[output]
+grid = 100
+plots = false
+[ensemble]
+members = {MEMBERS}
+seed = 1
+chunk = 1000
+roughness = {{ kind = "lognormal", spread = 0.3 }}
+"#
+    );
+    Scene::from_toml(&text, std::path::Path::new("bench_ensemble.toml"))
+        .expect("bench scene is valid")
+}
+
+fn ensemble(c: &mut Criterion) {
+    let scene = scene();
+    let mut group = c.benchmark_group("ensemble_1e4_members_N200_t0.2");
+    group
+        .sample_size(10)
+        .measurement_time(Duration::from_secs(30))
+        .warm_up_time(Duration::from_secs(1));
+    group.throughput(Throughput::Elements(MEMBERS));
+    let gpu_present = roughlub::gpu::GpuContext::acquire(true).is_ok();
+    let backends: Vec<(&str, Backend)> = if gpu_present {
+        vec![("cpu", Backend::Cpu), ("gpu", Backend::Gpu)]
+    } else {
+        vec![("cpu", Backend::Cpu)]
+    };
+    for (label, backend) in backends {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let options = StudyOptions {
+            out_dir: dir.path().to_path_buf(),
+            backend: Some(backend),
+            precision: None,
+            quiet: true,
+            shard: (0, 1),
+            resume: false,
+        };
+        let mut shares = Vec::new();
+        group.bench_function(label, |b| {
+            b.iter(|| {
+                let s = run_study(&scene, &options).expect("study runs");
+                shares.push(s.statistics_seconds / s.wall_seconds);
+            })
+        });
+        if !shares.is_empty() {
+            let worst = shares.iter().cloned().fold(0.0f64, f64::max);
+            let mean = shares.iter().sum::<f64>() / shares.len() as f64;
+            println!(
+                "{label}: statistics share of wall time: mean {:.1} %, worst {:.1} %",
+                100.0 * mean,
+                100.0 * worst
+            );
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, ensemble);
+criterion_main!(benches);

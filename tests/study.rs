@@ -1,0 +1,898 @@
+//! End-to-end tests of ensemble studies (`[ensemble]` scenes, `src/study.rs`) through the
+//! `roughlub` command:
+//!
+//! 1. the statistics written by a study against a direct computation over members rebuilt and
+//!    solved here with the library (`study::Base`, `cpu::CpuSolver`);
+//! 2. sharding: `--shard k/3` runs merged with `roughlub merge` equal the unsharded study, and
+//!    overlapping shards are refused;
+//! 3. reproducibility of members.csv across chunk sizes and thread counts;
+//! 4. `--resume` after a kill reuses the finished chunks and gives the uninterrupted result, and
+//!    refuses a directory of another scene;
+//! 5. failed members are counted and listed, never averaged in.
+//!
+//! Scenes live in `tests/data/study_*.toml`; variants are made here by one textual replacement
+//! and written to a temporary directory. Every CLI run uses `--backend cpu`.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant, SystemTime};
+
+use roughlub::cpu::{CpuSolver, MemberStatus};
+use roughlub::plan::Plan;
+use roughlub::scene::Scene;
+use roughlub::study::Base;
+use serde_json::Value;
+
+const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
+
+/// Scalar observables and fields a study summarises (`study::SCALARS`, `study::FIELDS`).
+const SCALARS: [&str; 5] = [
+    "max_density",
+    "min_gap",
+    "energy",
+    "dissipation",
+    "peak_centre",
+];
+const FIELDS: [&str; 3] = ["rho", "u", "rho_star"];
+
+// ---------------------------------------------------------------------------------------------
+// Helpers.
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests")
+        .join("data")
+        .join(name)
+}
+
+/// The text of `tests/data/<name>` with each `(from, to)` replaced (each `from` must occur once),
+/// written to `dir/<file>`.
+fn scene_variant(name: &str, replacements: &[(&str, &str)], dir: &Path, file: &str) -> PathBuf {
+    let mut text = std::fs::read_to_string(data(name)).unwrap();
+    for (from, to) in replacements {
+        assert_eq!(
+            text.matches(from).count(),
+            1,
+            "`{from}` should occur exactly once in {name}"
+        );
+        text = text.replace(from, to);
+    }
+    let path = dir.join(file);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn cli(args: &[&std::ffi::OsStr], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(BIN);
+    cmd.args(args);
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output()
+        .unwrap_or_else(|e| panic!("cannot start {BIN}: {e}"))
+}
+
+/// `roughlub run SCENE --out OUT --backend cpu --quiet [extra...]`.
+fn run_with_env(scene: &Path, out: &Path, extra: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut args: Vec<&std::ffi::OsStr> = vec![
+        "run".as_ref(),
+        scene.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--backend".as_ref(),
+        "cpu".as_ref(),
+        "--quiet".as_ref(),
+    ];
+    args.extend(extra.iter().map(std::ffi::OsStr::new));
+    cli(&args, env)
+}
+
+fn run(scene: &Path, out: &Path, extra: &[&str]) -> Output {
+    run_with_env(scene, out, extra, &[])
+}
+
+/// `roughlub merge DIRS... --out OUT --no-plots`.
+fn merge(dirs: &[&Path], out: &Path) -> Output {
+    let mut args: Vec<&std::ffi::OsStr> = vec!["merge".as_ref()];
+    args.extend(dirs.iter().map(|d| d.as_os_str()));
+    args.extend(["--out".as_ref(), out.as_os_str(), "--no-plots".as_ref()]);
+    cli(&args, &[])
+}
+
+fn stderr_of(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn assert_success(out: &Output, what: &str) {
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{what} failed; stderr:\n{}",
+        stderr_of(out)
+    );
+}
+
+/// An .npy file: shape and values in C order.
+fn npy(path: &Path) -> (Vec<u64>, Vec<f64>) {
+    let file = File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let npy = npyz::NpyFile::new(file).unwrap();
+    let shape = npy.shape().to_vec();
+    (shape, npy.into_vec::<f64>().unwrap())
+}
+
+fn stat(dir: &Path, name: &str) -> (Vec<u64>, Vec<f64>) {
+    npy(&dir.join("stats").join(format!("{name}.npy")))
+}
+
+fn manifest(dir: &Path) -> Value {
+    let text = std::fs::read_to_string(dir.join("manifest.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+/// members.csv as (header, rows of fields).
+fn members_csv(dir: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let mut reader = csv::Reader::from_path(dir.join("members.csv")).unwrap();
+    let header = reader
+        .headers()
+        .unwrap()
+        .iter()
+        .map(str::to_string)
+        .collect();
+    let rows = reader
+        .records()
+        .map(|r| r.unwrap().iter().map(str::to_string).collect())
+        .collect();
+    (header, rows)
+}
+
+fn column(header: &[String], name: &str) -> usize {
+    header
+        .iter()
+        .position(|h| h == name)
+        .unwrap_or_else(|| panic!("members.csv has no column {name}: {header:?}"))
+}
+
+/// |a - b| <= rel max(|a|, |b|) + abs; NaN only equals NaN.
+fn close(a: f64, b: f64, rel: f64, abs: f64) -> bool {
+    if a.is_nan() || b.is_nan() {
+        return a.is_nan() && b.is_nan();
+    }
+    (a - b).abs() <= rel * a.abs().max(b.abs()) + abs
+}
+
+fn assert_all_close(what: &str, got: &[f64], want: &[f64], rel: f64, abs: f64) -> f64 {
+    assert_eq!(got.len(), want.len(), "{what}: length");
+    let mut worst = 0.0f64;
+    for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
+        assert!(
+            close(g, w, rel, abs),
+            "{what}[{i}]: got {g:e}, expected {w:e} (rel {rel:e}, abs {abs:e})"
+        );
+        if g.is_finite() && w.is_finite() && w != 0.0 {
+            worst = worst.max(((g - w) / w).abs());
+        }
+    }
+    worst
+}
+
+/// Bitwise equality (NaN equals NaN).
+fn assert_identical(what: &str, got: &[f64], want: &[f64]) {
+    assert_eq!(got.len(), want.len(), "{what}: length");
+    for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
+        assert!(
+            g.to_bits() == w.to_bits() || (g.is_nan() && w.is_nan()),
+            "{what}[{i}]: {g:e} != {w:e}"
+        );
+    }
+}
+
+/// The lower-rank order statistic x_r, r = floor(q (n - 1)), of `values` (finite, any order).
+fn order_statistic(values: &[f64], q: f64) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    let r = ((q * (v.len() - 1) as f64).floor() as usize).min(v.len() - 1);
+    v[r]
+}
+
+fn mean(values: &[f64]) -> f64 {
+    values.iter().sum::<f64>() / values.len() as f64
+}
+
+/// Two-pass sample variance.
+fn variance(values: &[f64]) -> f64 {
+    let m = mean(values);
+    values.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (values.len() - 1) as f64
+}
+
+/// The study's members, rebuilt and solved here with the library, independently of the CLI.
+struct Reference {
+    times: Vec<f64>,
+    quantiles: Vec<f64>,
+    threshold: f64,
+    /// [T][M]: max density (NaN once failed).
+    max_density: Vec<Vec<f64>>,
+    /// Field -> [T][M][G].
+    fields: BTreeMap<&'static str, Vec<Vec<Vec<f64>>>>,
+    /// Failure time per member (None when the member finished).
+    failure: Vec<Option<f64>>,
+    /// Velocity factor drawn for each member.
+    factor: Vec<f64>,
+}
+
+impl Reference {
+    fn members(&self) -> usize {
+        self.failure.len()
+    }
+
+    /// Values of the members with a finite value at time k.
+    fn finite(&self, row: &[f64]) -> Vec<f64> {
+        row.iter().copied().filter(|x| x.is_finite()).collect()
+    }
+}
+
+/// Every member built with `Base::member` and all solved in one `CpuSolver`, with a plan made as
+/// `study::solve_chunk` makes it.
+fn reference(scene_path: &Path) -> Reference {
+    let scene = Scene::from_file(scene_path).unwrap();
+    let spec = scene.ensemble.clone().expect("an ensemble scene");
+    let base = Base::new(&scene, &spec).unwrap();
+    let total = spec.members * base.sweep.len() as u64;
+    let mut chains = Vec::new();
+    let mut params = Vec::new();
+    let mut factor = Vec::new();
+    for m in 0..total {
+        let (c, p, d) = base.member(&scene, &spec, m).unwrap();
+        chains.push(c);
+        params.push(p);
+        factor.push(d.factor);
+    }
+    let mut plan = Plan::new(&scene, &chains[0]);
+    plan.members = params;
+    plan.repulsion = chains[0].dstar.is_some();
+    plan.fields.rho_star = plan.repulsion;
+    plan.fields.rho = true;
+    plan.fields.u = true;
+    let mut solver = CpuSolver::new(plan, chains);
+    let mut max_density = Vec::new();
+    let mut fields: BTreeMap<&'static str, Vec<Vec<Vec<f64>>>> =
+        FIELDS.iter().map(|f| (*f, Vec::new())).collect();
+    while let Some(snaps) = solver.next_output(None) {
+        max_density.push(snaps.iter().map(|s| s.max_density).collect());
+        for f in FIELDS {
+            let rows = snaps
+                .iter()
+                .map(|s| match f {
+                    "rho" => s.rho.clone(),
+                    "u" => s.u.clone(),
+                    _ => s.rho_star.clone(),
+                })
+                .collect();
+            fields.get_mut(f).unwrap().push(rows);
+        }
+    }
+    let failure = solver
+        .reports()
+        .iter()
+        .map(|r| match &r.status {
+            MemberStatus::Ok => None,
+            MemberStatus::Failed { time, .. } => Some(*time),
+        })
+        .collect();
+    Reference {
+        times: scene.output_times.clone(),
+        quantiles: spec.quantiles.clone(),
+        threshold: spec.threshold,
+        max_density,
+        fields,
+        failure,
+        factor,
+    }
+}
+
+/// Names of the finished chunk files (`chunk_*.json`, not `*.tmp`) in `dir/chunks`.
+fn chunk_files(dir: &Path) -> Vec<String> {
+    let Ok(entries) = std::fs::read_dir(dir.join("chunks")) else {
+        return Vec::new();
+    };
+    let mut names: Vec<String> = entries
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("chunk_") && n.ends_with(".json"))
+        .collect();
+    names.sort();
+    names
+}
+
+// ---------------------------------------------------------------------------------------------
+// 1. Statistics against a direct computation.
+
+#[test]
+fn statistics_match_direct_computation_over_members() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = data("study_basic.toml");
+    let out = tmp.path().join("study");
+    assert_success(&run(&scene, &out, &[]), "roughlub run study_basic");
+    let r = reference(&scene);
+    let (t, m) = (r.times.len(), r.members());
+    assert_eq!((t, m), (3, 96));
+    assert!(
+        r.failure.iter().all(Option::is_none),
+        "no member of study_basic should fail"
+    );
+    let nq = r.quantiles.len();
+    let bins = 200.0;
+
+    let (shape, times) = stat(&out, "times");
+    assert_eq!(shape, [t as u64]);
+    assert_identical("times", &times, &r.times);
+    let (_, levels) = stat(&out, "quantile_levels");
+    assert_identical("quantile_levels", &levels, &r.quantiles);
+
+    // Scalar max density: moments, extremes, count and DDSketch quantiles.
+    let per_time: Vec<Vec<f64>> = r.max_density.iter().map(|row| r.finite(row)).collect();
+    let want_mean: Vec<f64> = per_time.iter().map(|v| mean(v)).collect();
+    let want_var: Vec<f64> = per_time.iter().map(|v| variance(v)).collect();
+    let want_min: Vec<f64> = per_time
+        .iter()
+        .map(|v| v.iter().copied().fold(f64::INFINITY, f64::min))
+        .collect();
+    let want_max: Vec<f64> = per_time
+        .iter()
+        .map(|v| v.iter().copied().fold(f64::NEG_INFINITY, f64::max))
+        .collect();
+    let (shape, got) = stat(&out, "max_density_mean");
+    assert_eq!(shape, [t as u64]);
+    let e_mean = assert_all_close("max_density_mean", &got, &want_mean, 1e-12, 0.0);
+    let e_var = assert_all_close(
+        "max_density_var",
+        &stat(&out, "max_density_var").1,
+        &want_var,
+        1e-10,
+        0.0,
+    );
+    assert_all_close(
+        "max_density_min",
+        &stat(&out, "max_density_min").1,
+        &want_min,
+        1e-12,
+        0.0,
+    );
+    assert_all_close(
+        "max_density_max",
+        &stat(&out, "max_density_max").1,
+        &want_max,
+        1e-12,
+        0.0,
+    );
+    assert_identical(
+        "max_density_count",
+        &stat(&out, "max_density_count").1,
+        &vec![m as f64; t],
+    );
+    let (shape, quant) = stat(&out, "max_density_quantiles");
+    assert_eq!(shape, [t as u64, nq as u64]);
+    let mut e_quant = 0.0f64;
+    for k in 0..t {
+        for (j, &q) in r.quantiles.iter().enumerate() {
+            let x = order_statistic(&per_time[k], q);
+            let v = quant[k * nq + j];
+            // DDSketch guarantee: |v - x_r| <= alpha |x_r|, alpha = 0.005.
+            assert!(
+                (v - x).abs() <= 0.005 * x.abs() * (1.0 + 1e-12),
+                "max_density quantile q = {q} at t = {}: {v} vs order statistic {x}",
+                r.times[k]
+            );
+            e_quant = e_quant.max(((v - x) / x).abs());
+        }
+    }
+    eprintln!(
+        "max_density: worst relative error mean {e_mean:.1e}, var {e_var:.1e}, quantile {e_quant:.2e}"
+    );
+
+    // Fields: pointwise mean and variance, and histogram quantile bands.
+    let g = r.fields["rho"][0][0].len();
+    assert_eq!(g, 30);
+    let (_, x) = stat(&out, "x");
+    assert_eq!(x.len(), g);
+    let u_range = &manifest(&out)["quantile_method"]["field_ranges"]["u"];
+    let (u_lo, u_hi) = (u_range[0].as_f64().unwrap(), u_range[1].as_f64().unwrap());
+    for (field, lo, hi) in [("rho", 0.0, 1.0), ("rho_star", 0.0, 1.0), ("u", u_lo, u_hi)] {
+        let samples = &r.fields[field];
+        let scale = samples
+            .iter()
+            .flatten()
+            .flatten()
+            .fold(0.0f64, |a, &b| a.max(b.abs()));
+        let (mut want_mean, mut want_var) = (Vec::new(), Vec::new());
+        for per_member in samples {
+            for j in 0..g {
+                let col: Vec<f64> = per_member.iter().map(|row| row[j]).collect();
+                want_mean.push(mean(&col));
+                want_var.push(variance(&col));
+            }
+        }
+        let (shape, got_mean) = stat(&out, &format!("{field}_mean"));
+        assert_eq!(shape, [t as u64, g as u64], "{field}_mean shape");
+        // Relative, with an absolute floor at the field's scale for values that cross 0 (u).
+        let e_mean = assert_all_close(
+            &format!("{field}_mean"),
+            &got_mean,
+            &want_mean,
+            1e-12,
+            1e-13 * scale,
+        );
+        let e_var = assert_all_close(
+            &format!("{field}_var"),
+            &stat(&out, &format!("{field}_var")).1,
+            &want_var,
+            1e-10,
+            1e-13 * scale * scale,
+        );
+        let (shape, got_q) = stat(&out, &format!("{field}_quantiles"));
+        assert_eq!(shape, [t as u64, nq as u64, g as u64], "{field}_quantiles");
+        let half_bin = (hi - lo) / (2.0 * bins);
+        let mut worst = 0.0f64;
+        for (k, per_member) in samples.iter().enumerate() {
+            for (iq, &q) in r.quantiles.iter().enumerate() {
+                for j in 0..g {
+                    let col: Vec<f64> = per_member.iter().map(|row| row[j]).collect();
+                    let xr = order_statistic(&col, q);
+                    let v = got_q[(k * nq + iq) * g + j];
+                    assert!(
+                        (lo..=hi).contains(&xr),
+                        "{field} sample {xr} outside [{lo}, {hi}]"
+                    );
+                    assert!(
+                        (v - xr).abs() <= half_bin * (1.0 + 1e-9),
+                        "{field} quantile q = {q} at t = {}, x = {}: {v} vs order statistic {xr} (half bin {half_bin})",
+                        r.times[k],
+                        x[j]
+                    );
+                    worst = worst.max((v - xr).abs() / half_bin);
+                }
+            }
+        }
+        eprintln!(
+            "{field}: worst relative error mean {e_mean:.1e}, var {e_var:.1e}; quantile error up to {worst:.3} half bins"
+        );
+    }
+
+    // members.csv: one row per member, peak density = max over time of the max density.
+    let (header, rows) = members_csv(&out);
+    assert_eq!(rows.len(), m);
+    let (c_member, c_status, c_peak, c_factor, c_hit) = (
+        column(&header, "member"),
+        column(&header, "status"),
+        column(&header, "peak_density"),
+        column(&header, "velocity_factor"),
+        column(&header, "first_hit_time"),
+    );
+    let mut hits = 0;
+    for (i, row) in rows.iter().enumerate() {
+        assert_eq!(row[c_member], i.to_string());
+        assert_eq!(row[c_status], "ok");
+        let peak: f64 = row[c_peak].parse().unwrap();
+        let want = (0..t)
+            .map(|k| r.max_density[k][i])
+            .fold(f64::NEG_INFINITY, f64::max);
+        assert!(
+            close(peak, want, 1e-14, 0.0),
+            "member {i}: peak_density {peak} vs {want}"
+        );
+        let factor: f64 = row[c_factor].parse().unwrap();
+        assert_eq!(factor, r.factor[i], "member {i}: velocity_factor");
+        let hit: f64 = row[c_hit].parse().unwrap();
+        let want_hit = (0..t)
+            .find(|&k| r.max_density[k][i] >= r.threshold)
+            .map_or(f64::NAN, |k| r.times[k]);
+        assert!(
+            close(hit, want_hit, 0.0, 0.0),
+            "member {i}: first_hit_time {hit} vs {want_hit}"
+        );
+        hits += usize::from(hit.is_finite());
+    }
+    // The threshold splits the members, so first_hit holds both kinds.
+    let (_, first_hit) = stat(&out, "first_hit");
+    assert_eq!(first_hit[0], hits as f64, "first_hit count");
+    assert_eq!(first_hit[1], (m - hits) as f64, "first_hit never_hit");
+    eprintln!(
+        "{hits} of {m} members reached the threshold {}",
+        r.threshold
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// 2. Sharding and merge.
+
+/// Every statistic of two study directories: moments within `rel`, quantiles, histograms and
+/// counts bit for bit.
+fn assert_same_statistics(a: &Path, b: &Path, rel: f64) -> f64 {
+    let mut worst = 0.0f64;
+    for name in ["times", "x", "quantile_levels", "first_hit_quantiles"] {
+        assert_identical(name, &stat(a, name).1, &stat(b, name).1);
+    }
+    let (fa, fb) = (stat(a, "first_hit").1, stat(b, "first_hit").1);
+    assert_identical("first_hit counts", &fa[..2], &fb[..2]);
+    worst = worst.max(assert_all_close(
+        "first_hit moments",
+        &fa[2..],
+        &fb[2..],
+        rel,
+        0.0,
+    ));
+    for s in SCALARS {
+        for part in ["count", "quantiles", "hist_counts", "hist_edges"] {
+            let name = format!("{s}_{part}");
+            let (sa, va) = stat(a, &name);
+            let (sb, vb) = stat(b, &name);
+            assert_eq!(sa, sb, "{name} shape");
+            assert_identical(&name, &va, &vb);
+        }
+        for part in ["mean", "var", "min", "max"] {
+            let name = format!("{s}_{part}");
+            worst = worst.max(assert_all_close(
+                &name,
+                &stat(a, &name).1,
+                &stat(b, &name).1,
+                rel,
+                0.0,
+            ));
+        }
+    }
+    for f in FIELDS {
+        let name = format!("{f}_quantiles");
+        let (sa, va) = stat(a, &name);
+        let (sb, vb) = stat(b, &name);
+        assert_eq!(sa, sb, "{name} shape");
+        assert_identical(&name, &va, &vb);
+        for part in ["mean", "var"] {
+            let name = format!("{f}_{part}");
+            let (va, vb) = (stat(a, &name).1, stat(b, &name).1);
+            // Absolute floor far below any value of interest, for points where u crosses 0.
+            let scale = va.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            worst = worst.max(assert_all_close(&name, &va, &vb, rel, 1e-14 * scale));
+        }
+    }
+    worst
+}
+
+#[test]
+fn shards_merge_to_the_unsharded_study() {
+    let tmp = tempfile::tempdir().unwrap();
+    // 100 members in shards 0..33, 33..66, 66..100: shard bounds fall inside chunks of 16.
+    let scene = scene_variant(
+        "study_basic.toml",
+        &[("members = 96", "members = 100")],
+        tmp.path(),
+        "study_shards.toml",
+    );
+    let whole = tmp.path().join("whole");
+    assert_success(&run(&scene, &whole, &[]), "unsharded run");
+    let shards: Vec<PathBuf> = (0..3).map(|k| tmp.path().join(format!("d{k}"))).collect();
+    for (k, d) in shards.iter().enumerate() {
+        let spec = format!("{k}/3");
+        assert_success(&run(&scene, d, &["--shard", &spec]), "sharded run");
+        let man = manifest(d);
+        let want = [100 * k as u64 / 3, 100 * (k as u64 + 1) / 3];
+        assert_eq!(man["member_range"], serde_json::json!(want), "shard {k}");
+    }
+    let merged = tmp.path().join("merged");
+    let refs: Vec<&Path> = shards.iter().map(PathBuf::as_path).collect();
+    assert_success(&merge(&refs, &merged), "merge");
+
+    let worst = assert_same_statistics(&merged, &whole, 1e-12);
+    eprintln!("merged vs unsharded: worst relative difference of moments {worst:.1e}");
+    let man = manifest(&merged);
+    assert_eq!(man["complete"], Value::Bool(true), "merged manifest: {man}");
+    assert_eq!(man["members_covered"], 100);
+    assert_eq!(man["members_completed"], 100);
+    assert_eq!(man["failed_members"], serde_json::json!([]));
+    assert_eq!(
+        std::fs::read_to_string(merged.join("members.csv")).unwrap(),
+        std::fs::read_to_string(whole.join("members.csv")).unwrap(),
+        "members.csv of the merged shards differs from the unsharded one"
+    );
+    // The shards' rows, concatenated, are the unsharded rows (section 3: union of shards).
+    let (_, whole_rows) = members_csv(&whole);
+    let shard_rows: Vec<Vec<String>> = shards.iter().flat_map(|d| members_csv(d).1).collect();
+    assert_eq!(shard_rows, whole_rows);
+
+    // Overlapping shards (the same directory twice) are refused.
+    let bad = merge(&[&shards[1], &shards[1]], &tmp.path().join("bad"));
+    assert_eq!(bad.status.code(), Some(2), "stderr: {}", stderr_of(&bad));
+    assert!(
+        stderr_of(&bad).contains("overlap"),
+        "message should mention the overlap: {}",
+        stderr_of(&bad)
+    );
+    assert!(!tmp.path().join("bad").join("manifest.json").exists());
+}
+
+// ---------------------------------------------------------------------------------------------
+// 3. Reproducibility.
+
+#[test]
+fn members_csv_does_not_depend_on_chunks_or_threads() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base_scene = data("study_basic.toml");
+    let reference_dir = tmp.path().join("chunk16");
+    assert_success(&run(&base_scene, &reference_dir, &[]), "chunk 16");
+    let csv = |dir: &Path| std::fs::read_to_string(dir.join("members.csv")).unwrap();
+    let want = csv(&reference_dir);
+    assert_eq!(want.lines().count(), 97);
+    for chunk in [7, 64] {
+        let scene = scene_variant(
+            "study_basic.toml",
+            &[("chunk = 16", &format!("chunk = {chunk}"))],
+            tmp.path(),
+            &format!("chunk{chunk}.toml"),
+        );
+        let dir = tmp.path().join(format!("chunk{chunk}"));
+        assert_success(&run(&scene, &dir, &[]), "chunk variant");
+        assert_eq!(
+            manifest(&dir)["chunks"],
+            96u64.div_ceil(chunk) as u64,
+            "chunk {chunk}"
+        );
+        assert_eq!(csv(&dir), want, "members.csv with chunk = {chunk}");
+        // Sketch and histogram states are exact under any chunking.
+        for name in ["max_density_quantiles", "rho_quantiles", "u_quantiles"] {
+            assert_identical(name, &stat(&dir, name).1, &stat(&reference_dir, name).1);
+        }
+        assert_all_close(
+            "max_density_mean",
+            &stat(&dir, "max_density_mean").1,
+            &stat(&reference_dir, "max_density_mean").1,
+            1e-12,
+            0.0,
+        );
+    }
+    for threads in ["1", "2"] {
+        let dir = tmp.path().join(format!("threads{threads}"));
+        assert_success(
+            &run_with_env(&base_scene, &dir, &[], &[("RAYON_NUM_THREADS", threads)]),
+            "thread variant",
+        );
+        let engine = manifest(&dir)["engine"].as_str().unwrap_or("").to_string();
+        assert!(
+            engine.contains(&format!("{threads} thread")),
+            "engine {engine:?} should report {threads} thread(s)"
+        );
+        assert_eq!(
+            csv(&dir),
+            want,
+            "members.csv with RAYON_NUM_THREADS={threads}"
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 4. Resume.
+
+fn mtimes(dir: &Path, names: &[String]) -> Vec<SystemTime> {
+    names
+        .iter()
+        .map(|n| {
+            std::fs::metadata(dir.join("chunks").join(n))
+                .unwrap()
+                .modified()
+                .unwrap()
+        })
+        .collect()
+}
+
+#[test]
+fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = data("study_resume.toml");
+    let dir = tmp.path().join("killed");
+    let mut child = Command::new(BIN)
+        .arg("run")
+        .arg(&scene)
+        .arg("--out")
+        .arg(&dir)
+        .args(["--backend", "cpu", "--quiet"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    loop {
+        if chunk_files(&dir).len() >= 2 {
+            break;
+        }
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before two chunks were seen"
+        );
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "no two chunk files after 60 s"
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let kept = chunk_files(&dir);
+    let kept_times = mtimes(&dir, &kept);
+    assert!(kept.len() >= 2);
+    assert!(
+        kept.len() < 20,
+        "the run finished every chunk before it was killed; make the scene bigger"
+    );
+    assert!(
+        !dir.join("manifest.json").exists(),
+        "a killed run must not leave a manifest"
+    );
+    assert!(!dir.join("members.csv").exists());
+    eprintln!("killed with {} of 20 chunk files written", kept.len());
+
+    // The file times must be able to show a rewrite.
+    std::thread::sleep(Duration::from_millis(20));
+    let resumed = run(&scene, &dir, &["--resume"]);
+    assert_success(&resumed, "roughlub run --resume");
+    let man = manifest(&dir);
+    assert_eq!(
+        man["chunks_reused"],
+        kept.len() as u64,
+        "chunks_reused should be the chunks present after the kill"
+    );
+    assert_eq!(man["chunks"], 20);
+    assert_eq!(
+        mtimes(&dir, &kept),
+        kept_times,
+        "reused chunks were rewritten"
+    );
+    assert_eq!(chunk_files(&dir).len(), 20);
+
+    let (header, rows) = members_csv(&dir);
+    let c_member = column(&header, "member");
+    let members: Vec<u64> = rows.iter().map(|r| r[c_member].parse().unwrap()).collect();
+    assert_eq!(members, (0..2000).collect::<Vec<u64>>());
+
+    let whole = tmp.path().join("whole");
+    assert_success(&run(&scene, &whole, &[]), "uninterrupted run");
+    assert_eq!(manifest(&whole)["chunks_reused"], 0);
+    assert_eq!(
+        std::fs::read_to_string(dir.join("members.csv")).unwrap(),
+        std::fs::read_to_string(whole.join("members.csv")).unwrap(),
+        "members.csv after resume differs from the uninterrupted run"
+    );
+    // Chunks are merged in the same order, so the mean is the same to the bit.
+    assert_identical(
+        "max_density_mean",
+        &stat(&dir, "max_density_mean").1,
+        &stat(&whole, "max_density_mean").1,
+    );
+    assert_identical(
+        "max_density_quantiles",
+        &stat(&dir, "max_density_quantiles").1,
+        &stat(&whole, "max_density_quantiles").1,
+    );
+}
+
+#[test]
+fn resume_into_a_directory_of_another_scene_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("study");
+    assert_success(&run(&data("study_basic.toml"), &dir, &[]), "first run");
+    let other = scene_variant(
+        "study_basic.toml",
+        &[("seed = 11", "seed = 12")],
+        tmp.path(),
+        "other.toml",
+    );
+    let out = run(&other, &dir, &["--resume"]);
+    assert_eq!(out.status.code(), Some(2), "stderr: {}", stderr_of(&out));
+    assert!(
+        stderr_of(&out).contains("different study"),
+        "message: {}",
+        stderr_of(&out)
+    );
+    // The first study's chunks are left alone.
+    assert_eq!(chunk_files(&dir).len(), 6);
+}
+
+// ---------------------------------------------------------------------------------------------
+// 5. Failed members.
+
+#[test]
+fn failed_members_are_counted_and_listed_never_averaged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = data("study_fail.toml");
+    // The library says which members fail: some, all at mu = 1e-7 (odd members).
+    let r = reference(&scene);
+    let m = r.members();
+    assert_eq!(m, 40);
+    let failing: Vec<u64> = (0..m as u64)
+        .filter(|&i| r.failure[i as usize].is_some())
+        .collect();
+    assert!(
+        !failing.is_empty() && failing.len() < m / 2,
+        "expected some but not all mu = 1e-7 members to fail: {failing:?}"
+    );
+    assert!(
+        failing.iter().all(|i| i % 2 == 1),
+        "only mu = 1e-7 members should fail: {failing:?}"
+    );
+
+    let out = tmp.path().join("study");
+    let o = run(&scene, &out, &[]);
+    assert_success(&o, "roughlub run study_fail");
+    assert!(stderr_of(&o).contains(&format!("{} member(s) failed", failing.len())));
+    let man = manifest(&out);
+    assert_eq!(man["failed_members"], serde_json::json!(failing));
+    assert_eq!(man["members_completed"], (m - failing.len()) as u64);
+
+    let (header, rows) = members_csv(&out);
+    let (c_status, c_peak, c_ft, c_mu) = (
+        column(&header, "status"),
+        column(&header, "peak_density"),
+        column(&header, "failure_time"),
+        column(&header, "mu"),
+    );
+    for (i, row) in rows.iter().enumerate() {
+        let want_mu = if i % 2 == 0 { 0.01 } else { 1e-7 };
+        assert_eq!(row[c_mu].parse::<f64>().unwrap(), want_mu, "member {i}: mu");
+        match r.failure[i] {
+            Some(t) => {
+                assert_eq!(row[c_status], "failed", "member {i}");
+                assert_eq!(
+                    row[c_ft].parse::<f64>().unwrap(),
+                    t,
+                    "member {i}: failure_time"
+                );
+                assert!(row[c_peak].parse::<f64>().unwrap().is_nan());
+            }
+            None => {
+                assert_eq!(row[c_status], "ok", "member {i}");
+                assert!(row[c_ft].parse::<f64>().unwrap().is_nan());
+            }
+        }
+    }
+
+    // Counts: at time t_k, the members whose snapshot is valid there (every one finished, or
+    // failed later than t_k); at the end, exactly the ok members.
+    let (_, count) = stat(&out, "max_density_count");
+    let (_, got_mean) = stat(&out, "max_density_mean");
+    let (_, got_max) = stat(&out, "max_density_max");
+    for (k, &t) in r.times.iter().enumerate() {
+        let alive = r
+            .failure
+            .iter()
+            .filter(|f| f.is_none_or(|ft| ft > t))
+            .count();
+        let finite = r.finite(&r.max_density[k]);
+        assert_eq!(finite.len(), alive, "library snapshots at t = {t}");
+        assert_eq!(count[k], alive as f64, "max_density_count at t = {t}");
+        assert!(
+            close(got_mean[k], mean(&finite), 1e-12, 0.0),
+            "max_density_mean at t = {t}: {} vs {}",
+            got_mean[k],
+            mean(&finite)
+        );
+        let want_max = finite.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        assert_eq!(got_max[k], want_max, "max_density_max at t = {t}");
+        eprintln!("t = {t}: {alive} of {m} members counted");
+    }
+    assert_eq!(
+        *count.last().unwrap(),
+        (m - failing.len()) as f64,
+        "at the end only ok members are counted"
+    );
+    // The field bands count the same members: their means are over the valid members only.
+    let (_, rho_mean) = stat(&out, "rho_mean");
+    let g = r.fields["rho"][0][0].len();
+    let k = r.times.len() - 1;
+    for j in 0..g {
+        let col: Vec<f64> = r.fields["rho"][k]
+            .iter()
+            .map(|row| row[j])
+            .filter(|x| x.is_finite())
+            .collect();
+        assert_eq!(col.len(), m - failing.len());
+        assert!(close(rho_mean[k * g + j], mean(&col), 1e-12, 1e-15));
+    }
+}
