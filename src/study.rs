@@ -363,6 +363,8 @@ pub struct StudyHeader {
     pub sweep: Vec<MemberParams>,
     pub field_ranges: BTreeMap<String, (f64, f64)>,
     pub bins: usize,
+    /// Where this run writes (per-member arrays go to `<out_dir>/members/`).
+    pub out_dir: String,
 }
 
 /// One CSV row per member.
@@ -628,8 +630,17 @@ fn solve_chunk(
         })
         .collect();
 
+    // Full per-member arrays, only when asked for: [member, time, ...] per chunk.
+    let keep = spec.store_members;
+    let mut kept_gaps: Vec<f64> = Vec::new();
+    let mut kept_vel: Vec<f64> = Vec::new();
+    let mut kept_rho: Vec<f64> = Vec::new();
+    let mut per_time: Vec<Vec<Snapshot>> = Vec::new();
     let mut consume =
         |k: usize, snaps: &[Snapshot], failed_now: &[bool], state: &mut StudyState| {
+            if keep {
+                per_time.push(snaps.to_vec());
+            }
             let started = Instant::now();
             let t = header.times[k];
             let ok: Vec<&Snapshot> = snaps
@@ -703,6 +714,31 @@ fn solve_chunk(
         }
     };
     progress.inc(count as u64);
+    if keep {
+        let n = header_particles(&per_time);
+        for i in 0..count {
+            for snaps in &per_time {
+                let s = &snaps[i];
+                let pad = |v: &[f64], len: usize| {
+                    if v.len() == len {
+                        v.to_vec()
+                    } else {
+                        vec![f64::NAN; len]
+                    }
+                };
+                kept_gaps.extend(pad(&s.gaps, n));
+                kept_vel.extend(pad(&s.velocities, n.saturating_sub(1)));
+                kept_rho.extend(pad(&s.rho, grid));
+            }
+        }
+        let members_dir = header_dir(header).join("members");
+        std::fs::create_dir_all(&members_dir).map_err(|e| Error::io(&members_dir, e))?;
+        let (c, t, n) = (count as u64, t_count as u64, n as u64);
+        let name = |what: &str| members_dir.join(format!("chunk_{first:012}_{end:012}_{what}.npy"));
+        write_npy(name("gaps"), &[c, t, n], &kept_gaps)?;
+        write_npy(name("velocities"), &[c, t, n - 1], &kept_vel)?;
+        write_npy(name("rho"), &[c, t, grid as u64], &kept_rho)?;
+    }
 
     let mut rows = Vec::with_capacity(count);
     for (i, r) in reports.iter().enumerate() {
@@ -749,6 +785,20 @@ fn solve_chunk(
     })
 }
 
+/// N of the stored chunk (from any member's gaps; failed members have none after failing).
+fn header_particles(per_time: &[Vec<Snapshot>]) -> usize {
+    per_time
+        .iter()
+        .flat_map(|s| s.iter())
+        .map(|s| s.gaps.len())
+        .max()
+        .unwrap_or(0)
+}
+
+fn header_dir(header: &StudyHeader) -> PathBuf {
+    PathBuf::from(&header.out_dir)
+}
+
 /// Centre of mass of the density peak: the centroid of the excess of rho over its spatial mean
 /// (NaN when the profile is flat).
 pub fn peak_centre(x: &[f64], rho: &[f64]) -> f64 {
@@ -792,7 +842,13 @@ fn chunk_path(dir: &Path, first: u64, end: u64) -> PathBuf {
         .join(format!("chunk_{first:012}_{end:012}.json"))
 }
 
-fn header_for(scene: &Scene, spec: &EnsembleSpec, base: &Base, shard: (u64, u64)) -> StudyHeader {
+fn header_for(
+    scene: &Scene,
+    spec: &EnsembleSpec,
+    base: &Base,
+    shard: (u64, u64),
+    out_dir: &Path,
+) -> StudyHeader {
     let total = spec.members * base.sweep.len() as u64;
     let (k, n) = shard;
     let range = (total * k / n, total * (k + 1) / n);
@@ -827,6 +883,7 @@ fn header_for(scene: &Scene, spec: &EnsembleSpec, base: &Base, shard: (u64, u64)
         sweep: base.sweep.clone(),
         field_ranges,
         bins: spec.bins,
+        out_dir: out_dir.display().to_string(),
     }
 }
 
@@ -846,7 +903,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         ));
     }
     let base = Base::new(scene, spec)?;
-    let header = header_for(scene, spec, &base, options.shard);
+    let header = header_for(scene, spec, &base, options.shard, &options.out_dir);
     // Member 0 is built up front so that bad ensemble settings fail before anything is written.
     base.member(scene, spec, header.member_range.0)?;
     let (engine, engine_name) = pick_engine(scene, options)?;
