@@ -367,23 +367,81 @@ pub struct StudyHeader {
     pub out_dir: String,
 }
 
+/// f64 that may be NaN or infinite (a member that never reached the threshold, an ok member's
+/// failure time): JSON has no NaN, so non-finite values travel as the strings "NaN", "inf",
+/// "-inf"; finite ones as numbers (exact, with serde_json's float_roundtrip). CSV writes the
+/// same text.
+mod nan_safe {
+    use serde::{de, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if x.is_finite() {
+            s.serialize_f64(*x)
+        } else if x.is_nan() {
+            s.serialize_str("NaN")
+        } else if *x > 0.0 {
+            s.serialize_str("inf")
+        } else {
+            s.serialize_str("-inf")
+        }
+    }
+
+    struct Visitor;
+    impl de::Visitor<'_> for Visitor {
+        type Value = f64;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a number, or \"NaN\", \"inf\", \"-inf\"")
+        }
+        fn visit_f64<E: de::Error>(self, v: f64) -> Result<f64, E> {
+            Ok(v)
+        }
+        fn visit_i64<E: de::Error>(self, v: i64) -> Result<f64, E> {
+            Ok(v as f64)
+        }
+        fn visit_u64<E: de::Error>(self, v: u64) -> Result<f64, E> {
+            Ok(v as f64)
+        }
+        fn visit_str<E: de::Error>(self, v: &str) -> Result<f64, E> {
+            v.trim()
+                .parse::<f64>()
+                .map_err(|_| E::custom(format!("not a number: {v:?}")))
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        d.deserialize_any(Visitor)
+    }
+}
+
 /// One CSV row per member.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MemberRow {
     pub member: u64,
     pub sweep_point: usize,
+    #[serde(with = "nan_safe")]
     pub mu: f64,
+    #[serde(with = "nan_safe")]
     pub gamma: f64,
     pub status: String,
+    #[serde(with = "nan_safe")]
     pub failure_time: f64,
+    #[serde(with = "nan_safe")]
     pub velocity_factor: f64,
+    #[serde(with = "nan_safe")]
     pub velocity_phase: f64,
+    #[serde(with = "nan_safe")]
     pub mean_dstar: f64,
+    #[serde(with = "nan_safe")]
     pub min_rho_star: f64,
+    #[serde(with = "nan_safe")]
     pub peak_density: f64,
+    #[serde(with = "nan_safe")]
     pub peak_time: f64,
+    #[serde(with = "nan_safe")]
     pub min_gap: f64,
+    #[serde(with = "nan_safe")]
     pub final_energy: f64,
+    #[serde(with = "nan_safe")]
     pub first_hit_time: f64,
     pub steps_accepted: u64,
     pub steps_rejected: u64,
@@ -636,51 +694,43 @@ fn solve_chunk(
     let mut kept_vel: Vec<f64> = Vec::new();
     let mut kept_rho: Vec<f64> = Vec::new();
     let mut per_time: Vec<Vec<Snapshot>> = Vec::new();
-    let mut consume =
-        |k: usize, snaps: &[Snapshot], failed_now: &[bool], state: &mut StudyState| {
-            if keep {
-                per_time.push(snaps.to_vec());
+    // Each output time's observables, kept per member until the chunk is solved: a member that
+    // fails later must not enter the statistics of any time (failed members are counted and
+    // listed, never averaged in). Only what the statistics need is kept (scalars, field rows).
+    struct Lite {
+        scalars: [f64; 5],
+        fields: [Vec<f64>; 3],
+    }
+    let mut recorded: Vec<Vec<Option<Lite>>> = Vec::with_capacity(t_count);
+    let mut consume = |k: usize, snaps: &[Snapshot], failed_now: &[bool]| {
+        if keep {
+            per_time.push(snaps.to_vec());
+        }
+        let started = Instant::now();
+        let t = header.times[k];
+        let mut row = Vec::with_capacity(snaps.len());
+        for (i, s) in snaps.iter().enumerate() {
+            if failed_now[i] {
+                row.push(None);
+                continue;
             }
-            let started = Instant::now();
-            let t = header.times[k];
-            let ok: Vec<&Snapshot> = snaps
-                .iter()
-                .zip(failed_now)
-                .filter(|(_, f)| !**f)
-                .map(|(s, _)| s)
-                .collect();
-            for (i, s) in snaps.iter().enumerate() {
-                if failed_now[i] {
-                    continue;
-                }
-                let centre = peak_centre(&header.x, &s.rho);
-                let values = [s.max_density, s.min_gap, s.energy, s.dissipation, centre];
-                for (name, v) in SCALARS.iter().zip(values) {
-                    state.scalars.get_mut(*name).expect("known observable")[k].push(v);
-                }
-                if s.max_density > peak[i].0 {
-                    peak[i] = (s.max_density, t);
-                }
-                min_gap[i] = min_gap[i].min(s.min_gap);
-                final_energy[i] = s.energy;
-                if first_hit[i].is_nan() && s.max_density >= spec.threshold {
-                    first_hit[i] = t;
-                }
+            let centre = peak_centre(&header.x, &s.rho);
+            if s.max_density > peak[i].0 {
+                peak[i] = (s.max_density, t);
             }
-            for name in FIELDS {
-                let rows: Vec<&[f64]> = ok
-                    .iter()
-                    .map(|s| match name {
-                        "rho" => s.rho.as_slice(),
-                        "u" => s.u.as_slice(),
-                        _ => s.rho_star.as_slice(),
-                    })
-                    .filter(|r| r.len() == grid)
-                    .collect();
-                state.fields.get_mut(name).expect("known field")[k].push_rows(&rows);
+            min_gap[i] = min_gap[i].min(s.min_gap);
+            final_energy[i] = s.energy;
+            if first_hit[i].is_nan() && s.max_density >= spec.threshold {
+                first_hit[i] = t;
             }
-            *stats_seconds += started.elapsed().as_secs_f64();
-        };
+            row.push(Some(Lite {
+                scalars: [s.max_density, s.min_gap, s.energy, s.dissipation, centre],
+                fields: [s.rho.clone(), s.u.clone(), s.rho_star.clone()],
+            }));
+        }
+        recorded.push(row);
+        *stats_seconds += started.elapsed().as_secs_f64();
+    };
 
     let reports = match engine {
         Engine::Cpu => {
@@ -688,7 +738,7 @@ fn solve_chunk(
             let mut k = 0;
             while let Some(snaps) = solver.next_output(None) {
                 let failed_now: Vec<bool> = snaps.iter().map(|s| s.max_density.is_nan()).collect();
-                consume(k, &snaps, &failed_now, &mut state);
+                consume(k, &snaps, &failed_now);
                 k += 1;
             }
             solver.reports()
@@ -707,13 +757,38 @@ fn solve_chunk(
                 .map_err(|e| Error::gpu("ensemble chunk", e, ""))?
             {
                 let failed_now: Vec<bool> = snaps.iter().map(|s| s.max_density.is_nan()).collect();
-                consume(k, &snaps, &failed_now, &mut state);
+                consume(k, &snaps, &failed_now);
                 k += 1;
             }
             solver.reports()
         }
     };
     progress.inc(count as u64);
+    let started = Instant::now();
+    let ok_member: Vec<bool> = reports
+        .iter()
+        .map(|r| r.status == MemberStatus::Ok)
+        .collect();
+    for (k, row) in recorded.iter().enumerate() {
+        for (i, lite) in row.iter().enumerate() {
+            if let (true, Some(l)) = (ok_member[i], lite) {
+                for (name, &v) in SCALARS.iter().zip(&l.scalars) {
+                    state.scalars.get_mut(*name).expect("known observable")[k].push(v);
+                }
+            }
+        }
+        for (f, name) in FIELDS.iter().enumerate() {
+            let rows: Vec<&[f64]> = row
+                .iter()
+                .zip(&ok_member)
+                .filter_map(|(lite, &ok)| if ok { lite.as_ref() } else { None })
+                .map(|l| l.fields[f].as_slice())
+                .filter(|r| r.len() == grid)
+                .collect();
+            state.fields.get_mut(*name).expect("known field")[k].push_rows(&rows);
+        }
+    }
+    *stats_seconds += started.elapsed().as_secs_f64();
     if keep {
         let n = header_particles(&per_time);
         for i in 0..count {
