@@ -539,39 +539,24 @@ impl<'a> GpuSolver<'a> {
     /// dispatches, the running counter cleared before the last one, and submits them.
     fn submit_advance(&mut self, begin: bool) -> Result<(), GpuError> {
         let ctx = self.ctx;
-        let workgroups = self.workgroups();
         let ((), error) = ctx.scoped(|| {
             let mut encoder = ctx
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("advance"),
                 });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("advance"),
-                    timestamp_writes: None,
-                });
-                pass.set_bind_group(0, &self.group, &[]);
-                if begin {
-                    pass.set_pipeline(&self.begin);
-                    pass.dispatch_workgroups(workgroups, 1, 1);
-                }
-                pass.set_pipeline(&self.advance);
-                for _ in 1..DISPATCHES_PER_SUBMIT {
-                    pass.dispatch_workgroups(workgroups, 1, 1);
-                }
+            if begin {
+                self.encode_dispatches(&mut encoder, "begin_interval", &self.begin, 1);
             }
+            self.encode_dispatches(
+                &mut encoder,
+                "advance",
+                &self.advance,
+                DISPATCHES_PER_SUBMIT - 1,
+            );
             // The counter then holds the members still running after the last dispatch.
             encoder.clear_buffer(&self.running, 0, None);
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("advance (last)"),
-                    timestamp_writes: None,
-                });
-                pass.set_bind_group(0, &self.group, &[]);
-                pass.set_pipeline(&self.advance);
-                pass.dispatch_workgroups(workgroups, 1, 1);
-            }
+            self.encode_dispatches(&mut encoder, "advance (last)", &self.advance, 1);
             ctx.queue.submit([encoder.finish()]);
         });
         if let Some(message) = error {
@@ -583,6 +568,25 @@ impl<'a> GpuSolver<'a> {
         self.stats.submits += 1;
         self.stats.dispatches += DISPATCHES_PER_SUBMIT as u64 + u64::from(begin);
         Ok(())
+    }
+
+    /// `count` dispatches of `pipeline` (one invocation per member) in one compute pass.
+    fn encode_dispatches(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        count: u32,
+    ) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(label),
+            timestamp_writes: None,
+        });
+        pass.set_bind_group(0, &self.group, &[]);
+        pass.set_pipeline(pipeline);
+        for _ in 0..count {
+            pass.dispatch_workgroups(self.workgroups(), 1, 1);
+        }
     }
 
     fn read(&mut self, which: Which, bytes: u64) -> Result<Vec<u8>, GpuError> {
@@ -675,22 +679,13 @@ impl<'a> GpuSolver<'a> {
         }
         // Gather each member's current state and read it back with the controls.
         let ctx = self.ctx;
-        let workgroups = self.workgroups();
         let ((), error) = ctx.scoped(|| {
             let mut encoder = ctx
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("gather"),
                 });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("gather"),
-                    timestamp_writes: None,
-                });
-                pass.set_bind_group(0, &self.group, &[]);
-                pass.set_pipeline(&self.gather);
-                pass.dispatch_workgroups(workgroups, 1, 1);
-            }
+            self.encode_dispatches(&mut encoder, "gather", &self.gather, 1);
             ctx.queue.submit([encoder.finish()]);
         });
         if let Some(message) = error {
