@@ -152,26 +152,33 @@ impl FieldBand {
         let g = self.points.len();
         let bins = self.bins as usize;
         let scale = bins as f64 / (self.hi - self.lo);
-        for j in 0..g {
-            let dense = &mut self.counts[j];
-            let mut n = 0u64;
-            let mut shift = f64::NAN;
-            let (mut s1, mut s2) = (0.0f64, 0.0f64);
-            let (mut min, mut max) = (f64::INFINITY, f64::NEG_INFINITY);
-            for row in rows {
+        // Shift each point by its first finite value (keeps the shifted sums well conditioned).
+        let mut shift = vec![f64::NAN; g];
+        for row in rows {
+            for (s, &x) in shift.iter_mut().zip(row.iter()) {
+                if s.is_nan() && x.is_finite() {
+                    *s = x;
+                }
+            }
+        }
+        // Rows outer, points inner: memory is read in order.
+        let mut n = vec![0u64; g];
+        let mut s1 = vec![0.0f64; g];
+        let mut s2 = vec![0.0f64; g];
+        let mut min = vec![f64::INFINITY; g];
+        let mut max = vec![f64::NEG_INFINITY; g];
+        for row in rows {
+            for j in 0..g {
                 let x = row[j];
                 if !x.is_finite() {
                     continue;
                 }
-                if n == 0 {
-                    shift = x;
-                }
-                n += 1;
-                let d = x - shift;
-                s1 += d;
-                s2 += d * d;
-                min = min.min(x);
-                max = max.max(x);
+                n[j] += 1;
+                let d = x - shift[j];
+                s1[j] += d;
+                s2[j] += d * d;
+                min[j] = min[j].min(x);
+                max[j] = max[j].max(x);
                 let bin = if x < self.lo {
                     0
                 } else if x > self.hi {
@@ -179,14 +186,22 @@ impl FieldBand {
                 } else {
                     1 + (((x - self.lo) * scale) as usize).min(bins - 1)
                 };
-                dense[bin] += 1;
+                self.counts[j][bin] += 1;
             }
-            if n == 0 {
+        }
+        for j in 0..g {
+            if n[j] == 0 {
                 continue;
             }
-            let mean_d = s1 / n as f64;
-            let m2 = (s2 - s1 * mean_d).max(0.0);
-            self.points[j].merge(&RunningStats::from_moments(n, shift + mean_d, m2, min, max));
+            let mean_d = s1[j] / n[j] as f64;
+            let m2 = (s2[j] - s1[j] * mean_d).max(0.0);
+            self.points[j].merge(&RunningStats::from_moments(
+                n[j],
+                shift[j] + mean_d,
+                m2,
+                min[j],
+                max[j],
+            ));
         }
     }
 
