@@ -12,7 +12,7 @@
 //!
 //! The solver (buffers, pipelines) is built and its t = 0 output taken outside the timed part;
 //! the timed part is one `next_output()` over an interval of `STEPS` fixed steps (one submit of
-//! `DISPATCHES_PER_SUBMIT` = 64 `advance` dispatches, the running-counter read-back, `gather`,
+//! `GpuStats::dispatches_per_submit` `advance` dispatches (each up to `attempts_per_dispatch` steps), the running-counter read-back, `gather`,
 //! the read-backs of controls, gaps and velocities, and the host-side observables).
 //!
 //! Without an adapter the benchmarks are skipped. On lavapipe (llvmpipe) one invocation per

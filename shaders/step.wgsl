@@ -377,8 +377,7 @@ fn advance(@builtin(global_invocation_id) gid: vec3<u32>) {
     var c = controls[b];
     let p = params[b];
     // A loop of fixed trip count with the attempt inside an `if`: members finish after different
-    // numbers of attempts, and a data-dependent loop exit miscompiled on lavapipe (measured:
-    // members diverged from the CPU); a uniform loop does not.
+    // numbers of attempts, and the loop stays uniform across the workgroup.
     for (var attempt: u32 = 0u; attempt < config.max_attempts; attempt++) {
         if is_running(c) {
             let h = trial_step(c);

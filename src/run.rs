@@ -150,6 +150,8 @@ impl Solver<'_> {
                     "readbacks": st.readbacks,
                     "bytes_read": st.bytes_read,
                     "bytes_written": st.bytes_written,
+                    "attempts_per_dispatch": st.attempts_per_dispatch,
+                    "dispatches_per_submit": st.dispatches_per_submit,
                 }))
             }
         }

@@ -167,6 +167,36 @@ fn paper_case1_sweep_agrees_for_both_orders_fixed_and_adaptive() {
     }
 }
 
+/// Many steps per dispatch and per submit, state read back only at output times: one member of
+/// case 1 with 200 fixed steps over two output intervals.
+#[test]
+fn many_steps_per_dispatch_and_readback_only_at_outputs() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let (mut plan, chains) = case1_plan(1, FIXED);
+    plan.members.truncate(1);
+    let mut solver = GpuSolver::new(&ctx, plan, chains[..1].to_vec(), Precision::F64).unwrap();
+    while solver.next_output().unwrap().is_some() {}
+    let st = solver.stats();
+    eprintln!("{st:?}");
+    assert_eq!(st.steps, 200);
+    assert!(st.attempts_per_dispatch > 1, "{st:?}");
+    // Per interval: begin + the advance dispatches of one submit + gather; 100 steps each.
+    assert!(st.dispatches < st.steps / 2, "{st:?}");
+    // One advance submit per interval (100 steps < attempts × dispatches per submit), plus one
+    // gather per output time (3, t = 0 included).
+    assert_eq!(st.submits, 2 + 3, "{st:?}");
+    // Read-backs: per output the controls, gaps and velocities, plus 4 bytes per advance submit.
+    let n = 200u64;
+    let state_bytes = 48 + 8 * n + 8 * (n - 1);
+    assert_eq!(
+        st.bytes_read,
+        3 * state_bytes + 4 * (st.submits - 3),
+        "{st:?}"
+    );
+}
+
 #[test]
 fn paper_cases_2a_and_3_agree() {
     let Some(ctx) = acquire_for_tests(true) else {

@@ -9,9 +9,10 @@
 //!
 //! Layout: element i of member b sits at `i·B + b` (B members). Per output interval the host
 //! writes the interval into the uniform config, then submits command buffers of
-//! `begin_interval` (first submit only) and [`DISPATCHES_PER_SUBMIT`] dispatches of `advance`,
-//! each of which lets every running member try one step (see [`attempts_per_dispatch`]): many
-//! steps per submit. After each submit the host reads back
+//! `begin_interval` (first submit only) and `advance` dispatches (up to [`ATTEMPTS_PER_SUBMIT`] trial steps per member per submit),
+//! each of which lets every running member try up to [`MAX_ATTEMPTS_PER_DISPATCH`] steps in a
+//! loop of its own invocation (fewer on lavapipe, see [`attempts_per_dispatch`]): many steps per
+//! dispatch and per submit. After each submit the host reads back
 //! one u32, the number of members still running; when it is 0, `gather` copies each member's
 //! current state into the read-back buffers, which are read once (readback only at output
 //! times).
@@ -30,21 +31,48 @@ use crate::observables::{grid_points, observe, Snapshot};
 use crate::plan::{Plan, Power};
 use crate::scene::{Precision, Stepping};
 
-/// `advance` dispatches encoded into one command buffer (one trial step per member each, by
-/// default): many steps per submit, one read-back of 4 bytes per submit.
-pub const DISPATCHES_PER_SUBMIT: u32 = 64;
+/// Trial steps per member encoded into one command buffer (as dispatches × attempts per
+/// dispatch): many steps per submit, one read-back of 4 bytes per submit.
+pub const ATTEMPTS_PER_SUBMIT: u32 = 256;
 
-/// Trial steps per member per `advance` dispatch. The kernel loops over up to this many; the
-/// default is 1 because lavapipe's loop budget per invocation ([`LAVAPIPE_LOOP_LIMIT`]) is
-/// otherwise exhausted after a few steps (measured: wrong results from 30 order-2 steps of
-/// N = 300 in one invocation, bit-identical to the CPU with one attempt per dispatch). `ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH` overrides it, for experiments on
-/// other drivers.
-fn attempts_per_dispatch() -> u32 {
-    std::env::var("ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH")
+/// Most trial steps per member per `advance` dispatch (each invocation loops over them, so a
+/// dispatch advances every member by many steps).
+pub const MAX_ATTEMPTS_PER_DISPATCH: u32 = 16;
+
+/// Whether the adapter is llvmpipe (lavapipe), which bounds the loop iterations of a shader
+/// invocation ([`LAVAPIPE_LOOP_LIMIT`]).
+fn is_lavapipe(ctx: &GpuContext) -> bool {
+    let d = &ctx.description;
+    d.driver.to_lowercase().contains("llvmpipe") || d.name.to_lowercase().contains("llvmpipe")
+}
+
+/// Loop iterations over the chain per trial step: two sweeps per Euler step (one for order 1 with
+/// fixed steps, three with Richardson), plus the error norm and the extrapolation (two each).
+fn loops_per_attempt(scheme: SchemeSpec) -> u64 {
+    (if scheme.richardson() { 6 } else { 2 })
+        + if scheme.adaptive { 2 } else { 0 }
+        + if scheme.order2 { 2 } else { 0 }
+}
+
+/// Trial steps per member per `advance` dispatch: [`MAX_ATTEMPTS_PER_DISPATCH`], or on lavapipe
+/// as many as fit its loop budget (measured: past the budget the invocation stops silently and
+/// the state is wrong; within it the GPU matches the CPU bit for bit).
+/// `ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH` (1..=4096) overrides it.
+fn attempts_per_dispatch(ctx: &GpuContext, n: usize, scheme: SchemeSpec) -> u32 {
+    if let Some(k) = std::env::var("ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH")
         .ok()
         .and_then(|v| v.parse::<u32>().ok())
         .filter(|&k| (1..=4096).contains(&k))
-        .unwrap_or(1)
+    {
+        return k;
+    }
+    if is_lavapipe(ctx) {
+        // The attempt loop itself counts too: one iteration per attempt.
+        let per = loops_per_attempt(scheme) * n as u64 + 1;
+        (LAVAPIPE_LOOP_LIMIT / per).clamp(1, MAX_ATTEMPTS_PER_DISPATCH as u64) as u32
+    } else {
+        MAX_ATTEMPTS_PER_DISPATCH
+    }
 }
 
 /// Work counters of a [`GpuSolver`].
@@ -62,6 +90,10 @@ pub struct GpuStats {
     pub bytes_read: u64,
     /// Bytes written to the GPU (initial upload, configs).
     pub bytes_written: u64,
+    /// Trial steps each member may take per `advance` dispatch.
+    pub attempts_per_dispatch: u64,
+    /// `advance` dispatches per submit.
+    pub dispatches_per_submit: u64,
 }
 
 /// A member's step control as read back (the `Control` struct of step.wgsl).
@@ -153,26 +185,19 @@ fn check_loop_budget(
     scheme: SchemeSpec,
     attempts: u32,
 ) -> Result<(), GpuError> {
-    let d = &ctx.description;
-    let lavapipe =
-        d.driver.to_lowercase().contains("llvmpipe") || d.name.to_lowercase().contains("llvmpipe");
-    if !lavapipe {
+    if !is_lavapipe(ctx) {
         return Ok(());
     }
-    // Loop iterations of one `advance` invocation: two sweeps per Euler step, plus the error
-    // norm and the extrapolation (two loops each); `gather` has two loops.
-    let per_attempt = if scheme.richardson() { 6 } else { 2 }
-        + if scheme.adaptive { 2 } else { 0 }
-        + if scheme.order2 { 2 } else { 0 };
-    let iterations = (attempts as u64 * per_attempt).max(2) * n as u64;
+    // One `advance` invocation; `gather` needs two loops over the chain.
+    let per = loops_per_attempt(scheme).max(2);
+    let iterations = attempts as u64 * (per * n as u64 + 1);
     if iterations > LAVAPIPE_LOOP_LIMIT {
-        let max_n = LAVAPIPE_LOOP_LIMIT / (attempts as u64 * per_attempt).max(2);
         return Err(GpuError::LoopLimit {
-            adapter: d.short(),
+            adapter: ctx.description.short(),
             particles: n,
             iterations,
             limit: LAVAPIPE_LOOP_LIMIT,
-            max_particles: max_n,
+            max_particles: (LAVAPIPE_LOOP_LIMIT / attempts as u64 - 1) / per,
         });
     }
     Ok(())
@@ -305,7 +330,7 @@ impl<'a> GpuSolver<'a> {
         ctx.check_storage_size("velocity sets", sets * vel_bytes)?;
         ctx.check_storage_size("Thomas scratch", 3 * vel_bytes)?;
 
-        let max_attempts = attempts_per_dispatch();
+        let max_attempts = attempts_per_dispatch(ctx, n, scheme);
         check_loop_budget(ctx, n, scheme, max_attempts)?;
 
         // Host-side data.
@@ -508,6 +533,8 @@ impl<'a> GpuSolver<'a> {
             last_controls,
             stats: GpuStats {
                 bytes_written,
+                attempts_per_dispatch: max_attempts as u64,
+                dispatches_per_submit: (ATTEMPTS_PER_SUBMIT / max_attempts).clamp(4, 64) as u64,
                 ..GpuStats::default()
             },
             _buffers: keep,
@@ -535,7 +562,7 @@ impl<'a> GpuSolver<'a> {
         (self.plan.members.len() as u32).div_ceil(STEP_WORKGROUP_SIZE)
     }
 
-    /// Encodes `begin_interval` (when `begin`) and [`DISPATCHES_PER_SUBMIT`] `advance`
+    /// Encodes `begin_interval` (when `begin`) and `dispatches_per_submit` `advance`
     /// dispatches, the running counter cleared before the last one, and submits them.
     fn submit_advance(&mut self, begin: bool) -> Result<(), GpuError> {
         let ctx = self.ctx;
@@ -548,12 +575,8 @@ impl<'a> GpuSolver<'a> {
             if begin {
                 self.encode_dispatches(&mut encoder, "begin_interval", &self.begin, 1);
             }
-            self.encode_dispatches(
-                &mut encoder,
-                "advance",
-                &self.advance,
-                DISPATCHES_PER_SUBMIT - 1,
-            );
+            let dispatches = self.stats.dispatches_per_submit as u32;
+            self.encode_dispatches(&mut encoder, "advance", &self.advance, dispatches - 1);
             // The counter then holds the members still running after the last dispatch.
             encoder.clear_buffer(&self.running, 0, None);
             self.encode_dispatches(&mut encoder, "advance (last)", &self.advance, 1);
@@ -566,7 +589,7 @@ impl<'a> GpuSolver<'a> {
             });
         }
         self.stats.submits += 1;
-        self.stats.dispatches += DISPATCHES_PER_SUBMIT as u64 + u64::from(begin);
+        self.stats.dispatches += self.stats.dispatches_per_submit + u64::from(begin);
         Ok(())
     }
 
