@@ -149,6 +149,8 @@ fn stats_delta(after: GpuStats, before: GpuStats) -> GpuStats {
         readbacks: after.readbacks - before.readbacks,
         bytes_read: after.bytes_read - before.bytes_read,
         bytes_written: after.bytes_written - before.bytes_written,
+        attempts_per_dispatch: after.attempts_per_dispatch,
+        dispatches_per_submit: after.dispatches_per_submit,
     }
 }
 
