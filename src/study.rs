@@ -927,6 +927,42 @@ fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
     })
 }
 
+/// members.csv, written row by row as chunks (or shards) are read, in member order: memory does
+/// not grow with the number of members. It is written as `members.csv.partial` and renamed when
+/// complete, so an interrupted run leaves no complete-looking table.
+struct CsvOut {
+    path: PathBuf,
+    partial: PathBuf,
+    writer: csv::Writer<std::fs::File>,
+}
+
+impl CsvOut {
+    fn create(path: PathBuf) -> Result<CsvOut> {
+        let partial = path.with_extension("csv.partial");
+        let writer = csv::Writer::from_path(&partial).map_err(|e| Error::Output {
+            path: partial.clone(),
+            message: e.to_string(),
+        })?;
+        Ok(CsvOut {
+            path,
+            partial,
+            writer,
+        })
+    }
+    fn push(&mut self, row: &MemberRow) -> Result<()> {
+        self.writer.serialize(row).map_err(|e| Error::Output {
+            path: self.path.clone(),
+            message: e.to_string(),
+        })
+    }
+    fn finish(mut self) -> Result<()> {
+        self.writer
+            .flush()
+            .map_err(|e| Error::io(&self.partial, e))?;
+        std::fs::rename(&self.partial, &self.path).map_err(|e| Error::io(&self.path, e))
+    }
+}
+
 fn chunk_path(dir: &Path, first: u64, end: u64) -> PathBuf {
     dir.join("chunks")
         .join(format!("chunk_{first:012}_{end:012}.json"))
@@ -1048,7 +1084,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let mut stats_seconds = 0.0;
     let mut reused = 0;
     let mut total: Option<StudyState> = None;
-    let mut rows: Vec<MemberRow> = Vec::new();
+    let mut csv_out = CsvOut::create(dir.join("members.csv"))?;
     for &(a, b) in &bounds {
         let path = chunk_path(dir, a, b);
         let chunk: ChunkFile = if path.exists() {
@@ -1076,9 +1112,12 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             Some(s) => s.merge(&chunk.state)?,
         }
         stats_seconds += t0.elapsed().as_secs_f64();
-        rows.extend(chunk.rows);
+        for row in &chunk.rows {
+            csv_out.push(row)?;
+        }
     }
     progress.finish_and_clear();
+    csv_out.finish()?;
     let state = total.unwrap_or_else(|| {
         StudyState::new(
             header.times.len(),
@@ -1095,7 +1134,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         },
     )?;
     let t0 = Instant::now();
-    finalize(dir, &[header.clone()], &state, &rows, scene.plots)?;
+    finalize(dir, &[header.clone()], &state, scene.plots)?;
     stats_seconds += t0.elapsed().as_secs_f64();
     let wall = started.elapsed().as_secs_f64();
     write_manifest(
@@ -1151,13 +1190,22 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
     if inputs.is_empty() {
         return Err(Error::missing("merge", "give at least one study directory"));
     }
-    let mut headers = Vec::new();
-    let mut state: Option<StudyState> = None;
-    let mut rows = Vec::new();
+    // Shards in member order, so that members.csv streams out in order.
+    let mut partials: Vec<(PathBuf, PartialFile)> = Vec::with_capacity(inputs.len());
     for dir in inputs {
-        let p: PartialFile = read_json(&dir.join("partial.json"))?;
+        partials.push((dir.clone(), read_json(&dir.join("partial.json"))?));
+    }
+    partials.sort_by_key(|(_, p)| p.header.member_range.0);
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let manifest = out.join(MANIFEST);
+    if manifest.exists() {
+        std::fs::remove_file(&manifest).map_err(|e| Error::io(&manifest, e))?;
+    }
+    let mut csv_out = CsvOut::create(out.join("members.csv"))?;
+    let mut headers: Vec<StudyHeader> = Vec::new();
+    let mut state: Option<StudyState> = None;
+    for (dir, p) in partials {
         if let Some(h0) = headers.first() {
-            let h0: &StudyHeader = h0;
             if h0.scene_hash != p.header.scene_hash
                 || h0.times != p.header.times
                 || h0.x != p.header.x
@@ -1173,26 +1221,21 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
             None => state = Some(p.state),
             Some(s) => s.merge(&p.state)?,
         }
-        let mut reader =
-            csv::Reader::from_path(dir.join("members.csv")).map_err(|e| Error::Output {
-                path: dir.join("members.csv"),
-                message: e.to_string(),
-            })?;
+        let csv_in = dir.join("members.csv");
+        let mut reader = csv::Reader::from_path(&csv_in).map_err(|e| Error::Output {
+            path: csv_in.clone(),
+            message: e.to_string(),
+        })?;
         for r in reader.deserialize::<MemberRow>() {
-            rows.push(r.map_err(|e| Error::Output {
-                path: dir.join("members.csv"),
+            csv_out.push(&r.map_err(|e| Error::Output {
+                path: csv_in.clone(),
                 message: e.to_string(),
-            })?);
+            })?)?;
         }
         headers.push(p.header);
     }
-    rows.sort_by_key(|r| r.member);
+    csv_out.finish()?;
     let state = state.expect("at least one input");
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let manifest = out.join(MANIFEST);
-    if manifest.exists() {
-        std::fs::remove_file(&manifest).map_err(|e| Error::io(&manifest, e))?;
-    }
     let mut merged_header = headers[0].clone();
     merged_header.shard = (0, 1);
     merged_header.member_range = (
@@ -1206,7 +1249,7 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
             state: state.clone(),
         },
     )?;
-    finalize(out, &headers, &state, &rows, plots)?;
+    finalize(out, &headers, &state, plots)?;
     let covered: u64 = state.ranges.iter().map(|(a, b)| b - a).sum();
     write_manifest(
         out,
@@ -1235,14 +1278,8 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
     })
 }
 
-/// Writes `stats/*.npy`, `members.csv` and the plots.
-fn finalize(
-    dir: &Path,
-    headers: &[StudyHeader],
-    state: &StudyState,
-    rows: &[MemberRow],
-    plots: bool,
-) -> Result<()> {
+/// Writes `stats/*.npy` and the plots (`members.csv` is streamed by the caller).
+fn finalize(dir: &Path, headers: &[StudyHeader], state: &StudyState, plots: bool) -> Result<()> {
     let header = &headers[0];
     let stats = dir.join("stats");
     std::fs::create_dir_all(&stats).map_err(|e| Error::io(&stats, e))?;
@@ -1342,18 +1379,6 @@ fn finalize(
             &quant,
         )?;
     }
-    let csv_path = dir.join("members.csv");
-    let mut w = csv::Writer::from_path(&csv_path).map_err(|e| Error::Output {
-        path: csv_path.clone(),
-        message: e.to_string(),
-    })?;
-    for r in rows {
-        w.serialize(r).map_err(|e| Error::Output {
-            path: csv_path.clone(),
-            message: e.to_string(),
-        })?;
-    }
-    w.flush().map_err(|e| Error::io(&csv_path, e))?;
     if plots {
         write_plots(dir, header, state)?;
     }
