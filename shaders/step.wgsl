@@ -237,15 +237,18 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> bool {
         let u = y + w * u_next;
         // u_{i+1} - u_i without cancelling two large velocities.
         let relative = lambda * u_next - y;
-        let d = gap_sets[gi + gap] + h * relative;
+        // The old gap is loaded once (the store below may alias it for the compiler).
+        let old = gap_sets[gi + gap];
+        let d = old + h * relative;
         vel_sets[vo + row] = u;
         gap_sets[go + gap] = d;
-        ok = ok && (!is_free(gap) || gap_step_admissible(gap_sets[gi + gap], d));
+        ok = ok && (!is_free(gap) || gap_step_admissible(old, d));
         u_next = u;
     }
-    let d0 = gap_sets[gi + b] + h * u_next;
+    let old0 = gap_sets[gi + b];
+    let d0 = old0 + h * u_next;
     gap_sets[go + b] = d0;
-    ok = ok && (!is_free(b) || gap_step_admissible(gap_sets[gi + b], d0));
+    ok = ok && (!is_free(b) || gap_step_admissible(old0, d0));
     return ok;
 }
 

@@ -367,19 +367,21 @@ pub fn euler_step<const L: usize>(
             let u = scratch.y[row + l] + scratch.w[row + l] * u_next[l];
             // u_{i+1} - u_i without cancelling two large velocities.
             let relative = scratch.lambda[row + l] * u_next[l] - scratch.y[row + l];
-            let d = gaps_in[gap + l] + h[l] * relative;
+            let old = gaps_in[gap + l];
+            let d = old + h[l] * relative;
             vel_out[row + l] = u;
             gaps_out[gap + l] = d;
             let free = terms.bonded.is_none_or(|b| !b[gap + l]);
-            ok[l] &= !free || gap_step_admissible(gaps_in[gap + l], d);
+            ok[l] &= !free || gap_step_admissible(old, d);
             u_next[l] = u;
         }
     }
     for l in 0..L {
-        let d = gaps_in[l] + h[l] * u_next[l];
+        let old = gaps_in[l];
+        let d = old + h[l] * u_next[l];
         gaps_out[l] = d;
         let free = terms.bonded.is_none_or(|b| !b[l]);
-        ok[l] &= !free || gap_step_admissible(gaps_in[l], d);
+        ok[l] &= !free || gap_step_admissible(old, d);
     }
     ok
 }
