@@ -59,12 +59,14 @@ struct Block<const L: usize> {
     scratch: Scratch,
 }
 
-fn interleave<T: Copy, const L: usize>(per_lane: &[&[T]; L]) -> Vec<T> {
-    let len = per_lane[0].len();
-    let mut out = Vec::with_capacity(len * L);
+/// Interleaves per-member vectors of equal length: element i of member b at i·B + b (the layout
+/// of a CPU block of B = L lanes and of the whole GPU batch).
+pub fn interleave<T: Copy>(per_member: &[&[T]]) -> Vec<T> {
+    let len = per_member.first().map_or(0, |v| v.len());
+    let mut out = Vec::with_capacity(len * per_member.len());
     for i in 0..len {
-        for lane in per_lane.iter() {
-            out.push(lane[i]);
+        for member in per_member {
+            out.push(member[i]);
         }
     }
     out
@@ -83,17 +85,17 @@ impl<const L: usize> Block<L> {
         dt0: f64,
     ) -> Self {
         let n = plan.particles;
-        let gaps = interleave::<f64, L>(&chains.map(|c| c.gaps.as_slice()));
-        let vel = interleave::<f64, L>(&chains.map(|c| c.velocities.as_slice()));
+        let gaps = interleave::<f64>(&chains.map(|c| c.gaps.as_slice()));
+        let vel = interleave::<f64>(&chains.map(|c| c.velocities.as_slice()));
         let dstar = plan.repulsion.then(|| {
-            interleave::<f64, L>(
+            interleave::<f64>(
                 &chains.map(|c| c.dstar.as_deref().expect("plan.repulsion implies d*")),
             )
         });
         let no_bonds = vec![false; n];
-        let bonded = plan.clusters.then(|| {
-            interleave::<bool, L>(&chains.map(|c| c.bonded.as_deref().unwrap_or(&no_bonds)))
-        });
+        let bonded = plan
+            .clusters
+            .then(|| interleave::<bool>(&chains.map(|c| c.bonded.as_deref().unwrap_or(&no_bonds))));
         let gammas = params.map(|p| p.gamma);
         let gamma = if gammas.iter().all(|&g| g == gammas[0]) {
             Gamma::Uniform(Power::of(gammas[0]))

@@ -25,7 +25,7 @@ use super::kernel::{
     GATHER_ENTRY, STEP_WORKGROUP_SIZE,
 };
 use crate::cpu::control::Failure;
-use crate::cpu::{MemberReport, MemberStatus};
+use crate::cpu::{interleave, MemberReport, MemberStatus};
 use crate::initial::Chain;
 use crate::observables::{grid_points, observe, Snapshot};
 use crate::plan::{Plan, Power};
@@ -201,18 +201,6 @@ fn check_loop_budget(
         });
     }
     Ok(())
-}
-
-/// Interleaves per-member vectors of equal length: element i of member b at i·B + b.
-fn interleave<T: Copy>(per_member: &[&[T]]) -> Vec<T> {
-    let len = per_member.first().map_or(0, |v| v.len());
-    let mut out = Vec::with_capacity(len * per_member.len());
-    for i in 0..len {
-        for m in per_member {
-            out.push(m[i]);
-        }
-    }
-    out
 }
 
 /// The uniform `Config` of step.wgsl (keep in sync): 4 u32, then eps, t_start, t_end, fixed_h
