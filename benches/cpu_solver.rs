@@ -4,11 +4,12 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use roughlub::cpu::CpuSolver;
+use roughlub::backend::BatchSolver;
+use roughlub::backend::cpu::CpuSolver;
 use roughlub::expr::Expr;
-use roughlub::initial::chain_from_profiles;
-use roughlub::plan::Plan;
-use roughlub::scene::{MemberParams, OutputFields, Stepping};
+use roughlub::scene::initial::chain_from_profiles;
+use roughlub::model::plan::Plan;
+use roughlub::model::params::{MemberParams, OutputFields, Stepping};
 
 fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver {
     let chain = chain_from_profiles(
@@ -39,7 +40,7 @@ fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver 
         grid: 2,
     };
     let mut s = CpuSolver::new(plan, vec![chain; members]);
-    s.next_output(None);
+    s.next_output(&|_| {}).unwrap();
     s
 }
 
@@ -62,7 +63,7 @@ fn particle_steps(c: &mut Criterion) {
             |b, &(m, n, k)| {
                 b.iter_batched(
                     || solver(m, n, k, dt),
-                    |mut s| s.next_output(None),
+                    |mut s| s.next_output(&|_| {}).unwrap(),
                     criterion::BatchSize::LargeInput,
                 )
             },

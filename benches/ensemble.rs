@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use roughlub::scene::{Backend, Scene};
+use {roughlub::backend::Backend, roughlub::scene::Scene};
 use roughlub::study::{run_study, StudyOptions};
 
 const MEMBERS: u64 = 10_000;
@@ -49,7 +49,7 @@ fn ensemble(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(30))
         .warm_up_time(Duration::from_secs(1));
     group.throughput(Throughput::Elements(MEMBERS));
-    let gpu_present = roughlub::gpu::GpuContext::acquire(true).is_ok();
+    let gpu_present = roughlub::backend::gpu::GpuContext::acquire(true).is_ok();
     let backends: Vec<(&str, Backend)> = if gpu_present {
         vec![("cpu", Backend::Cpu), ("gpu", Backend::Gpu)]
     } else {

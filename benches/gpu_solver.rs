@@ -1,5 +1,5 @@
 //! Particle-steps per second (members × particles × steps / wall time) of the GPU solver
-//! (`roughlub::gpu::solver::GpuSolver`) on whatever wgpu adapter is found: order 1, fixed
+//! (`roughlub::backend::gpu::solver::GpuSolver`) on whatever wgpu adapter is found: order 1, fixed
 //! steps, case-1 data (rho0 = 0.7, u0 = 0.5 sin(2 pi x), rho* = 0.7), f32 and f64.
 //!
 //! Group `gpu_order1_fixed_integer_gamma`: integer gamma 2 with repulsion, no forcing, for
@@ -25,13 +25,14 @@ use criterion::{
     criterion_group, criterion_main, BatchSize, BenchmarkGroup, BenchmarkId, Criterion,
     SamplingMode, Throughput,
 };
+use roughlub::backend::BatchSolver;
 use roughlub::expr::Expr;
-use roughlub::gpu::solver::{GpuSolver, GpuStats};
-use roughlub::gpu::{GpuContext, GpuError};
-use roughlub::initial::{chain_from_profiles, Chain};
-use roughlub::plan::{Forcing, Plan};
-use roughlub::quadrature::GaussLegendre;
-use roughlub::scene::{MemberParams, OutputFields, Precision, Stepping};
+use roughlub::backend::gpu::solver::{GpuSolver, GpuStats};
+use roughlub::backend::gpu::{GpuContext, GpuError};
+use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
+use roughlub::model::plan::{Forcing, Plan};
+use roughlub::model::quadrature::GaussLegendre;
+use {roughlub::backend::Precision, roughlub::model::params::{MemberParams, OutputFields, Stepping}};
 
 /// Fixed steps per timed interval: exactly one submit of 64 `advance` dispatches (one trial step
 /// per member per dispatch), so no dispatch of the submit is idle.
@@ -137,7 +138,7 @@ fn solver<'a>(
     let c = chain(case);
     let plan = plan(case, c.eps);
     let mut s = GpuSolver::new(ctx, plan, vec![c; case.members], precision)?;
-    s.next_output()?;
+    s.next_output(&|_| {})?;
     Ok(s)
 }
 
@@ -170,7 +171,7 @@ fn probe(ctx: &GpuContext, case: &Case, precision: Precision, id: &str) -> bool 
         }
     };
     let before = s.stats();
-    match s.next_output() {
+    match s.next_output(&|_| {}) {
         Ok(Some(_)) => {}
         Ok(None) => panic!("{id}: no second output"),
         Err(e) => {
@@ -182,7 +183,7 @@ fn probe(ctx: &GpuContext, case: &Case, precision: Precision, id: &str) -> bool 
     let reports = s.reports();
     let failed = reports
         .iter()
-        .filter(|r| !matches!(r.status, roughlub::cpu::MemberStatus::Ok))
+        .filter(|r| !matches!(r.status, roughlub::backend::MemberStatus::Ok))
         .count();
     let steps: u64 = reports.iter().map(|r| r.steps_accepted).sum();
     println!(
@@ -217,7 +218,7 @@ fn bench_case<M: criterion::measurement::Measurement<Value = Duration>>(
             || solver(ctx, &case, precision).expect("GpuSolver (built once already)"),
             // The solver is returned so that it is dropped outside the timed part.
             |mut s| {
-                let out = s.next_output().expect("GPU interval");
+                let out = s.next_output(&|_| {}).expect("GPU interval");
                 (s, out)
             },
             BatchSize::LargeInput,

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use crate::expr::ExprError;
-use crate::gpu::GpuError;
+use crate::backend::GpuError;
 use crate::plot::PlotError;
 
 #[derive(Debug, thiserror::Error)]

@@ -1,21 +1,20 @@
 //! roughlub: batched simulation of one-dimensional chains of rough particles interacting through
-//! lubrication (see README.md and ../shared/DESIGN.md).
+//! lubrication (see README.md, section "Architecture", for where each part lives).
+//!
+//! scene file → [`scene::Scene`] → [`model::plan::Plan`] → [`backend`] (cpu | gpu, behind
+//! [`backend::BatchSolver`]) → observables and [`stats`] → [`output`] directory, orchestrated by
+//! [`run`] (one batch) and [`study`] (ensembles).
 
-pub mod expr;
-pub mod gpu;
-pub mod plot;
-
-pub mod cpu;
-pub mod error;
-pub mod initial;
-pub mod observables;
-pub mod plan;
-pub mod quadrature;
-pub mod scene;
-
-pub use error::{Error, Result};
+pub mod backend;
 pub mod ensemble;
+pub mod error;
+pub mod expr;
+pub mod model;
 pub mod output;
+pub mod plot;
 pub mod run;
+pub mod scene;
 pub mod stats;
 pub mod study;
+
+pub use error::{Error, Result};

@@ -6,7 +6,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use roughlub::error::Error;
 use roughlub::run::{run_scene, RunOptions};
-use roughlub::scene::{Backend, Precision, Scene};
+use roughlub::backend::{Backend, Precision};
+use roughlub::scene::Scene;
 use roughlub::study::{merge_studies, run_study, StudyOptions, StudySummary};
 
 #[derive(Parser)]
@@ -29,12 +30,12 @@ enum Command {
         /// Output directory [default: out/<scene name>].
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Override the scene's backend: cpu, gpu or auto.
-        #[arg(long)]
-        backend: Option<String>,
-        /// Override the scene's precision: f64 or f32.
-        #[arg(long)]
-        precision: Option<String>,
+        /// Override the scene's backend.
+        #[arg(long, value_enum)]
+        backend: Option<Backend>,
+        /// Override the scene's precision.
+        #[arg(long, value_enum)]
+        precision: Option<Precision>,
         /// No progress bar and no summary line.
         #[arg(long)]
         quiet: bool,
@@ -110,8 +111,6 @@ fn main() -> ExitCode {
             resume,
         } => (|| {
             let scene = Scene::from_file(&scene)?;
-            let backend: Option<Backend> = backend.as_deref().map(str::parse).transpose()?;
-            let precision: Option<Precision> = precision.as_deref().map(str::parse).transpose()?;
             let out_dir = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
             if scene.ensemble.is_some() {
                 let shard = shard

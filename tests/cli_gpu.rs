@@ -3,7 +3,7 @@
 //! the CPU (saying why) when there is none, and the clear errors (exit status 2, no manifest) for
 //! `gpu` without an adapter and for f32 on the CPU.
 //!
-//! Tests that need a GPU adapter ask `roughlub::gpu::acquire_for_tests`: without an adapter they
+//! Tests that need a GPU adapter ask `common::gpu::acquire_for_tests`: without an adapter they
 //! skip with a message, unless `ROUGHLUB_REQUIRE_GPU=1` (CI), where they fail. The "no adapter"
 //! cases hide every adapter with `WGPU_ADAPTER_NAME=no-such-adapter` (a substring filter that
 //! `GpuContext::acquire` applies), so they run everywhere.
@@ -11,11 +11,13 @@
 //! The scene is `tests/data/small.toml`: paper case 1 with N = 40, three members (gamma = 1, 2,
 //! 5), order 1, fixed dt = 1e-3 up to t = 0.05 (50 steps), outputs at 0, 0.025, 0.05.
 
+mod common;
+
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use roughlub::gpu::context::NO_ADAPTER_HINT;
+use roughlub::backend::error::NO_ADAPTER_HINT;
 use serde_json::Value;
 
 const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
@@ -105,7 +107,7 @@ fn read_manifest(dir: &Path) -> Value {
 /// Whether a GPU adapter (with f64 shaders when `want_f64`) exists; `false` means "skip this
 /// test" (and panics instead under ROUGHLUB_REQUIRE_GPU=1).
 fn have_gpu(want_f64: bool, test: &str) -> bool {
-    match roughlub::gpu::acquire_for_tests(want_f64) {
+    match common::gpu::acquire_for_tests(want_f64) {
         Some(ctx) => {
             drop(ctx);
             true

@@ -2,6 +2,8 @@
 //! formulas written in Rust, precedence, error positions, dependence queries, and WGSL generation
 //! validated with naga.
 
+mod common;
+
 use std::f64::consts::{E, PI};
 
 use roughlub::expr::{BinOp, Expr, Node, WgslFloat};
@@ -581,7 +583,7 @@ fn gpu_kernel(body: &str, ty: &str) -> String {
 
 #[test]
 fn generated_wgsl_f64_matches_eval_on_gpu() {
-    let Some(ctx) = roughlub::gpu::acquire_for_tests(true) else {
+    let Some(ctx) = common::gpu::acquire_for_tests(true) else {
         return;
     };
     let (xs, ts) = gpu_points();
@@ -594,11 +596,11 @@ fn generated_wgsl_f64_matches_eval_on_gpu() {
         // The whole f64 library, so that its functions are exercised as the solver will use them.
         let body = format!(
             "{}\n{}",
-            roughlub::gpu::F64_MATH_WGSL,
+            roughlub::backend::gpu::F64_MATH_WGSL,
             expr.to_wgsl(WgslFloat::F64, "profile")
         );
         let kernel = gpu_kernel(&body, "f64");
-        let got = roughlub::gpu::run_compute_f64(
+        let got = common::gpu::run_compute_f64(
             &ctx,
             &kernel,
             "main",
@@ -623,7 +625,7 @@ fn generated_wgsl_f64_matches_eval_on_gpu() {
 
 #[test]
 fn generated_wgsl_f32_matches_eval_on_gpu() {
-    let Some(ctx) = roughlub::gpu::acquire_for_tests(false) else {
+    let Some(ctx) = common::gpu::acquire_for_tests(false) else {
         return;
     };
     let (xs, ts) = gpu_points();
@@ -632,7 +634,7 @@ fn generated_wgsl_f32_matches_eval_on_gpu() {
     for src in GPU_CASES.iter().chain(&GPU_NON_FINITE_CASES) {
         let expr = parse(src);
         let kernel = gpu_kernel(&expr.to_wgsl(WgslFloat::F32, "profile"), "f32");
-        let bytes = roughlub::gpu::run_compute_raw(
+        let bytes = common::gpu::run_compute_raw(
             &ctx,
             src,
             &kernel,

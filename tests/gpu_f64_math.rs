@@ -13,8 +13,11 @@
 //! absolute-error escape is needed. The std functions are themselves within ~1 ulp of the true
 //! values, which the tolerance absorbs.
 
-use roughlub::gpu::{
-    acquire_for_tests, run_compute_f64, validate_wgsl, GpuContext, GpuError, F64_MATH_WGSL,
+mod common;
+
+use common::gpu::{acquire_for_tests, run_compute_f64};
+use roughlub::backend::gpu::{
+    validate_wgsl, GpuContext, GpuError, F64_MATH_WGSL,
 };
 
 /// Maximum relative error allowed for each function.

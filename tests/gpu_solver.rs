@@ -1,19 +1,20 @@
-//! The GPU backend (`roughlub::gpu::solver::GpuSolver`) against the CPU backend. GPU tests go
+//! The GPU backend (`roughlub::backend::gpu::solver::GpuSolver`) against the CPU backend. GPU tests go
 //! through `acquire_for_tests(true)`: skipped without an f64 adapter unless
 //! `ROUGHLUB_REQUIRE_GPU=1` (CI), which turns a missing adapter into a failure.
 
 mod common;
 
 use common::{plan_for, random_chain, Rng};
-use roughlub::cpu::{CpuSolver, MemberReport, MemberStatus};
+use roughlub::backend::BatchSolver;
+use {roughlub::backend::cpu::CpuSolver, roughlub::backend::{MemberReport, MemberStatus}};
 use roughlub::expr::Expr;
-use roughlub::gpu::acquire_for_tests;
-use roughlub::gpu::solver::GpuSolver;
-use roughlub::gpu::GpuContext;
-use roughlub::initial::{chain_from_profiles, Chain};
-use roughlub::observables::Snapshot;
-use roughlub::plan::Plan;
-use roughlub::scene::{MemberParams, Precision, Stepping};
+use common::gpu::acquire_for_tests;
+use roughlub::backend::gpu::solver::GpuSolver;
+use roughlub::backend::gpu::GpuContext;
+use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
+use roughlub::model::observables::Snapshot;
+use roughlub::model::plan::Plan;
+use {roughlub::backend::Precision, roughlub::model::params::{MemberParams, Stepping}};
 
 fn profile_chain(n: usize, rho: &str, u: &str, rho_star: Option<&str>) -> Chain {
     chain_from_profiles(
@@ -39,7 +40,7 @@ fn sweep() -> Vec<MemberParams> {
 fn run_cpu(plan: &Plan, chains: &[Chain]) -> (Vec<Vec<Snapshot>>, Vec<MemberReport>) {
     let mut solver = CpuSolver::new(plan.clone(), chains.to_vec());
     let mut out = Vec::new();
-    while let Some(s) = solver.next_output(None) {
+    while let Some(s) = solver.next_output(&|_| {}).unwrap() {
         out.push(s);
     }
     (out, solver.reports())
@@ -54,7 +55,7 @@ fn run_gpu(
     let mut solver = GpuSolver::new(ctx, plan.clone(), chains.to_vec(), precision)
         .unwrap_or_else(|e| panic!("{e}"));
     let mut out = Vec::new();
-    while let Some(s) = solver.next_output().unwrap_or_else(|e| panic!("{e}")) {
+    while let Some(s) = solver.next_output(&|_| {}).unwrap_or_else(|e| panic!("{e}")) {
         out.push(s);
     }
     eprintln!("{precision:?}: {:?}", solver.stats());
@@ -177,7 +178,7 @@ fn many_steps_per_dispatch_and_readback_only_at_outputs() {
     let (mut plan, chains) = case1_plan(1, FIXED);
     plan.members.truncate(1);
     let mut solver = GpuSolver::new(&ctx, plan, chains[..1].to_vec(), Precision::F64).unwrap();
-    while solver.next_output().unwrap().is_some() {}
+    while solver.next_output(&|_| {}).unwrap().is_some() {}
     let st = solver.stats();
     eprintln!("{st:?}");
     assert_eq!(st.steps, 200);
@@ -577,7 +578,7 @@ fn a_million_particles_run_or_are_refused_clearly() {
     let (plan, chains) = plan_of(1_000_000);
     match GpuSolver::new(&ctx, plan.clone(), chains.clone(), Precision::F64) {
         Ok(_) => assert_f64_agreement(&ctx, "N = 1e6", &plan, &chains),
-        Err(roughlub::gpu::GpuError::LoopLimit { max_particles, .. }) => {
+        Err(roughlub::backend::gpu::GpuError::LoopLimit { max_particles, .. }) => {
             let message = GpuSolver::new(&ctx, plan, chains, Precision::F64)
                 .err()
                 .unwrap()

@@ -4,13 +4,14 @@ mod common;
 
 use common::{plan_for, random_chain, run_all, Rng};
 use nalgebra::{DMatrix, DVector};
-use roughlub::cpu::step::{euler_step, Gamma, Scratch, Terms};
-use roughlub::cpu::MemberStatus;
+use roughlub::backend::BatchSolver;
+use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, Terms};
+use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
-use roughlub::initial::{chain_from_profiles, Chain};
-use roughlub::plan::{Forcing, Power};
-use roughlub::quadrature::GaussLegendre;
-use roughlub::scene::{MemberParams, Stepping};
+use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
+use roughlub::model::plan::{Forcing, Power};
+use roughlub::model::quadrature::GaussLegendre;
+use roughlub::model::params::{MemberParams, Stepping};
 
 const L: usize = 8;
 

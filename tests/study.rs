@@ -19,8 +19,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant, SystemTime};
 
-use roughlub::cpu::{CpuSolver, MemberStatus};
-use roughlub::plan::Plan;
+use roughlub::backend::BatchSolver;
+use {roughlub::backend::cpu::CpuSolver, roughlub::backend::MemberStatus};
+use roughlub::model::plan::Plan;
 use roughlub::scene::Scene;
 use roughlub::study::Base;
 use serde_json::Value;
@@ -258,7 +259,7 @@ fn reference(scene_path: &Path) -> Reference {
     let mut max_density = Vec::new();
     let mut fields: BTreeMap<&'static str, Vec<Vec<Vec<f64>>>> =
         FIELDS.iter().map(|f| (*f, Vec::new())).collect();
-    while let Some(snaps) = solver.next_output(None) {
+    while let Some(snaps) = solver.next_output(&|_| {}).unwrap() {
         max_density.push(snaps.iter().map(|s| s.max_density).collect());
         for f in FIELDS {
             let rows = snaps

@@ -1,14 +1,14 @@
-//! The generated WGSL step kernel (`shaders/step.wgsl` via `roughlub::gpu::kernel`):
+//! The generated WGSL step kernel (`shaders/step.wgsl` via `roughlub::backend::gpu::kernel`):
 //! CPU only: every combination of precision × repulsion × clusters × forcing × time scheme
 //! (order 1/2, fixed/adaptive) — every specialisation the plan can produce — parses and
 //! validates with naga, and absent terms leave no code behind.
 //! The GPU kernel's results against the CPU are in tests/gpu_solver.rs.
 
 use roughlub::expr::Expr;
-use roughlub::gpu::kernel::{generate_step_wgsl, GammaSpec, KernelSpec, SchemeSpec};
-use roughlub::gpu::validate_wgsl;
-use roughlub::quadrature::GaussLegendre;
-use roughlub::scene::Precision;
+use roughlub::backend::gpu::kernel::{generate_step_wgsl, GammaSpec, KernelSpec, SchemeSpec};
+use roughlub::backend::gpu::validate_wgsl;
+use roughlub::model::quadrature::GaussLegendre;
+use roughlub::backend::Precision;
 
 const FORCING: &str = "0.3*sin(2*pi*x)*cos(3*t)";
 

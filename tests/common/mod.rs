@@ -1,13 +1,16 @@
 //! Helpers shared by the numerical tests: plans and chains built directly, without scene files.
 #![allow(dead_code)]
 
-use roughlub::cpu::CpuSolver;
+pub mod gpu;
+
+use roughlub::backend::BatchSolver;
+use roughlub::backend::cpu::CpuSolver;
 use roughlub::expr::Expr;
-use roughlub::initial::Chain;
-use roughlub::observables::Snapshot;
-use roughlub::plan::{Forcing, Plan};
-use roughlub::quadrature::GaussLegendre;
-use roughlub::scene::{MemberParams, OutputFields, Stepping};
+use roughlub::model::chain::Chain;
+use roughlub::model::observables::Snapshot;
+use roughlub::model::plan::{Forcing, Plan};
+use roughlub::model::quadrature::GaussLegendre;
+use roughlub::model::params::{MemberParams, OutputFields, Stepping};
 
 pub fn all_fields() -> OutputFields {
     OutputFields::all()
@@ -46,7 +49,7 @@ pub fn plan_for(
 pub fn run_all(plan: Plan, chains: Vec<Chain>) -> (Vec<Vec<Snapshot>>, CpuSolver) {
     let mut solver = CpuSolver::new(plan, chains);
     let mut out = Vec::new();
-    while let Some(s) = solver.next_output(None) {
+    while let Some(s) = solver.next_output(&|_| {}).unwrap() {
         out.push(s);
     }
     (out, solver)

@@ -3,39 +3,7 @@
 //! keep the two in sync. (err^-1/2 is written 1/sqrt(err): sqrt is exact on every backend, pow
 //! is not, and the GPU must take the same accepted steps.)
 
-/// Why a member stopped (a code, so the GPU can store it in a u32).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum Failure {
-    None = 0,
-    /// The step fell below dt_min while every trial closed (or halved) a gap or gave a
-    /// non-finite value.
-    Inadmissible = 1,
-    /// The step fell below dt_min while the error estimate stayed above the tolerance.
-    ErrorTooLarge = 2,
-}
-
-impl Failure {
-    pub fn from_code(code: u32) -> Failure {
-        match code {
-            0 => Failure::None,
-            1 => Failure::Inadmissible,
-            _ => Failure::ErrorTooLarge,
-        }
-    }
-
-    pub fn describe(self, dt_min: f64) -> String {
-        match self {
-            Failure::None => "ok".into(),
-            Failure::Inadmissible => format!(
-                "step size collapsed below dt_min = {dt_min:e}: every smaller step closed a gap, shrank one below half, or gave a non-finite value"
-            ),
-            Failure::ErrorTooLarge => {
-                format!("step size collapsed below dt_min = {dt_min:e} (error estimate stayed too large)")
-            }
-        }
-    }
-}
+use crate::backend::report::Failure;
 
 /// How steps are chosen within one output interval [t_start, t_end].
 #[derive(Debug, Clone, Copy, PartialEq)]

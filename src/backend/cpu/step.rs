@@ -24,7 +24,7 @@
 //! the wall is "pinned" (w = y = 0). Bonded gaps have c = G = 0: their forces cancel inside the
 //! cluster.
 
-use crate::plan::{Forcing, Power};
+use crate::model::plan::{Forcing, Power};
 
 /// A step may shrink a gap to no less than this fraction of its old value. The gap update is
 /// explicit in d, so a step that shrinks a gap by more has left the regime where it is accurate

@@ -16,22 +16,25 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use serde::{Deserialize, Serialize};
-use serde_json::json;
 
-use crate::cpu::{CpuSolver, MemberStatus};
+use crate::backend::select::{BackendRecord, RunsOn};
+use crate::backend::{select, Backend, Engine, MemberStatus, Precision};
 use crate::ensemble::{
     dstar_from_radii, jitter_gaps, mean_radii_from_rho_star, perturbed_velocity, RoughnessSampler,
 };
 use crate::error::{Error, Result};
-use crate::gpu::solver::GpuSolver;
-use crate::gpu::GpuContext;
-use crate::initial::{positions_from_gaps, Chain};
-use crate::observables::Snapshot;
-use crate::output::{write_manifest, write_npy, MANIFEST};
-use crate::plan::Plan;
-use crate::scene::{Backend, EnsembleSpec, InitialSpec, MemberParams, Precision, Scene};
+use crate::model::chain::{positions_from_gaps, Chain};
+use crate::model::observables::Snapshot;
+use crate::model::params::MemberParams;
+use crate::model::plan::Plan;
+use crate::output::manifest::{
+    MergedManifest, QuantileMethod, StudyManifest, StudySceneRecord, VERSION,
+};
+use crate::output::{
+    prepare_dir, read_json, write_json_atomic, write_npy, ProgressReporter, MANIFEST,
+};
+use crate::scene::{EnsembleSpec, InitialSpec, Scene};
 use crate::stats::{QuantileSketch, RunningStats, ScalarSummary};
 
 /// Scalar observables summarised at every output time.
@@ -380,52 +383,9 @@ pub struct StudyHeader {
     pub bins: usize,
     /// Where this run writes (per-member arrays go to `<out_dir>/members/`).
     pub out_dir: String,
-}
-
-/// f64 that may be NaN or infinite (a member that never reached the threshold, an ok member's
-/// failure time): JSON has no NaN, so non-finite values travel as the strings "NaN", "inf",
-/// "-inf"; finite ones as numbers (exact, with serde_json's float_roundtrip). CSV writes the
-/// same text.
-mod nan_safe {
-    use serde::{de, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
-        if x.is_finite() {
-            s.serialize_f64(*x)
-        } else if x.is_nan() {
-            s.serialize_str("NaN")
-        } else if *x > 0.0 {
-            s.serialize_str("inf")
-        } else {
-            s.serialize_str("-inf")
-        }
-    }
-
-    struct Visitor;
-    impl de::Visitor<'_> for Visitor {
-        type Value = f64;
-        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-            f.write_str("a number, or \"NaN\", \"inf\", \"-inf\"")
-        }
-        fn visit_f64<E: de::Error>(self, v: f64) -> Result<f64, E> {
-            Ok(v)
-        }
-        fn visit_i64<E: de::Error>(self, v: i64) -> Result<f64, E> {
-            Ok(v as f64)
-        }
-        fn visit_u64<E: de::Error>(self, v: u64) -> Result<f64, E> {
-            Ok(v as f64)
-        }
-        fn visit_str<E: de::Error>(self, v: &str) -> Result<f64, E> {
-            v.trim()
-                .parse::<f64>()
-                .map_err(|_| E::custom(format!("not a number: {v:?}")))
-        }
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-        d.deserialize_any(Visitor)
-    }
+    /// What computed the members: resume and merge refuse to mix backends or precisions.
+    pub backend: RunsOn,
+    pub precision: Precision,
 }
 
 /// One CSV row per member.
@@ -433,30 +393,30 @@ mod nan_safe {
 pub struct MemberRow {
     pub member: u64,
     pub sweep_point: usize,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub mu: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub gamma: f64,
     pub status: String,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub failure_time: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub velocity_factor: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub velocity_phase: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub mean_dstar: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub min_rho_star: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub peak_density: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub peak_time: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub min_gap: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub final_energy: f64,
-    #[serde(with = "nan_safe")]
+    #[serde(with = "crate::output::serde_f64")]
     pub first_hit_time: f64,
     pub steps_accepted: u64,
     pub steps_rejected: u64,
@@ -499,7 +459,7 @@ pub struct MemberDraw {
 
 impl Base {
     pub fn new(scene: &Scene, spec: &EnsembleSpec) -> Result<Base> {
-        let chain = crate::run::initial_chain(scene)?;
+        let chain = scene.initial_chain()?;
         let positions = chain.positions();
         let sampler = match &spec.roughness {
             None => None,
@@ -598,60 +558,15 @@ impl Base {
 // ---------------------------------------------------------------------------------------------
 // Running a study.
 
-enum Engine {
-    Cpu,
-    Gpu(GpuContext, Precision),
-}
-
-fn pick_engine(scene: &Scene, options: &StudyOptions) -> Result<(Engine, String)> {
-    let requested = options.backend.unwrap_or(scene.backend);
-    let precision = options.precision.unwrap_or(scene.precision);
-    match requested {
-        Backend::Cpu => {
-            if precision == Precision::F32 {
-                return Err(Error::invalid(
-                    "solver.precision",
-                    "\"f32\"",
-                    "the CPU reference path computes in f64 only",
-                    "\"f64\" with backend \"cpu\"",
-                ));
-            }
-            Ok((
-                Engine::Cpu,
-                format!("cpu (rayon, {} threads)", rayon::current_num_threads()),
-            ))
-        }
-        Backend::Gpu => {
-            let ctx = GpuContext::acquire(precision == Precision::F64).map_err(|e| {
-                Error::gpu("solver.backend = \"gpu\"", e, "; or use backend \"cpu\"")
-            })?;
-            let name = ctx.description.short();
-            Ok((Engine::Gpu(ctx, precision), name))
-        }
-        Backend::Auto => match GpuContext::acquire(precision == Precision::F64) {
-            Ok(ctx) => {
-                let name = ctx.description.short();
-                Ok((Engine::Gpu(ctx, precision), name))
-            }
-            Err(e) => {
-                if precision == Precision::F32 {
-                    return Err(Error::invalid(
-                        "solver.precision",
-                        "\"f32\"",
-                        format!("no usable GPU ({e}) and the CPU computes in f64 only"),
-                        "\"f64\"",
-                    ));
-                }
-                Ok((
-                    Engine::Cpu,
-                    format!(
-                        "cpu (rayon, {} threads; no GPU: {e})",
-                        rayon::current_num_threads()
-                    ),
-                ))
-            }
-        },
-    }
+/// The plan of a chunk: the scene's, with these members, and the fields the statistics need.
+fn chunk_plan(scene: &Scene, first_chain: &Chain, members: Vec<MemberParams>) -> Plan {
+    let mut plan = Plan::new(scene, first_chain);
+    plan.members = members;
+    plan.repulsion = first_chain.dstar.is_some();
+    plan.fields.rho_star = plan.repulsion;
+    plan.fields.rho = true;
+    plan.fields.u = true;
+    plan
 }
 
 /// Solves members [first, end) and returns their statistics and rows.
@@ -665,7 +580,7 @@ fn solve_chunk(
     first: u64,
     end: u64,
     stats_seconds: &mut f64,
-    progress: &ProgressBar,
+    progress: &ProgressReporter,
 ) -> Result<ChunkFile> {
     let mut chains = Vec::with_capacity((end - first) as usize);
     let mut params = Vec::with_capacity(chains.capacity());
@@ -676,12 +591,7 @@ fn solve_chunk(
         params.push(p);
         draws.push(d);
     }
-    let mut plan = Plan::new(scene, &chains[0]);
-    plan.members = params.clone();
-    plan.repulsion = chains[0].dstar.is_some();
-    plan.fields.rho_star = plan.repulsion;
-    plan.fields.rho = true;
-    plan.fields.u = true;
+    let plan = chunk_plan(scene, &chains[0], params.clone());
     let t_count = header.times.len();
     let grid = header.x.len();
     let mut state = StudyState::new(t_count, grid, &header.field_ranges, header.bins);
@@ -747,37 +657,18 @@ fn solve_chunk(
         *stats_seconds += started.elapsed().as_secs_f64();
     };
 
-    let reports = match engine {
-        Engine::Cpu => {
-            let mut solver = CpuSolver::new(plan, chains);
-            let mut k = 0;
-            while let Some(snaps) = solver.next_output(None) {
-                let failed_now: Vec<bool> = snaps.iter().map(|s| s.max_density.is_nan()).collect();
-                consume(k, &snaps, &failed_now);
-                k += 1;
-            }
-            solver.reports()
-        }
-        Engine::Gpu(ctx, precision) => {
-            let mut solver = GpuSolver::new(ctx, plan, chains, *precision).map_err(|e| {
-                Error::gpu(
-                    format!("ensemble chunk on {}", ctx.description.short()),
-                    e,
-                    "; use backend \"cpu\"",
-                )
-            })?;
-            let mut k = 0;
-            while let Some(snaps) = solver
-                .next_output()
-                .map_err(|e| Error::gpu("ensemble chunk", e, ""))?
-            {
-                let failed_now: Vec<bool> = snaps.iter().map(|s| s.max_density.is_nan()).collect();
-                consume(k, &snaps, &failed_now);
-                k += 1;
-            }
-            solver.reports()
-        }
-    };
+    let mut solver = engine.solver(plan, chains)?;
+    let mut k = 0;
+    while let Some(snaps) = solver.next_output(&|_| {})? {
+        let failed_now: Vec<bool> = solver
+            .reports()
+            .iter()
+            .map(|r| r.status != MemberStatus::Ok)
+            .collect();
+        consume(k, &snaps, &failed_now);
+        k += 1;
+    }
+    let reports = solver.reports();
     progress.inc(count as u64);
     let started = Instant::now();
     let ok_member: Vec<bool> = reports
@@ -909,24 +800,6 @@ pub fn peak_centre(x: &[f64], rho: &[f64]) -> f64 {
     }
 }
 
-fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> Result<()> {
-    let tmp = path.with_extension("json.tmp");
-    let text = serde_json::to_string(value).map_err(|e| Error::Output {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
-    std::fs::write(&tmp, text).map_err(|e| Error::io(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
-}
-
-fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| Error::Output {
-        path: path.to_path_buf(),
-        message: format!("unreadable: {e}"),
-    })
-}
-
 /// members.csv, written row by row as chunks (or shards) are read, in member order: memory does
 /// not grow with the number of members. It is written as `members.csv.partial` and renamed when
 /// complete, so an interrupted run leaves no complete-looking table.
@@ -968,16 +841,21 @@ fn chunk_path(dir: &Path, first: u64, end: u64) -> PathBuf {
         .join(format!("chunk_{first:012}_{end:012}.json"))
 }
 
+/// Members [K·M/N, (K+1)·M/N) of M for shard K of N.
+fn shard_range(total: u64, (k, n): (u64, u64)) -> (u64, u64) {
+    (total * k / n, total * (k + 1) / n)
+}
+
 fn header_for(
     scene: &Scene,
     spec: &EnsembleSpec,
     base: &Base,
     shard: (u64, u64),
     out_dir: &Path,
+    engine: &BackendRecord,
 ) -> StudyHeader {
     let total = spec.members * base.sweep.len() as u64;
-    let (k, n) = shard;
-    let range = (total * k / n, total * (k + 1) / n);
+    let range = shard_range(total, shard);
     let u_max = base
         .chain
         .velocities
@@ -1004,13 +882,36 @@ fn header_for(
         member_range: range,
         chunk: spec.chunk,
         times: scene.output_times.clone(),
-        x: crate::observables::grid_points(scene.grid),
+        x: crate::model::observables::grid_points(scene.grid),
         quantiles: spec.quantiles.clone(),
         sweep: base.sweep.clone(),
         field_ranges,
         bins: spec.bins,
         out_dir: out_dir.display().to_string(),
+        backend: engine.backend,
+        precision: engine.precision,
     }
+}
+
+/// The study's backend, chosen by the one selection policy for a batch like its largest chunk.
+fn select_for_study(
+    scene: &Scene,
+    spec: &EnsembleSpec,
+    base: &Base,
+    member_range: (u64, u64),
+    options: &StudyOptions,
+) -> Result<Engine> {
+    let (first, end) = member_range;
+    // Member `first` is built up front so that bad ensemble settings fail before anything is
+    // written.
+    let (chain, params, _) = base.member(scene, spec, first)?;
+    let largest_chunk = (spec.chunk as u64).min(end.saturating_sub(first)).max(1) as usize;
+    let plan = chunk_plan(scene, &chain, vec![params; largest_chunk]);
+    select(
+        options.backend.unwrap_or(scene.backend),
+        options.precision.unwrap_or(scene.precision),
+        &plan,
+    )
 }
 
 pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> {
@@ -1029,14 +930,24 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         ));
     }
     let base = Base::new(scene, spec)?;
-    let header = header_for(scene, spec, &base, options.shard, &options.out_dir);
-    // Member 0 is built up front so that bad ensemble settings fail before anything is written.
-    base.member(scene, spec, header.member_range.0)?;
-    let (engine, engine_name) = pick_engine(scene, options)?;
+    let range = shard_range(spec.members * base.sweep.len() as u64, options.shard);
+    let engine = select_for_study(scene, spec, &base, range, options)?;
+    let header = header_for(
+        scene,
+        spec,
+        &base,
+        options.shard,
+        &options.out_dir,
+        &engine.record,
+    );
     if !options.quiet {
         eprintln!(
-            "ensemble {}: members {}..{} of {} (shard {k}/{n}) on {engine_name}",
-            scene.name, header.member_range.0, header.member_range.1, header.members_total
+            "ensemble {}: members {}..{} of {} (shard {k}/{n}); {}",
+            scene.name,
+            header.member_range.0,
+            header.member_range.1,
+            header.members_total,
+            engine.record.line()
         );
     }
 
@@ -1045,23 +956,30 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let header_path = dir.join("study.json");
     if options.resume {
         let old: StudyHeader = read_json(&header_path)?;
-        if old.scene_hash != header.scene_hash
-            || old.shard != header.shard
-            || old.chunk != header.chunk
-        {
+        let differs = [
+            ("scene text", old.scene_hash != header.scene_hash),
+            ("shard", old.shard != header.shard),
+            ("chunk size", old.chunk != header.chunk),
+            ("backend", old.backend != header.backend),
+            ("precision", old.precision != header.precision),
+        ];
+        let what: Vec<&str> = differs.iter().filter(|d| d.1).map(|d| d.0).collect();
+        if !what.is_empty() {
             return Err(Error::Output {
                 path: header_path,
-                message: "--resume: this directory holds a different study (scene text, shard or chunk size differ); run without --resume into a new directory".into(),
+                message: format!(
+                    "--resume: this directory holds a different study ({} differ: it ran on {:?} in {:?}); run without --resume into a new directory, or resume with the same settings",
+                    what.join(", "),
+                    old.backend,
+                    old.precision
+                ),
             });
         }
     } else if chunks_dir.exists() {
         std::fs::remove_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
     }
     std::fs::create_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
-    let manifest = dir.join(MANIFEST);
-    if manifest.exists() {
-        std::fs::remove_file(&manifest).map_err(|e| Error::io(&manifest, e))?;
-    }
+    prepare_dir(dir)?;
     write_json_atomic(&header_path, &header)?;
 
     let (first, end) = header.member_range;
@@ -1069,18 +987,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         .step_by(spec.chunk)
         .map(|a| (a, (a + spec.chunk as u64).min(end)))
         .collect();
-    let progress = ProgressBar::with_draw_target(
-        Some(end - first),
-        if options.quiet {
-            ProgressDrawTarget::hidden()
-        } else {
-            ProgressDrawTarget::stderr()
-        },
-    );
-    progress.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} members, eta {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
+    let progress = ProgressReporter::new(end - first, "members", options.quiet);
     let mut stats_seconds = 0.0;
     let mut reused = 0;
     let mut total: Option<StudyState> = None;
@@ -1116,7 +1023,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             csv_out.push(row)?;
         }
     }
-    progress.finish_and_clear();
+    progress.finish();
     csv_out.finish()?;
     let state = total.unwrap_or_else(|| {
         StudyState::new(
@@ -1137,26 +1044,31 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     finalize(dir, &[header.clone()], &state, scene.plots)?;
     stats_seconds += t0.elapsed().as_secs_f64();
     let wall = started.elapsed().as_secs_f64();
-    write_manifest(
-        dir,
-        &json!({
-            "roughlub_version": env!("CARGO_PKG_VERSION"),
-            "kind": "ensemble",
-            "scene": { "name": scene.name, "text": scene.source_text, "hash": header.scene_hash },
-            "engine": engine_name,
-            "shard": [k, n],
-            "member_range": header.member_range,
-            "members_total": header.members_total,
-            "members_completed": state.completed,
-            "failed_members": state.failed,
-            "chunks": bounds.len(),
-            "chunks_reused": reused,
-            "wall_seconds": wall,
-            "statistics_seconds": stats_seconds,
-            "statistics_share": stats_seconds / wall.max(1e-12),
-            "ensemble": spec,
-            "quantile_method": quantile_method(&header),
-        }),
+    write_json_atomic(
+        &dir.join(MANIFEST),
+        &StudyManifest {
+            roughlub_version: VERSION,
+            kind: "ensemble",
+            scene: StudySceneRecord {
+                name: scene.name.clone(),
+                text: scene.source_text.clone(),
+                hash: header.scene_hash.clone(),
+            },
+            backend: engine.record.clone(),
+            gpu_stats: None,
+            shard: (k, n),
+            member_range: header.member_range,
+            members_total: header.members_total,
+            members_completed: state.completed,
+            failed_members: state.failed.clone(),
+            chunks: bounds.len(),
+            chunks_reused: reused,
+            wall_seconds: wall,
+            statistics_seconds: stats_seconds,
+            statistics_share: stats_seconds / wall.max(1e-12),
+            ensemble: spec.clone(),
+            quantile_method: quantile_method(&header),
+        },
     )?;
     Ok(StudySummary {
         out_dir: dir.clone(),
@@ -1168,14 +1080,14 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     })
 }
 
-fn quantile_method(header: &StudyHeader) -> serde_json::Value {
-    json!({
-        "scalars": format!("DDSketch, relative accuracy alpha = {SCALAR_ALPHA}: the value reported for level q is within alpha |x| of the sample x of rank floor(q (n-1)); merging shards is exact"),
-        "fields": "per grid point, a histogram of the given bins on the field's range: the midpoint of the bin holding the sample of rank floor(q (n-1)), within half a bin width of it; NaN where that sample lies outside the range",
-        "field_ranges": header.field_ranges,
-        "bins": header.bins,
-        "scalar_histograms": format!("{SCALAR_BINS} bins over each time's [min, max], filled from the sketch (each value placed within alpha |x|)"),
-    })
+fn quantile_method(header: &StudyHeader) -> QuantileMethod {
+    QuantileMethod {
+        scalars: format!("DDSketch, relative accuracy alpha = {SCALAR_ALPHA}: the value reported for level q is within alpha |x| of the sample x of rank floor(q (n-1)); merging shards is exact"),
+        fields: "per grid point, a histogram of the given bins on the field's range: the midpoint of the bin holding the sample of rank floor(q (n-1)), within half a bin width of it; NaN where that sample lies outside the range",
+        field_ranges: header.field_ranges.clone(),
+        bins: header.bins,
+        scalar_histograms: format!("{SCALAR_BINS} bins over each time's [min, max], filled from the sketch (each value placed within alpha |x|)"),
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -1196,24 +1108,24 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
         partials.push((dir.clone(), read_json(&dir.join("partial.json"))?));
     }
     partials.sort_by_key(|(_, p)| p.header.member_range.0);
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let manifest = out.join(MANIFEST);
-    if manifest.exists() {
-        std::fs::remove_file(&manifest).map_err(|e| Error::io(&manifest, e))?;
-    }
+    prepare_dir(out)?;
     let mut csv_out = CsvOut::create(out.join("members.csv"))?;
     let mut headers: Vec<StudyHeader> = Vec::new();
     let mut state: Option<StudyState> = None;
     for (dir, p) in partials {
         if let Some(h0) = headers.first() {
-            if h0.scene_hash != p.header.scene_hash
-                || h0.times != p.header.times
-                || h0.x != p.header.x
-            {
+            let differs = [
+                ("scene text", h0.scene_hash != p.header.scene_hash),
+                ("times", h0.times != p.header.times),
+                ("grid", h0.x != p.header.x),
+                ("backend", h0.backend != p.header.backend),
+                ("precision", h0.precision != p.header.precision),
+            ];
+            let what: Vec<&str> = differs.iter().filter(|d| d.1).map(|d| d.0).collect();
+            if !what.is_empty() {
                 return Err(Error::Output {
                     path: dir.clone(),
-                    message: "not a shard of the same study (scene text, times or grid differ)"
-                        .into(),
+                    message: format!("not a shard of the same study ({} differ)", what.join(", ")),
                 });
             }
         }
@@ -1251,22 +1163,28 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
     )?;
     finalize(out, &headers, &state, plots)?;
     let covered: u64 = state.ranges.iter().map(|(a, b)| b - a).sum();
-    write_manifest(
-        out,
-        &json!({
-            "roughlub_version": env!("CARGO_PKG_VERSION"),
-            "kind": "ensemble (merged)",
-            "inputs": inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-            "scene": { "name": merged_header.scene_name, "text": merged_header.scene_text, "hash": merged_header.scene_hash },
-            "members_total": merged_header.members_total,
-            "members_covered": covered,
-            "complete": covered == merged_header.members_total,
-            "member_ranges": state.ranges,
-            "members_completed": state.completed,
-            "failed_members": state.failed,
-            "wall_seconds": started.elapsed().as_secs_f64(),
-            "quantile_method": quantile_method(&merged_header),
-        }),
+    write_json_atomic(
+        &out.join(MANIFEST),
+        &MergedManifest {
+            roughlub_version: VERSION,
+            kind: "ensemble (merged)",
+            inputs: inputs.iter().map(|p| p.display().to_string()).collect(),
+            scene: StudySceneRecord {
+                name: merged_header.scene_name.clone(),
+                text: merged_header.scene_text.clone(),
+                hash: merged_header.scene_hash.clone(),
+            },
+            backend: merged_header.backend,
+            precision: merged_header.precision,
+            members_total: merged_header.members_total,
+            members_covered: covered,
+            complete: covered == merged_header.members_total,
+            member_ranges: state.ranges.clone(),
+            members_completed: state.completed,
+            failed_members: state.failed.clone(),
+            wall_seconds: started.elapsed().as_secs_f64(),
+            quantile_method: quantile_method(&merged_header),
+        },
     )?;
     Ok(StudySummary {
         out_dir: out.to_path_buf(),

@@ -1,7 +1,8 @@
 //! GPU backend (wgpu/WGSL).
 //!
-//! - [`context`]: acquiring an adapter and device ([`GpuContext`]), the error type
-//!   ([`GpuError`]), WGSL validation and a helper that runs a compute shader once.
+//! - [`context`]: acquiring an adapter and device ([`GpuContext`]) and WGSL validation.
+//! - [`kernel`]: the step kernel generated per plan from `shaders/step.wgsl`.
+//! - [`solver`]: [`solver::GpuSolver`], the batch on the GPU.
 //! - [`F64_MATH_WGSL`]: f64 `exp/expm1/log/sin/cos/tan/tanh/pow` for WGSL kernels (the built-in
 //!   ones are 32-bit only on Vulkan and return garbage for f64); prepend it to a kernel's source.
 
@@ -9,12 +10,10 @@ pub mod context;
 pub mod kernel;
 pub mod solver;
 
-pub use context::{
-    acquire_for_tests, describe_adapters, run_compute_f64, run_compute_raw, validate_wgsl,
-    AdapterDescription, GpuContext, GpuError,
-};
+pub use crate::backend::error::GpuError;
+pub use context::{describe_adapters, validate_wgsl, AdapterDescription, GpuContext};
 
 /// Source of `shaders/f64_math.wgsl`: f64 elementary functions (`exp_f64`, `expm1_f64`,
 /// `log_f64`, `sin_f64`, `cos_f64`, `tan_f64`, `tanh_f64`, `pow_f64`), no entry point and no
 /// bindings; concatenate it with a kernel's source.
-pub const F64_MATH_WGSL: &str = include_str!("../../shaders/f64_math.wgsl");
+pub const F64_MATH_WGSL: &str = include_str!("../../../shaders/f64_math.wgsl");

@@ -7,33 +7,17 @@ pub mod step;
 
 use rayon::prelude::*;
 
-use crate::initial::Chain;
-use crate::observables::{grid_points, observe, Snapshot};
-use crate::plan::{Plan, Power};
-use crate::scene::{MemberParams, Stepping};
-use control::{Failure, Rules, StepControl};
+use crate::backend::{BatchSolver, Progress};
+use crate::error::Result;
+
+use crate::model::chain::Chain;
+use crate::model::observables::{grid_points, observe, Snapshot};
+use crate::model::plan::{Plan, Power};
+use crate::model::params::{MemberParams, Stepping};
+use crate::backend::report::{Failure, MemberReport, MemberStatus};
+use crate::backend::layout::interleave;
+use control::{Rules, StepControl};
 use step::{euler_step, gap_step_admissible, Gamma, Scratch, Terms};
-
-/// Why a member stopped.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-#[serde(tag = "status", rename_all = "lowercase")]
-pub enum MemberStatus {
-    Ok,
-    Failed { reason: String, time: f64 },
-}
-
-/// A member's bookkeeping, reported in the manifest.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct MemberReport {
-    pub index: usize,
-    pub mu: f64,
-    pub gamma: f64,
-    #[serde(flatten)]
-    pub status: MemberStatus,
-    pub steps_accepted: u64,
-    pub steps_rejected: u64,
-    pub last_dt: f64,
-}
 
 #[derive(Debug, Clone)]
 struct Lane {
@@ -57,19 +41,6 @@ struct Block<const L: usize> {
     half_gaps: Vec<f64>,
     half_vel: Vec<f64>,
     scratch: Scratch,
-}
-
-/// Interleaves per-member vectors of equal length: element i of member b at i·B + b (the layout
-/// of a CPU block of B = L lanes and of the whole GPU batch).
-pub fn interleave<T: Copy>(per_member: &[&[T]]) -> Vec<T> {
-    let len = per_member.first().map_or(0, |v| v.len());
-    let mut out = Vec::with_capacity(len * per_member.len());
-    for i in 0..len {
-        for member in per_member {
-            out.push(member[i]);
-        }
-    }
-    out
 }
 
 fn lane_values<const L: usize>(data: &[f64], l: usize) -> Vec<f64> {
@@ -411,20 +382,9 @@ impl CpuSolver {
         }
     }
 
-    pub fn plan(&self) -> &Plan {
-        &self.plan
-    }
-
-    pub fn grid(&self) -> &[f64] {
-        &self.grid_x
-    }
-
     /// Advances to the next output time and returns every member's snapshot there, in member
     /// order. The first call returns the initial state. `None` after the last output time.
-    pub fn next_output(
-        &mut self,
-        progress: Option<&indicatif::ProgressBar>,
-    ) -> Option<Vec<Snapshot>> {
+    fn advance_to_next_output(&mut self, progress: Progress) -> Option<Vec<Snapshot>> {
         let k = self.time_index;
         let t_end = *self.plan.output_times.get(k)?;
         let t_start = if k == 0 {
@@ -443,7 +403,7 @@ impl CpuSolver {
         Some(pairs.into_iter().map(|(_, s)| s).collect())
     }
 
-    pub fn reports(&self) -> Vec<MemberReport> {
+    fn member_reports(&self) -> Vec<MemberReport> {
         let mut r: Vec<MemberReport> = match &self.blocks {
             Blocks::Single(bs) => bs
                 .iter()
@@ -465,7 +425,7 @@ fn advance_all<const L: usize>(
     grid: &[f64],
     t_start: f64,
     t_end: f64,
-    progress: Option<&indicatif::ProgressBar>,
+    progress: Progress,
 ) -> Vec<(usize, Snapshot)> {
     blocks
         .par_iter_mut()
@@ -473,10 +433,26 @@ fn advance_all<const L: usize>(
             if t_end > t_start {
                 b.advance(plan, t_start, t_end);
             }
-            if let Some(p) = progress {
-                p.inc(b.lanes.iter().filter(|l| l.member.is_some()).count() as u64);
-            }
+            progress(b.lanes.iter().filter(|l| l.member.is_some()).count() as u64);
             b.snapshot(plan, &plan.members, grid)
         })
         .collect()
+}
+
+impl BatchSolver for CpuSolver {
+    fn next_output(&mut self, progress: Progress) -> Result<Option<Vec<Snapshot>>> {
+        Ok(self.advance_to_next_output(progress))
+    }
+
+    fn reports(&self) -> Vec<MemberReport> {
+        self.member_reports()
+    }
+
+    fn plan(&self) -> &Plan {
+        &self.plan
+    }
+
+    fn grid(&self) -> &[f64] {
+        &self.grid_x
+    }
 }

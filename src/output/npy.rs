@@ -1,16 +1,12 @@
-//! The output directory: .npy arrays streamed time by time (memory does not grow with the number
-//! of output times), PNG plots, and `manifest.json`, written last so that a directory without it
-//! is visibly incomplete.
+//! .npy arrays, streamed row by row (memory does not grow with the number of output times).
 
 use std::fs::File;
 use std::io::BufWriter;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use npyz::WriterBuilder;
 
 use crate::error::{Error, Result};
-
-pub const MANIFEST: &str = "manifest.json";
 
 type Writer = npyz::NpyWriter<f64, BufWriter<File>>;
 
@@ -71,28 +67,4 @@ pub fn write_npy(path: PathBuf, shape: &[u64], values: &[f64]) -> Result<PathBuf
     let mut s = NpyStream::create(path, shape)?;
     s.push(values)?;
     s.finish()
-}
-
-/// Creates the directory and removes a manifest left by an earlier run, so that a run that stops
-/// half-way never leaves a directory that looks complete.
-pub fn prepare_dir(dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let manifest = dir.join(MANIFEST);
-    if manifest.exists() {
-        std::fs::remove_file(&manifest).map_err(|e| Error::io(&manifest, e))?;
-    }
-    Ok(())
-}
-
-/// Writes the manifest through a temporary file and a rename, so it appears whole or not at all.
-pub fn write_manifest(dir: &Path, manifest: &serde_json::Value) -> Result<PathBuf> {
-    let path = dir.join(MANIFEST);
-    let tmp = dir.join(".manifest.json.tmp");
-    let text = serde_json::to_string_pretty(manifest).map_err(|e| Error::Output {
-        path: path.clone(),
-        message: e.to_string(),
-    })?;
-    std::fs::write(&tmp, text).map_err(|e| Error::io(&tmp, e))?;
-    std::fs::rename(&tmp, &path).map_err(|e| Error::io(&path, e))?;
-    Ok(path)
 }

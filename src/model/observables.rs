@@ -2,8 +2,8 @@
 //! [q_{i-1}, q_i), u piecewise linear between particles), the discrete energy, the dissipation
 //! rate, the smallest gap and the largest density.
 
-use crate::plan::Plan;
-use crate::scene::MemberParams;
+use crate::model::plan::Plan;
+use crate::model::params::MemberParams;
 
 /// One member at one output time.
 #[derive(Debug, Clone, PartialEq)]

@@ -75,62 +75,6 @@ pub enum StatsError {
     InvalidState { what: &'static str, message: String },
 }
 
-// ------------------------------------------------------------------------------------------------
-// Exact f64 (de)serialization.
-
-/// serde `with` module: `f64` as a shortest round-trip decimal string in human-readable formats
-/// (accepting plain numbers too when reading), raw `f64` otherwise.
-mod f64_text {
-    use serde::{de, Deserializer, Serializer};
-    use std::fmt;
-
-    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
-        if s.is_human_readable() {
-            // `Debug` prints the shortest digits that parse back to the same bits, with an
-            // exponent for very large / small magnitudes, and `inf`, `-inf`, `NaN`.
-            s.collect_str(&format_args!("{x:?}"))
-        } else {
-            s.serialize_f64(*x)
-        }
-    }
-
-    struct Visitor;
-
-    impl de::Visitor<'_> for Visitor {
-        type Value = f64;
-
-        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-            f.write_str("a floating-point number or a string holding one")
-        }
-
-        fn visit_str<E: de::Error>(self, v: &str) -> Result<f64, E> {
-            v.trim()
-                .parse::<f64>()
-                .map_err(|_| E::invalid_value(de::Unexpected::Str(v), &self))
-        }
-
-        fn visit_f64<E: de::Error>(self, v: f64) -> Result<f64, E> {
-            Ok(v)
-        }
-
-        fn visit_i64<E: de::Error>(self, v: i64) -> Result<f64, E> {
-            Ok(v as f64)
-        }
-
-        fn visit_u64<E: de::Error>(self, v: u64) -> Result<f64, E> {
-            Ok(v as f64)
-        }
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-        if d.is_human_readable() {
-            d.deserialize_any(Visitor)
-        } else {
-            d.deserialize_f64(Visitor)
-        }
-    }
-}
-
 /// `a + b` as an unevaluated sum `s + e` with `s = fl(a + b)` (Knuth's TwoSum, exact).
 #[inline]
 fn two_sum(a: f64, b: f64) -> (f64, f64) {
@@ -157,19 +101,19 @@ fn two_sum(a: f64, b: f64) -> (f64, f64) {
 pub struct RunningStats {
     count: u64,
     /// Leading part of the mean (the mean rounded to `f64`).
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     mean: f64,
     /// Trailing part: the mean is `mean + mean_lo` to about twice `f64` precision.
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     mean_lo: f64,
     /// Sum of squared deviations from the mean.
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     m2: f64,
     /// `+inf` while empty.
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     min: f64,
     /// `-inf` while empty.
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     max: f64,
     non_finite: u64,
 }
@@ -710,13 +654,13 @@ impl QuantileSketch {
 /// Serialized form of [`QuantileSketch`] (the derived constants are recomputed on reading).
 #[derive(Serialize, Deserialize)]
 struct SketchState {
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     alpha: f64,
     count: u64,
     non_finite: u64,
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     min: f64,
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     max: f64,
     zero_count: u64,
     /// Bucket index -> count, for negative values (bucket of |x|).
@@ -948,9 +892,9 @@ impl Histogram {
 
 #[derive(Serialize, Deserialize)]
 struct HistogramState {
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     lo: f64,
-    #[serde(with = "f64_text")]
+    #[serde(with = "crate::output::serde_f64")]
     hi: f64,
     bins: usize,
     counts: Vec<u64>,

@@ -1,5 +1,5 @@
 //! The GPU backend: the batch advanced by the generated WGSL kernel (`shaders/step.wgsl`, the
-//! twin of `crate::cpu::step`, `Block::{error_norm, extrapolate}` and `crate::cpu::control`),
+//! twin of `crate::backend::cpu::step`, `Block::{error_norm, extrapolate}` and `crate::backend::cpu::control`),
 //! state kept on the GPU between output times.
 //!
 //! Every scheme of the CPU backend runs here: orders 1 and 2, fixed and adaptive steps (each
@@ -19,17 +19,20 @@
 
 use wgpu::util::DeviceExt;
 
-use super::context::{GpuContext, GpuError};
+use super::context::GpuContext;
+use crate::backend::error::GpuError;
 use super::kernel::{
     binding, generate_step_wgsl, GammaSpec, KernelSpec, SchemeSpec, ADVANCE_ENTRY, BEGIN_ENTRY,
     GATHER_ENTRY, STEP_WORKGROUP_SIZE,
 };
-use crate::cpu::control::Failure;
-use crate::cpu::{interleave, MemberReport, MemberStatus};
-use crate::initial::Chain;
-use crate::observables::{grid_points, observe, Snapshot};
-use crate::plan::{Plan, Power};
-use crate::scene::{Precision, Stepping};
+use crate::backend::report::{Failure, MemberReport, MemberStatus};
+use crate::backend::layout::interleave;
+use crate::backend::{BatchSolver, Progress};
+use crate::model::chain::Chain;
+use crate::model::observables::{grid_points, observe, Snapshot};
+use crate::model::plan::{Plan, Power};
+use crate::backend::Precision;
+use crate::model::params::Stepping;
 
 /// Trial steps per member encoded into one command buffer (as dispatches × attempts per
 /// dispatch): many steps per submit, one read-back of 4 bytes per submit.
@@ -231,13 +234,14 @@ fn config_bytes(
 }
 
 impl<'a> GpuSolver<'a> {
-    /// Uploads the batch (`chains[m]` is member m's initial chain) and builds the kernels.
-    pub fn new(
-        ctx: &'a GpuContext,
-        plan: Plan,
-        chains: Vec<Chain>,
+    /// Whether this context can run `plan` at `precision` (f64 support, sizes, and on lavapipe
+    /// the loop budget), without building anything: the selection policy asks this before
+    /// choosing the GPU. Returns the kernel's scheme and trial steps per dispatch.
+    pub fn check(
+        ctx: &GpuContext,
+        plan: &Plan,
         precision: Precision,
-    ) -> Result<GpuSolver<'a>, GpuError> {
+    ) -> Result<(SchemeSpec, u32), GpuError> {
         if precision == Precision::F64 && !ctx.f64 {
             return Err(GpuError::NoF64 {
                 adapter: ctx.description.short(),
@@ -245,10 +249,9 @@ impl<'a> GpuSolver<'a> {
         }
         let bsz = plan.members.len();
         let n = plan.particles;
-        if bsz == 0 || n < 2 || chains.len() != bsz {
+        if bsz == 0 || n < 2 {
             return Err(invalid(format!(
-                "{bsz} members, N = {n}, {} chains: need members >= 1, N >= 2, one chain per member",
-                chains.len()
+                "{bsz} members, N = {n}: need members >= 1, N >= 2"
             )));
         }
         if n as u64 * bsz as u64 > u32::MAX as u64 / 4 {
@@ -256,6 +259,41 @@ impl<'a> GpuSolver<'a> {
                 "N·B = {} elements: the kernel indexes buffers with u32 (at most {}); use fewer members per run",
                 n as u64 * bsz as u64,
                 u32::MAX / 4
+            )));
+        }
+        let scheme = SchemeSpec {
+            order2: plan.order == 2,
+            adaptive: matches!(plan.stepping, Stepping::Adaptive { .. }),
+        };
+        let rs = real_size(precision);
+        let sets: u64 = if scheme.richardson() { 4 } else { 2 };
+        let gaps_bytes = (n * bsz) as u64 * rs;
+        let vel_bytes = ((n - 1) * bsz) as u64 * rs;
+        ctx.check_storage_size(
+            "gap sets (state, candidate, full and half steps)",
+            sets * gaps_bytes,
+        )?;
+        ctx.check_storage_size("velocity sets", sets * vel_bytes)?;
+        ctx.check_storage_size("Thomas scratch", 3 * vel_bytes)?;
+        let max_attempts = attempts_per_dispatch(ctx, n, scheme);
+        check_loop_budget(ctx, n, scheme, max_attempts)?;
+        Ok((scheme, max_attempts))
+    }
+
+    /// Uploads the batch (`chains[m]` is member m's initial chain) and builds the kernels.
+    pub fn new(
+        ctx: &'a GpuContext,
+        plan: Plan,
+        chains: Vec<Chain>,
+        precision: Precision,
+    ) -> Result<GpuSolver<'a>, GpuError> {
+        let (scheme, max_attempts) = Self::check(ctx, &plan, precision)?;
+        let bsz = plan.members.len();
+        let n = plan.particles;
+        if chains.len() != bsz {
+            return Err(invalid(format!(
+                "{bsz} members and {} chains: need one chain per member",
+                chains.len()
             )));
         }
         for (m, c) in chains.iter().enumerate() {
@@ -283,17 +321,9 @@ impl<'a> GpuSolver<'a> {
                 _ => GammaSpec::PerMember,
             }
         });
-        let (dt0, fixed) = match plan.stepping {
-            Stepping::Fixed { dt, .. } => (dt, true),
-            Stepping::Adaptive {
-                tolerance: _,
-                dt_initial,
-                ..
-            } => (dt_initial, false),
-        };
-        let scheme = SchemeSpec {
-            order2: plan.order == 2,
-            adaptive: !fixed,
+        let dt0 = match plan.stepping {
+            Stepping::Fixed { dt, .. } => dt,
+            Stepping::Adaptive { dt_initial, .. } => dt_initial,
         };
         let spec = KernelSpec {
             precision,
@@ -311,15 +341,6 @@ impl<'a> GpuSolver<'a> {
         let sets: u64 = if scheme.richardson() { 4 } else { 2 };
         let gaps_bytes = (n * bsz) as u64 * rs;
         let vel_bytes = ((n - 1) * bsz) as u64 * rs;
-        ctx.check_storage_size(
-            "gap sets (state, candidate, full and half steps)",
-            sets * gaps_bytes,
-        )?;
-        ctx.check_storage_size("velocity sets", sets * vel_bytes)?;
-        ctx.check_storage_size("Thomas scratch", 3 * vel_bytes)?;
-
-        let max_attempts = attempts_per_dispatch(ctx, n, scheme);
-        check_loop_budget(ctx, n, scheme, max_attempts)?;
 
         // Host-side data.
         let gaps0 =
@@ -529,14 +550,6 @@ impl<'a> GpuSolver<'a> {
         })
     }
 
-    pub fn plan(&self) -> &Plan {
-        &self.plan
-    }
-
-    pub fn grid(&self) -> &[f64] {
-        &self.grid_x
-    }
-
     pub fn precision(&self) -> Precision {
         self.precision
     }
@@ -639,7 +652,7 @@ impl<'a> GpuSolver<'a> {
     /// Advances to the next output time and returns every member's snapshot there, in member
     /// order (the first call returns the initial state); `Ok(None)` after the last output time.
     /// Same semantics as `CpuSolver::next_output`.
-    pub fn next_output(&mut self) -> Result<Option<Vec<Snapshot>>, GpuError> {
+    fn advance_to_next_output(&mut self) -> Result<Option<Vec<Snapshot>>, GpuError> {
         let k = self.time_index;
         let Some(&t_end) = self.plan.output_times.get(k) else {
             return Ok(None);
@@ -657,7 +670,7 @@ impl<'a> GpuSolver<'a> {
             Stepping::Adaptive { .. } => None,
         };
         let rules =
-            crate::cpu::control::Rules::new(t_start, t_end, fixed_dt, self.plan.stepping.dt_min());
+            crate::backend::cpu::control::Rules::new(t_start, t_end, fixed_dt, self.plan.stepping.dt_min());
         let tolerance = match self.plan.stepping {
             Stepping::Adaptive { tolerance, .. } => tolerance,
             Stepping::Fixed { .. } => 0.0,
@@ -743,7 +756,7 @@ impl<'a> GpuSolver<'a> {
 
     /// Every member's bookkeeping as of the last output, in member order (like
     /// `CpuSolver::reports`).
-    pub fn reports(&self) -> Vec<MemberReport> {
+    fn member_reports(&self) -> Vec<MemberReport> {
         let dt_min = self.plan.stepping.dt_min();
         self.last_controls
             .iter()
@@ -769,6 +782,38 @@ impl<'a> GpuSolver<'a> {
     /// Member times as of the last output (for tests and progress).
     pub fn member_times(&self) -> Vec<f64> {
         self.last_controls.iter().map(|c| c.t).collect()
+    }
+}
+
+impl BatchSolver for GpuSolver<'_> {
+    fn next_output(&mut self, progress: Progress) -> crate::error::Result<Option<Vec<Snapshot>>> {
+        let snaps = self.advance_to_next_output().map_err(|e| {
+            crate::error::Error::gpu(
+                format!("backend gpu on {}", self.ctx.description.short()),
+                e,
+                "; the outputs written so far are incomplete (no manifest)",
+            )
+        })?;
+        if let Some(v) = &snaps {
+            progress(v.len() as u64);
+        }
+        Ok(snaps)
+    }
+
+    fn reports(&self) -> Vec<MemberReport> {
+        self.member_reports()
+    }
+
+    fn plan(&self) -> &Plan {
+        &self.plan
+    }
+
+    fn grid(&self) -> &[f64] {
+        &self.grid_x
+    }
+
+    fn gpu_stats(&self) -> Option<GpuStats> {
+        Some(self.stats)
     }
 }
 

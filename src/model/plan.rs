@@ -3,9 +3,10 @@
 //! no clusters → no contact bookkeeping) and which outputs are asked for.
 
 use crate::expr::Expr;
-use crate::initial::Chain;
-use crate::quadrature::GaussLegendre;
-use crate::scene::{MemberParams, OutputFields, Scene, Stepping};
+use crate::model::chain::Chain;
+use crate::model::quadrature::GaussLegendre;
+use crate::model::params::{MemberParams, OutputFields, Stepping};
+use crate::scene::Scene;
 
 /// How G = ratio^gamma is evaluated.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]

@@ -74,7 +74,7 @@ pub struct BandPlot<'a> {
 }
 
 const FONT: &str = "sans-serif";
-const FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+const FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 
 /// Registers the embedded DejaVu Sans font with plotters (once per process) under the family
 /// names "sans-serif", "serif" and "monospace", so that any plotters text can be rendered.

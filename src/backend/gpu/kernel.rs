@@ -1,4 +1,4 @@
-//! Generation of the WGSL step kernel (`shaders/step.wgsl`, the twin of `crate::cpu::step`).
+//! Generation of the WGSL step kernel (`shaders/step.wgsl`, the twin of `crate::backend::cpu::step`).
 //!
 //! The shader is a template: the terms a plan leaves out are removed from the source (not
 //! branched on at run time), the power `ratio^gamma`, the forcing function and the Gauss–Legendre
@@ -8,10 +8,10 @@
 use std::fmt::Write as _;
 
 use crate::expr::{Expr, WgslFloat};
-use crate::scene::Precision;
+use crate::backend::Precision;
 
 /// The template (`shaders/step.wgsl`).
-pub const STEP_TEMPLATE_WGSL: &str = include_str!("../../shaders/step.wgsl");
+pub const STEP_TEMPLATE_WGSL: &str = include_str!("../../../shaders/step.wgsl");
 
 /// Entry points of the generated kernel.
 pub const BEGIN_ENTRY: &str = "begin_interval";
@@ -95,7 +95,7 @@ fn literal(v: f64, float: WgslFloat) -> String {
     }
 }
 
-/// Straight-line `ratio^n` in the sequence of `crate::plan::powi_by_squaring` (the leading
+/// Straight-line `ratio^n` in the sequence of `crate::model::plan::powi_by_squaring` (the leading
 /// `1.0 * base` is exact and left out), as statements ending in `return`.
 fn integer_power_body(n: u32, out: &mut String) {
     if n == 0 {

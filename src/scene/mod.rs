@@ -1,12 +1,16 @@
 //! Scene files: the TOML a researcher writes, parsed strictly (unknown keys are errors) and
 //! validated into a [`Scene`] whose every value is in range.
 
+pub mod initial;
+
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
 use crate::error::{Error, Result};
+use crate::backend::{Backend, Precision};
 use crate::expr::Expr;
+use crate::model::params::{MemberParams, OutputFields, Stepping, FIELD_NAMES};
 
 // ---------------------------------------------------------------------------------------------
 // The file as written (serde). Every table denies unknown keys so that a typo is an error, not a
@@ -115,8 +119,8 @@ struct TimeSection {
 #[serde(deny_unknown_fields)]
 struct SolverSection {
     order: Option<i64>,
-    backend: Option<String>,
-    precision: Option<String>,
+    backend: Option<Backend>,
+    precision: Option<Precision>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -138,79 +142,6 @@ struct OutputSection {
 // ---------------------------------------------------------------------------------------------
 // The validated scene.
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Backend {
-    Cpu,
-    Gpu,
-    Auto,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Precision {
-    F32,
-    F64,
-}
-
-impl std::str::FromStr for Backend {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "cpu" => Ok(Backend::Cpu),
-            "gpu" => Ok(Backend::Gpu),
-            "auto" => Ok(Backend::Auto),
-            other => Err(Error::invalid(
-                "solver.backend",
-                format!("\"{other}\""),
-                "unknown backend",
-                "\"cpu\", \"gpu\" or \"auto\"",
-            )),
-        }
-    }
-}
-
-impl std::str::FromStr for Precision {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "f64" => Ok(Precision::F64),
-            "f32" => Ok(Precision::F32),
-            other => Err(Error::invalid(
-                "solver.precision",
-                format!("\"{other}\""),
-                "unknown precision",
-                "\"f64\" or \"f32\"",
-            )),
-        }
-    }
-}
-
-/// How steps are chosen. Fixed: every member steps with `dt` (shortened to land on output times,
-/// halved and retried when a step would close a gap). Adaptive: each member its own dt from a
-/// local error estimate.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-#[serde(tag = "kind", rename_all = "lowercase")]
-pub enum Stepping {
-    Fixed {
-        dt: f64,
-        dt_min: f64,
-    },
-    Adaptive {
-        tolerance: f64,
-        dt_initial: f64,
-        dt_min: f64,
-    },
-}
-
-impl Stepping {
-    pub fn dt_min(&self) -> f64 {
-        match *self {
-            Stepping::Fixed { dt_min, .. } | Stepping::Adaptive { dt_min, .. } => dt_min,
-        }
-    }
-}
-
 #[derive(Debug, Clone)]
 pub enum InitialSpec {
     /// Macroscopic profiles, discretised by the construction of Prop. 3.1.
@@ -222,38 +153,6 @@ pub enum InitialSpec {
     /// Explicit particles from a CSV file (x,u[,r]); `radius` is eps.
     Particles { path: PathBuf, radius: f64 },
 }
-
-/// Which observables are written.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-pub struct OutputFields {
-    pub gaps: bool,
-    pub velocities: bool,
-    pub rho: bool,
-    pub u: bool,
-    pub rho_star: bool,
-    pub energy: bool,
-}
-
-impl OutputFields {
-    pub fn all() -> OutputFields {
-        OutputFields::uniform(true)
-    }
-    pub fn none() -> OutputFields {
-        OutputFields::uniform(false)
-    }
-    fn uniform(on: bool) -> OutputFields {
-        OutputFields {
-            gaps: on,
-            velocities: on,
-            rho: on,
-            u: on,
-            rho_star: on,
-            energy: on,
-        }
-    }
-}
-
-pub const FIELD_NAMES: [&str; 6] = ["gaps", "velocities", "rho", "u", "rho_star", "energy"];
 
 #[derive(Debug, Clone)]
 pub struct Scene {
@@ -646,8 +545,8 @@ impl Scene {
                 ))
             }
         };
-        let backend: Backend = s.backend.as_deref().unwrap_or("auto").parse()?;
-        let precision: Precision = s.precision.as_deref().unwrap_or("f64").parse()?;
+        let backend = s.backend.unwrap_or(Backend::Auto);
+        let precision = s.precision.unwrap_or(Precision::F64);
 
         // --- batch sweep: lists replace the model's scalar and form a cartesian product.
         let mut mu = vec![m.mu];
@@ -937,11 +836,4 @@ fn validate_ensemble(
         bins,
         u_range: e.u_range,
     })
-}
-
-/// Per-member physical parameters.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct MemberParams {
-    pub mu: f64,
-    pub gamma: f64,
 }

@@ -3,46 +3,11 @@
 
 use std::path::Path;
 
+use super::{InitialSpec, Scene};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
-use crate::quadrature::GaussLegendre;
-
-/// One chain of particles 0..N; particles 0 and N are fixed at x = 0 and x = 1.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Chain {
-    /// Particle radius.
-    pub eps: f64,
-    /// d_1..d_N (length N): d_i = q_i - q_{i-1} - 2 eps.
-    pub gaps: Vec<f64>,
-    /// u_1..u_{N-1} (length N-1); u_0 = u_N = 0.
-    pub velocities: Vec<f64>,
-    /// d*_1..d*_N when the model has roughness (repulsion); `None` means no repulsion term.
-    pub dstar: Option<Vec<f64>>,
-    /// Gaps that are zero at t = 0 (Appendix A clusters); `None` when there are none.
-    pub bonded: Option<Vec<bool>>,
-}
-
-impl Chain {
-    pub fn particles(&self) -> usize {
-        self.gaps.len()
-    }
-
-    /// Positions q_0..q_N rebuilt from the gaps (for output and forcing only).
-    pub fn positions(&self) -> Vec<f64> {
-        positions_from_gaps(&self.gaps, self.eps)
-    }
-}
-
-pub fn positions_from_gaps(gaps: &[f64], eps: f64) -> Vec<f64> {
-    let mut q = Vec::with_capacity(gaps.len() + 1);
-    let mut x = 0.0;
-    q.push(0.0);
-    for d in gaps {
-        x += d + 2.0 * eps;
-        q.push(x);
-    }
-    q
-}
+use crate::model::chain::Chain;
+use crate::model::quadrature::GaussLegendre;
 
 /// Prop. 3.1: eps = M0/(2N); q_i with ∫_{q_{i-1}}^{q_i} rho0 = 2 eps; d*_i such that rho*_i is the
 /// mean of rho*0 over the cell; u_i = u0(q_i).
@@ -332,4 +297,25 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
         dstar,
         bonded: bonded.iter().any(|&b| b).then_some(bonded),
     })
+}
+
+impl Scene {
+    /// The initial chain the scene describes (Prop. 3.1 from profiles, or the particle file).
+    pub fn initial_chain(&self) -> Result<Chain> {
+        match &self.initial {
+            InitialSpec::Profiles {
+                rho,
+                velocity,
+                rho_star,
+            } => {
+                let n = self.particles.ok_or_else(|| {
+                    Error::missing("model.particles", "required with profile initial data")
+                })?;
+                chain_from_profiles(n, rho, velocity, rho_star.as_ref())
+            }
+            InitialSpec::Particles { path, radius } => {
+                chain_from_particle_file(path, *radius, self.particles)
+            }
+        }
+    }
 }

@@ -1,0 +1,238 @@
+//! The one selection policy: from (requested backend, precision, plan) to an [`Engine`] that
+//! makes solvers, and a [`BackendRecord`] of what runs them (for stderr and every manifest).
+//! Single runs and studies both call [`select`], so they fall back the same way and record the
+//! same fields.
+
+use serde::Serialize;
+
+use super::cpu::CpuSolver;
+use super::gpu::solver::GpuSolver;
+use super::gpu::{AdapterDescription, GpuContext};
+use super::{Backend, BatchSolver, GpuError, Precision};
+use crate::error::{Error, Result};
+use crate::model::chain::Chain;
+use crate::model::plan::Plan;
+
+/// Which backend actually runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RunsOn {
+    Cpu,
+    Gpu,
+}
+
+/// What runs the batch, described the same way for the GPU (its adapter) and the CPU.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct AdapterRecord {
+    pub name: String,
+    pub backend: String,
+    pub driver: String,
+    pub driver_info: String,
+    pub device_type: String,
+    pub supports_f64: bool,
+    /// CPU only: rayon's worker threads.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threads: Option<usize>,
+    /// Why `backend = "auto"` did not use the GPU (`None` when it did, or was not asked).
+    pub fallback_reason: Option<String>,
+}
+
+/// Recorded in the manifest of every run and study.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct BackendRecord {
+    pub backend: RunsOn,
+    pub backend_requested: Backend,
+    pub precision: Precision,
+    pub adapter: AdapterRecord,
+}
+
+impl BackendRecord {
+    fn gpu(requested: Backend, precision: Precision, d: &AdapterDescription) -> BackendRecord {
+        BackendRecord {
+            backend: RunsOn::Gpu,
+            backend_requested: requested,
+            precision,
+            adapter: AdapterRecord {
+                name: d.name.clone(),
+                backend: d.backend.clone(),
+                driver: d.driver.clone(),
+                driver_info: d.driver_info.clone(),
+                device_type: d.device_type.clone(),
+                supports_f64: d.supports_f64,
+                threads: None,
+                fallback_reason: None,
+            },
+        }
+    }
+
+    fn cpu(requested: Backend, precision: Precision, fallback_reason: Option<String>) -> Self {
+        let threads = rayon::current_num_threads();
+        BackendRecord {
+            backend: RunsOn::Cpu,
+            backend_requested: requested,
+            precision,
+            adapter: AdapterRecord {
+                name: format!("cpu (rayon, {threads} threads)"),
+                backend: "cpu".into(),
+                driver: "rayon".into(),
+                driver_info: String::new(),
+                device_type: "Cpu".into(),
+                supports_f64: true,
+                threads: Some(threads),
+                fallback_reason,
+            },
+        }
+    }
+
+    /// "name (backend)" for the GPU, "rayon, K threads" for the CPU.
+    pub fn short(&self) -> String {
+        match self.backend {
+            RunsOn::Gpu => format!("{} ({})", self.adapter.name, self.adapter.backend),
+            RunsOn::Cpu => format!("rayon, {} threads", self.adapter.threads.unwrap_or(1)),
+        }
+    }
+
+    /// The line printed on stderr when a run starts.
+    pub fn line(&self) -> String {
+        let a = &self.adapter;
+        let precision = self.precision.name();
+        match (self.backend, self.backend_requested, &a.fallback_reason) {
+            (RunsOn::Gpu, requested, _) => format!(
+                "{}: {} ({}, driver {} {}, {}), precision {precision}",
+                if requested == Backend::Auto {
+                    "backend auto: a GPU adapter is present; running on the GPU"
+                } else {
+                    "backend gpu"
+                },
+                a.name,
+                a.backend,
+                a.driver,
+                a.driver_info,
+                a.device_type
+            ),
+            (RunsOn::Cpu, _, Some(why)) => format!(
+                "backend auto: {why}; running on the CPU: {}, precision {precision}",
+                a.name
+            ),
+            (RunsOn::Cpu, Backend::Auto, None) => format!(
+                "backend auto: running on the CPU: {}, precision {precision}",
+                a.name
+            ),
+            (RunsOn::Cpu, _, None) => format!("backend cpu: {}, precision {precision}", a.name),
+        }
+    }
+}
+
+/// Makes solvers on the selected backend (the GPU context, when there is one, is built once and
+/// shared by every solver, e.g. every chunk of a study).
+pub struct Engine {
+    gpu: Option<GpuContext>,
+    pub record: BackendRecord,
+}
+
+impl Engine {
+    /// A solver for `chains` (`chains[m]` is member m's initial chain) on this engine.
+    pub fn solver(&self, plan: Plan, chains: Vec<Chain>) -> Result<Box<dyn BatchSolver + '_>> {
+        Ok(match &self.gpu {
+            None => Box::new(CpuSolver::new(plan, chains)),
+            Some(ctx) => Box::new(
+                GpuSolver::new(ctx, plan, chains, self.record.precision).map_err(|e| {
+                    Error::gpu(
+                        format!("backend gpu on {}", self.record.short()),
+                        e,
+                        "; use backend \"cpu\"",
+                    )
+                })?,
+            ),
+        })
+    }
+}
+
+/// Why `backend = "auto"` did not use the GPU, from the error of [`GpuContext::acquire`].
+fn fallback_reason(e: &GpuError) -> String {
+    match e {
+        // The message already starts "no GPU adapter found".
+        GpuError::NoAdapter { .. } => e.to_string(),
+        GpuError::NoF64 { .. } => format!("no GPU adapter with f64 shaders: {e}"),
+        _ => format!("no usable GPU adapter: {e}"),
+    }
+}
+
+/// `GpuContext::acquire` failed for `backend = "gpu"`: name the setting and what to do.
+fn gpu_acquire_error(e: GpuError, precision: Precision) -> Error {
+    match (&e, precision) {
+        (GpuError::NoF64 { .. }, Precision::F64) => Error::gpu(
+            "solver.precision = \"f64\" with backend \"gpu\"",
+            e,
+            "; use precision \"f32\" on this adapter, or backend \"cpu\" for f64",
+        ),
+        _ => Error::gpu(
+            "solver.backend = \"gpu\"",
+            e,
+            "; or use backend \"cpu\" (or \"auto\", which falls back to the CPU)",
+        ),
+    }
+}
+
+pub fn cpu_has_no_f32() -> Error {
+    Error::invalid(
+        "solver.precision",
+        "\"f32\"",
+        "the CPU reference path computes in f64 only",
+        "\"f64\" with backend \"cpu\"; \"f32\" with backend \"gpu\" or \"auto\" and a GPU adapter",
+    )
+}
+
+fn auto_f32_error(why: &str) -> Error {
+    Error::invalid(
+        "solver.precision",
+        "\"f32\"",
+        format!("backend \"auto\" cannot use the GPU ({why}) and the CPU path computes in f64 only"),
+        "\"f64\" without a usable GPU adapter",
+    )
+}
+
+/// Chooses the backend for batches like `plan` (for a study: its largest chunk). With
+/// `Backend::Auto`, the GPU when an adapter is found that can run the plan at `precision`, else
+/// the CPU with the reason recorded; f32 has no CPU path, so auto + f32 without a GPU is an
+/// error.
+pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<Engine> {
+    let cpu = |fallback: Option<String>| -> Result<Engine> {
+        if precision == Precision::F32 {
+            return Err(match &fallback {
+                Some(why) => auto_f32_error(why),
+                None => cpu_has_no_f32(),
+            });
+        }
+        Ok(Engine {
+            gpu: None,
+            record: BackendRecord::cpu(requested, precision, fallback),
+        })
+    };
+    if requested == Backend::Cpu {
+        return cpu(None);
+    }
+    let ctx = match GpuContext::acquire(precision == Precision::F64) {
+        Ok(ctx) => ctx,
+        Err(e) if requested == Backend::Auto => return cpu(Some(fallback_reason(&e))),
+        Err(e) => return Err(gpu_acquire_error(e, precision)),
+    };
+    if let Err(e) = GpuSolver::check(&ctx, plan, precision) {
+        let on = ctx.description.short();
+        if requested == Backend::Auto {
+            return cpu(Some(format!(
+                "the GPU backend cannot run this scene on {on}: {e}"
+            )));
+        }
+        return Err(Error::gpu(
+            format!("solver.backend = \"gpu\" on {on}"),
+            e,
+            "; use backend \"cpu\" (or \"auto\", which falls back to the CPU)",
+        ));
+    }
+    let record = BackendRecord::gpu(requested, precision, &ctx.description);
+    Ok(Engine {
+        gpu: Some(ctx),
+        record,
+    })
+}

@@ -1,0 +1,108 @@
+//! The manifests, typed: what a run, a study and a merge record (written last, atomically, by
+//! [`super::write_json_atomic`]). Each records what determines its results: scene text, crate
+//! version, backend and precision.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::backend::gpu::solver::GpuStats;
+use crate::backend::select::BackendRecord;
+use crate::backend::MemberReport;
+use crate::model::params::Stepping;
+use crate::model::plan::PlanSummary;
+use crate::scene::EnsembleSpec;
+
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+
+#[derive(Debug, Serialize)]
+pub struct SceneRecord {
+    pub name: String,
+    pub description: Option<String>,
+    pub path: String,
+    pub text: String,
+}
+
+/// `manifest.json` of a single run.
+#[derive(Debug, Serialize)]
+pub struct RunManifest {
+    pub roughlub_version: &'static str,
+    pub scene: SceneRecord,
+    #[serde(flatten)]
+    pub backend: BackendRecord,
+    pub gpu_stats: Option<GpuStats>,
+    pub wall_seconds: f64,
+    pub particles: usize,
+    pub eps: f64,
+    pub order: u8,
+    pub stepping: Stepping,
+    pub plan: PlanSummary,
+    pub output_times: Vec<f64>,
+    pub grid: usize,
+    pub members: Vec<MemberReport>,
+    pub failed_members: Vec<usize>,
+    pub steps_accepted_total: u64,
+    pub steps_rejected_total: u64,
+    pub files: Vec<String>,
+    pub conventions: BTreeMap<&'static str, &'static str>,
+}
+
+/// Scene identity of a study (the hash is what resume and merge compare).
+#[derive(Debug, Serialize)]
+pub struct StudySceneRecord {
+    pub name: String,
+    pub text: String,
+    pub hash: String,
+}
+
+/// `manifest.json` of an ensemble study (or one shard of it).
+#[derive(Debug, Serialize)]
+pub struct StudyManifest {
+    pub roughlub_version: &'static str,
+    pub kind: &'static str,
+    pub scene: StudySceneRecord,
+    #[serde(flatten)]
+    pub backend: BackendRecord,
+    pub gpu_stats: Option<GpuStats>,
+    pub shard: (u64, u64),
+    pub member_range: (u64, u64),
+    pub members_total: u64,
+    pub members_completed: u64,
+    pub failed_members: Vec<u64>,
+    pub chunks: usize,
+    pub chunks_reused: usize,
+    pub wall_seconds: f64,
+    pub statistics_seconds: f64,
+    pub statistics_share: f64,
+    pub ensemble: EnsembleSpec,
+    pub quantile_method: QuantileMethod,
+}
+
+/// `manifest.json` of `roughlub merge`.
+#[derive(Debug, Serialize)]
+pub struct MergedManifest {
+    pub roughlub_version: &'static str,
+    pub kind: &'static str,
+    pub inputs: Vec<String>,
+    pub scene: StudySceneRecord,
+    pub backend: crate::backend::select::RunsOn,
+    pub precision: crate::backend::Precision,
+    pub members_total: u64,
+    pub members_covered: u64,
+    pub complete: bool,
+    pub member_ranges: Vec<(u64, u64)>,
+    pub members_completed: u64,
+    pub failed_members: Vec<u64>,
+    pub wall_seconds: f64,
+    pub quantile_method: QuantileMethod,
+}
+
+/// How a study's quantiles and histograms are computed (and how accurate they are).
+#[derive(Debug, Serialize)]
+pub struct QuantileMethod {
+    pub scalars: String,
+    pub fields: &'static str,
+    pub field_ranges: BTreeMap<String, (f64, f64)>,
+    pub bins: usize,
+    pub scalar_histograms: String,
+}

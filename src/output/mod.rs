@@ -1,0 +1,14 @@
+//! The output directory: .npy arrays ([`npy`]), typed manifests ([`manifest`]) and JSON state
+//! written through one atomic writer ([`files`]), the exact f64 serde helper ([`serde_f64`]) and
+//! the progress bar ([`progress`]). `manifest.json` is written last, so a directory without it
+//! is visibly incomplete.
+
+pub mod files;
+pub mod manifest;
+pub mod npy;
+pub mod progress;
+pub mod serde_f64;
+
+pub use files::{prepare_dir, read_json, write_json_atomic, MANIFEST};
+pub use npy::{write_npy, NpyStream};
+pub use progress::ProgressReporter;
