@@ -2,8 +2,8 @@
 
 mod common;
 
+use common::reference::{dense_reference_step, rk4_reference};
 use common::{plan_for, random_chain, run_all, Rng};
-use nalgebra::{DMatrix, DVector};
 use roughlub::backend::BatchSolver;
 use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, Terms};
 use roughlub::backend::MemberStatus;
@@ -14,87 +14,6 @@ use roughlub::model::quadrature::GaussLegendre;
 use roughlub::model::params::{MemberParams, Stepping};
 
 const L: usize = 8;
-
-/// The linear system of one Euler step assembled densely per rigid body (free particles and
-/// clusters), straight from the model: masses 2 eps n, couplings c_k = mu/d_k + h γ G_k/(d_k+2eps)
-/// across free gaps, forces G and F summed over each body. Solved with nalgebra's LU.
-#[allow(clippy::too_many_arguments)]
-fn dense_reference_step(
-    eps: f64,
-    mu: f64,
-    gamma: f64,
-    h: f64,
-    t: f64,
-    gaps: &[f64],
-    vel: &[f64],
-    dstar: &[f64],
-    bonded: &[bool],
-    forcing: &dyn Fn(f64, f64) -> f64,
-) -> (Vec<f64>, Vec<f64>) {
-    let n = gaps.len();
-    // body[i] for particles 0..=N; bodies joined by bonded gaps.
-    let mut body = vec![0usize; n + 1];
-    for i in 1..=n {
-        body[i] = if bonded[i - 1] {
-            body[i - 1]
-        } else {
-            body[i - 1] + 1
-        };
-    }
-    let fixed_left = body[0];
-    let fixed_right = body[n];
-    let bodies = body[n] + 1;
-    // Unknown index of each free body.
-    let index =
-        |b: usize| -> Option<usize> { (b != fixed_left && b != fixed_right).then(|| b - 1) };
-    let unknowns = bodies - 2;
-    let mut a = DMatrix::<f64>::zeros(unknowns, unknowns);
-    let mut r = DVector::<f64>::zeros(unknowns);
-    let q: Vec<f64> = std::iter::once(0.0)
-        .chain(gaps.iter().scan(0.0, |x, d| {
-            *x += d + 2.0 * eps;
-            Some(*x)
-        }))
-        .collect();
-    for i in 1..n {
-        if let Some(k) = index(body[i]) {
-            a[(k, k)] += 2.0 * eps / h;
-            r[k] += 2.0 * eps / h * vel[i - 1] + forcing(q[i], t);
-        }
-    }
-    for g in 1..=n {
-        if bonded[g - 1] {
-            continue;
-        }
-        let d = gaps[g - 1];
-        let s = d + 2.0 * eps;
-        let big_g = ((dstar[g - 1] + 2.0 * eps) / s).powf(gamma);
-        let c = mu / d + h * gamma * big_g / s;
-        let left = index(body[g - 1]);
-        let right = index(body[g]);
-        if let Some(k) = left {
-            a[(k, k)] += c;
-            r[k] -= big_g;
-        }
-        if let Some(k) = right {
-            a[(k, k)] += c;
-            r[k] += big_g;
-        }
-        if let (Some(p), Some(k)) = (left, right) {
-            a[(p, k)] -= c;
-            a[(k, p)] -= c;
-        }
-    }
-    let solution = a.lu().solve(&r).expect("the step matrix is SPD");
-    let u_new: Vec<f64> = (1..n)
-        .map(|i| index(body[i]).map_or(0.0, |k| solution[k]))
-        .collect();
-    let u_at = |i: usize| if i == 0 || i == n { 0.0 } else { u_new[i - 1] };
-    let gaps_new = (1..=n)
-        .map(|g| gaps[g - 1] + h * (u_at(g) - u_at(g - 1)))
-        .collect();
-    (gaps_new, u_new)
-}
 
 /// F_i for f(t, x) = 0.5 x² − 0.3 x³ + t x, integrated exactly over [q − eps, q + eps].
 fn cubic_force(eps: f64) -> impl Fn(f64, f64) -> f64 {
@@ -242,87 +161,6 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
             }
         }
     }
-}
-
-/// Independent reference: classical RK4 on the position form of the model (q, u), with the
-/// forcing integral in closed form, at a step far below the scheme's.
-fn rk4_reference(
-    chain: &Chain,
-    mu: f64,
-    gamma: f64,
-    t_end: f64,
-    steps: usize,
-) -> (Vec<f64>, Vec<f64>) {
-    let n = chain.particles();
-    let eps = chain.eps;
-    let dstar = chain.dstar.clone().unwrap();
-    let q0 = chain.positions();
-    let mut state: Vec<f64> = q0[1..n].to_vec();
-    state.extend_from_slice(&chain.velocities);
-    let rhs = |t: f64, s: &[f64]| -> Vec<f64> {
-        let m = n - 1;
-        let q = |i: usize| {
-            if i == 0 {
-                0.0
-            } else if i == n {
-                1.0
-            } else {
-                s[i - 1]
-            }
-        };
-        let u = |i: usize| if i == 0 || i == n { 0.0 } else { s[m + i - 1] };
-        let d = |i: usize| q(i) - q(i - 1) - 2.0 * eps;
-        let g = |i: usize| ((dstar[i - 1] + 2.0 * eps) / (d(i) + 2.0 * eps)).powf(gamma);
-        let mut out = vec![0.0; 2 * m];
-        for i in 1..n {
-            out[i - 1] = u(i);
-            // ∫ 0.3 sin(2πx) cos(3t) over the particle, in closed form.
-            let f = 0.3
-                * (3.0 * t).cos()
-                * (2.0 * std::f64::consts::PI * q(i)).sin()
-                * (2.0 * std::f64::consts::PI * eps).sin()
-                / std::f64::consts::PI;
-            let force = mu * ((u(i + 1) - u(i)) / d(i + 1) - (u(i) - u(i - 1)) / d(i)) + g(i)
-                - g(i + 1)
-                + f;
-            out[m + i - 1] = force / (2.0 * eps);
-        }
-        out
-    };
-    let h = t_end / steps as f64;
-    for k in 0..steps {
-        let t = k as f64 * h;
-        let k1 = rhs(t, &state);
-        let s2: Vec<f64> = state
-            .iter()
-            .zip(&k1)
-            .map(|(s, k)| s + 0.5 * h * k)
-            .collect();
-        let k2 = rhs(t + 0.5 * h, &s2);
-        let s3: Vec<f64> = state
-            .iter()
-            .zip(&k2)
-            .map(|(s, k)| s + 0.5 * h * k)
-            .collect();
-        let k3 = rhs(t + 0.5 * h, &s3);
-        let s4: Vec<f64> = state.iter().zip(&k3).map(|(s, k)| s + h * k).collect();
-        let k4 = rhs(t + h, &s4);
-        for i in 0..state.len() {
-            state[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
-        }
-    }
-    let m = n - 1;
-    let q = |i: usize| {
-        if i == 0 {
-            0.0
-        } else if i == n {
-            1.0
-        } else {
-            state[i - 1]
-        }
-    };
-    let gaps = (1..=n).map(|i| q(i) - q(i - 1) - 2.0 * eps).collect();
-    (gaps, state[m..].to_vec())
 }
 
 fn max_error(a: &[f64], b: &[f64]) -> f64 {

@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod gpu;
+pub mod reference;
 
 use roughlub::backend::BatchSolver;
 use roughlub::backend::cpu::CpuSolver;
