@@ -1,13 +1,14 @@
 //! Initial chains: from macroscopic profiles by the construction of Prop. 3.1, or from a particle
-//! file. The state is gaps and velocities (never positions), see DESIGN.md §2.
-
-use std::path::Path;
+//! file (`super::particle_file`). The state is gaps and velocities (never positions), see
+//! DESIGN.md §2.
 
 use super::{InitialSpec, Scene};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
 use crate::model::chain::Chain;
 use crate::model::quadrature::GaussLegendre;
+
+pub use super::particle_file::chain_from_particle_file;
 
 /// Prop. 3.1: eps = M0/(2N); q_i with ∫_{q_{i-1}}^{q_i} rho0 = 2 eps; d*_i such that rho*_i is the
 /// mean of rho*0 over the cell; u_i = u0(q_i).
@@ -120,182 +121,6 @@ pub fn chain_from_profiles(
         velocities,
         dstar,
         bonded: None,
-    })
-}
-
-#[derive(Debug, serde::Deserialize)]
-struct ParticleRow {
-    x: f64,
-    u: f64,
-    r: Option<f64>,
-}
-
-/// Reads a CSV with header `x,u,r` (r optional: without it, no roughness and no repulsion).
-/// `expected_n` is `model.particles` when the scene gives it.
-pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>) -> Result<Chain> {
-    let err = |line: usize, message: String| Error::ParticleFile {
-        path: path.to_path_buf(),
-        line,
-        message,
-    };
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_path(path)
-        .map_err(|e| Error::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::other(format!("cannot open the particle file: {e}")),
-        })?;
-    let headers = reader
-        .headers()
-        .map_err(|e| err(1, format!("cannot read the header: {e}")))?
-        .clone();
-    let names: Vec<&str> = headers.iter().collect();
-    if names != ["x", "u"] && names != ["x", "u", "r"] {
-        return Err(err(
-            1,
-            format!("header is {names:?}; expected the columns x,u,r (or x,u without roughness)"),
-        ));
-    }
-    let has_roughness = names.len() == 3;
-    let mut rows: Vec<ParticleRow> = Vec::new();
-    // Physical line of each row (comment lines are skipped by the reader).
-    let mut lines: Vec<usize> = Vec::new();
-    let mut record = csv::StringRecord::new();
-    loop {
-        let more = reader.read_record(&mut record).map_err(|e| {
-            err(
-                e.position().map_or(0, |p| p.line() as usize),
-                format!("unreadable row: {e}"),
-            )
-        })?;
-        if !more {
-            break;
-        }
-        let line = record.position().map_or(0, |p| p.line() as usize);
-        let row: ParticleRow = record
-            .deserialize(Some(&headers))
-            .map_err(|e| err(line, format!("not a row of numbers x,u,r: {e}")))?;
-        lines.push(line);
-        for (name, v) in [("x", Some(row.x)), ("u", Some(row.u)), ("r", row.r)] {
-            if let Some(v) = v {
-                if !v.is_finite() {
-                    return Err(err(line, format!("{name} = {v} is not a finite number")));
-                }
-            }
-        }
-        if has_roughness {
-            match row.r {
-                Some(r) if r >= 0.0 => {}
-                Some(r) => return Err(err(line, format!("roughness radius r = {r} must be >= 0"))),
-                None => return Err(err(line, "missing roughness radius r".into())),
-            }
-        }
-        rows.push(row);
-    }
-    let line_of = |i: usize| lines.get(i).copied().unwrap_or(0);
-    let n = rows.len().saturating_sub(1);
-    if n < 2 {
-        return Err(err(
-            rows.len() + 1,
-            format!(
-                "{} particle rows; need N+1 >= 3 rows (particles 0..N)",
-                rows.len()
-            ),
-        ));
-    }
-    if let Some(expected) = expected_n {
-        if expected != n {
-            return Err(err(
-                rows.len() + 1,
-                format!(
-                    "{} rows give N = {n}, but model.particles = {expected}",
-                    rows.len()
-                ),
-            ));
-        }
-    }
-    // End particles are fixed at 0 and 1 with zero velocity.
-    const POSITION_TOLERANCE: f64 = 1e-12;
-    if rows[0].x.abs() > POSITION_TOLERANCE || rows[0].u != 0.0 {
-        return Err(err(
-            line_of(0),
-            format!(
-                "particle 0 must be at x = 0 with u = 0 (got x = {}, u = {})",
-                rows[0].x, rows[0].u
-            ),
-        ));
-    }
-    if (rows[n].x - 1.0).abs() > POSITION_TOLERANCE || rows[n].u != 0.0 {
-        return Err(err(
-            line_of(n),
-            format!(
-                "particle N must be at x = 1 with u = 0 (got x = {}, u = {})",
-                rows[n].x, rows[n].u
-            ),
-        ));
-    }
-    let mut x: Vec<f64> = rows.iter().map(|r| r.x).collect();
-    x[0] = 0.0;
-    x[n] = 1.0;
-    // Gaps within rounding of the decimal positions count as contact (a cluster).
-    let contact_tolerance = 1e-12 + 1e-9 * eps;
-    let mut gaps = Vec::with_capacity(n);
-    let mut bonded = vec![false; n];
-    for i in 1..=n {
-        let d = x[i] - x[i - 1] - 2.0 * eps;
-        if d < -contact_tolerance {
-            return Err(err(
-                line_of(i),
-                format!(
-                    "particles {} and {i} overlap: gap x_{i} - x_{} - 2 radius = {d:e} < 0 (need x_i >= x_(i-1) + 2 radius)",
-                    i - 1,
-                    i - 1
-                ),
-            ));
-        }
-        if d.abs() <= contact_tolerance {
-            bonded[i - 1] = true;
-            gaps.push(0.0);
-        } else {
-            gaps.push(d);
-        }
-    }
-    if bonded.iter().all(|&b| b) {
-        return Err(err(
-            line_of(n),
-            "every gap is zero: the chain is one rigid body and nothing moves".into(),
-        ));
-    }
-    // Particles glued into one cluster must start with one velocity (Appendix A: rigid bodies).
-    for i in 1..n {
-        if bonded[i - 1] {
-            let (ua, ub) = (rows[i - 1].u, rows[i].u);
-            if ua != ub {
-                return Err(err(
-                    line_of(i),
-                    format!("particles {} and {i} touch (zero gap) but have different velocities {ua} and {ub}; a cluster moves rigidly", i - 1),
-                ));
-            }
-        }
-    }
-    if bonded[n - 1] && rows[n - 1].u != 0.0 {
-        return Err(err(
-            line_of(n - 1),
-            "particle N-1 touches the fixed particle N, so its velocity must be 0".into(),
-        ));
-    }
-    let dstar = has_roughness.then(|| {
-        (1..=n)
-            .map(|i| rows[i - 1].r.unwrap_or(0.0) + rows[i].r.unwrap_or(0.0))
-            .collect()
-    });
-    Ok(Chain {
-        eps,
-        gaps,
-        velocities: rows[1..n].iter().map(|r| r.u).collect(),
-        dstar,
-        bonded: bonded.iter().any(|&b| b).then_some(bonded),
     })
 }
 

@@ -1,0 +1,171 @@
+//! The `[ensemble]` section: many members per sweep point, differing by random roughness and
+//! perturbed initial data, summarised by statistics (see `crate::study`).
+
+use std::path::Path;
+
+use super::checks::{check_non_empty, check_range, check_within, Range};
+use super::file::EnsembleSection;
+use super::InitialSpec;
+use crate::ensemble::{RoughnessKind, RoughnessSpec};
+use crate::error::{Error, Result};
+
+/// The validated `[ensemble]` section.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct EnsembleSpec {
+    /// Members per sweep point; the study has `members × (sweep points)` members, member m at
+    /// sweep point m mod (sweep points).
+    pub members: u64,
+    pub seed: u64,
+    /// Members solved (and kept in memory) at once.
+    pub chunk: usize,
+    #[serde(skip)]
+    pub roughness: Option<RoughnessSpec>,
+    /// Roughness radius when the scene has no rho* profile.
+    pub mean_radius: Option<f64>,
+    pub velocity_amplitude_spread: f64,
+    pub velocity_phase_spread: f64,
+    pub jitter: f64,
+    /// Density threshold of the first-hitting-time observable.
+    pub threshold: f64,
+    pub store_members: bool,
+    pub quantiles: Vec<f64>,
+    /// Histogram bins of the field quantile bands.
+    pub bins: usize,
+    pub u_range: Option<[f64; 2]>,
+}
+
+pub(super) fn validate_ensemble(
+    e: &EnsembleSection,
+    initial: &InitialSpec,
+    scene_path: &Path,
+) -> Result<EnsembleSpec> {
+    let members = check_range(
+        "ensemble.members",
+        e.members,
+        Range::count(1, 1_000_000_000).upper_text("1e9"),
+        "members per sweep point",
+    )?;
+    let chunk = check_range(
+        "ensemble.chunk",
+        e.chunk.unwrap_or(256),
+        Range::count(1, 1_000_000),
+        "members solved at once (memory)",
+    )?;
+    let roughness = roughness(e, scene_path)?;
+    let has_rho_star = match initial {
+        InitialSpec::Profiles { rho_star, .. } => rho_star.is_some(),
+        InitialSpec::Particles { .. } => true,
+    };
+    if let Some(r) = e.mean_radius {
+        check_range(
+            "ensemble.mean_radius",
+            r,
+            Range::unnamed().ge(0.0),
+            "the mean roughness radius",
+        )?;
+    }
+    if roughness.is_some() && !has_rho_star && e.mean_radius.is_none() {
+        return Err(Error::missing(
+            "ensemble.mean_radius",
+            "random roughness needs a mean profile: give initial.rho_star or ensemble.mean_radius (>= 0)",
+        ));
+    }
+    let spread = |field: &str, v: Option<f64>, max: f64| {
+        let range = Range::of("value").ge(0.0).le(max);
+        check_range(field, v.unwrap_or(0.0), range, "relative spread")
+    };
+    let velocity_amplitude_spread = spread(
+        "ensemble.velocity_amplitude_spread",
+        e.velocity_amplitude_spread,
+        10.0,
+    )?;
+    let velocity_phase_spread = spread(
+        "ensemble.velocity_phase_spread",
+        e.velocity_phase_spread,
+        1.0,
+    )?;
+    if velocity_phase_spread > 0.0 && matches!(initial, InitialSpec::Particles { .. }) {
+        return Err(Error::missing(
+            "ensemble.velocity_phase_spread",
+            "a phase shift needs a velocity profile u0(x); with a particle file only the amplitude can vary",
+        ));
+    }
+    let jitter = spread("ensemble.jitter", e.jitter, 2.0)?;
+    let threshold = check_range(
+        "ensemble.threshold",
+        e.threshold.unwrap_or(0.9),
+        Range::of("threshold").gt(0.0).le(1.0),
+        "density threshold",
+    )?;
+    let quantiles = e
+        .quantiles
+        .clone()
+        .unwrap_or_else(|| vec![0.05, 0.25, 0.5, 0.75, 0.95]);
+    check_non_empty(
+        "ensemble.quantiles",
+        &quantiles,
+        "no quantile",
+        "a non-empty list in [0, 1]",
+    )?;
+    for (j, &q) in quantiles.iter().enumerate() {
+        check_within(
+            &format!("ensemble.quantiles[{j}]"),
+            q,
+            Range::of("q").ge(0.0).le(1.0),
+            "a quantile level",
+        )?;
+    }
+    let bins = check_range(
+        "ensemble.bins",
+        e.bins.unwrap_or(400),
+        Range::count(4, 100_000),
+        "histogram bins of the field bands",
+    )?;
+    if let Some([lo, hi]) = e.u_range {
+        if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+            return Err(Error::invalid(
+                "ensemble.u_range",
+                format!("[{lo}, {hi}]"),
+                "velocity range of the u band",
+                "[lo, hi] with lo < hi",
+            ));
+        }
+    }
+    Ok(EnsembleSpec {
+        members: members as u64,
+        seed: e.seed.unwrap_or(0),
+        chunk: chunk as usize,
+        roughness,
+        mean_radius: e.mean_radius,
+        velocity_amplitude_spread,
+        velocity_phase_spread,
+        jitter,
+        threshold,
+        store_members: e.store_members.unwrap_or(false),
+        quantiles,
+        bins: bins as usize,
+        u_range: e.u_range,
+    })
+}
+
+/// The roughness model, validated, with a radii file resolved against the scene's folder (like
+/// the particle file).
+fn roughness(e: &EnsembleSection, scene_path: &Path) -> Result<Option<RoughnessSpec>> {
+    let Some(mut r) = e.roughness.clone() else {
+        return Ok(None);
+    };
+    r.validate().map_err(|err| {
+        Error::invalid(
+            "ensemble.roughness",
+            format!("{r:?}"),
+            err.to_string(),
+            "see the scene reference",
+        )
+    })?;
+    if let RoughnessKind::File(p) = &mut r.kind {
+        if p.is_relative() {
+            *p = scene_path.parent().unwrap_or(Path::new(".")).join(&*p);
+        }
+    }
+    Ok(Some(r))
+}

@@ -1,0 +1,105 @@
+//! The scene file as written: the serde view of the TOML, before any value is checked. Every
+//! table denies unknown keys so that a typo is an error, not a silently ignored setting.
+
+use serde::Deserialize;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SceneFile {
+    pub name: String,
+    pub description: Option<String>,
+    pub model: ModelSection,
+    pub initial: InitialSection,
+    pub time: TimeSection,
+    #[serde(default)]
+    pub solver: SolverSection,
+    pub batch: Option<BatchSection>,
+    #[serde(default)]
+    pub output: OutputSection,
+    pub ensemble: Option<EnsembleSection>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ModelSection {
+    pub particles: Option<i64>,
+    pub mu: f64,
+    pub gamma: Option<f64>,
+    pub forcing: Option<String>,
+    pub radius: Option<f64>,
+    pub quadrature: Option<i64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct InitialSection {
+    pub rho: Option<String>,
+    pub velocity: Option<String>,
+    pub rho_star: Option<String>,
+    pub particles: Option<String>,
+}
+
+/// `time.outputs`: a count of evenly spaced times, or the times themselves.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub(super) enum OutputsSpec {
+    Count(i64),
+    Times(Vec<f64>),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct TimeSection {
+    pub end: f64,
+    pub outputs: OutputsSpec,
+    pub dt: Option<f64>,
+    pub tolerance: Option<f64>,
+    pub dt_initial: Option<f64>,
+    pub dt_min: Option<f64>,
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SolverSection {
+    pub order: Option<i64>,
+    /// Strings, not the enums, so that an unknown name is reported with the field and the
+    /// allowed names like every other scene error.
+    pub backend: Option<String>,
+    pub precision: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct BatchSection {
+    pub mu: Option<Vec<f64>>,
+    pub gamma: Option<Vec<f64>>,
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub(super) struct OutputSection {
+    pub grid: Option<i64>,
+    pub fields: Option<Vec<String>>,
+    pub plots: Option<bool>,
+    pub plot_members: Option<i64>,
+}
+
+/// `[ensemble]`: many members differing by random roughness and perturbed initial data, summarised
+/// by statistics (see `crate::study`).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct EnsembleSection {
+    pub members: i64,
+    pub seed: Option<u64>,
+    pub chunk: Option<i64>,
+    pub roughness: Option<crate::ensemble::RoughnessSpec>,
+    pub mean_radius: Option<f64>,
+    pub velocity_amplitude_spread: Option<f64>,
+    pub velocity_phase_spread: Option<f64>,
+    pub jitter: Option<f64>,
+    pub threshold: Option<f64>,
+    pub store_members: Option<bool>,
+    pub quantiles: Option<Vec<f64>>,
+    pub bins: Option<i64>,
+    pub u_range: Option<[f64; 2]>,
+}

@@ -1,0 +1,171 @@
+//! The complete message of every scene validation error, pinned: tests/cli.rs checks pieces of
+//! some of them through the binary; these catch any change of wording in any of them.
+
+use std::path::Path;
+
+use super::Scene;
+
+/// A good profile scene; each case changes one piece of it.
+const BASE: &str = r#"name = "base"
+
+[model]
+particles = 10
+mu = 0.01
+gamma = 1.0
+
+[initial]
+rho = "0.7"
+velocity = "0.5*sin(2*pi*x)"
+rho_star = "0.7"
+
+[time]
+end = 0.01
+outputs = 2
+dt = 1e-3
+
+[solver]
+order = 1
+
+[output]
+grid = 20
+"#;
+
+/// A good particle-file scene.
+const BASE_FILE: &str = r#"name = "base_file"
+
+[model]
+mu = 0.01
+radius = 0.02
+
+[initial]
+particles = "p.csv"
+
+[time]
+end = 0.01
+outputs = 2
+dt = 1e-3
+"#;
+
+/// `base` with `from` replaced by `to` (which must occur exactly once).
+fn edit(base: &str, from: &str, to: &str) -> String {
+    assert_eq!(base.matches(from).count(), 1, "{from:?} must occur once");
+    base.replace(from, to)
+}
+
+fn adaptive(extra: &str) -> String {
+    edit(BASE, "dt = 1e-3\n", &format!("tolerance = 1e-6\n{extra}"))
+}
+
+fn with_ensemble(base: &str, body: &str) -> String {
+    format!("{base}\n[ensemble]\nmembers = 4\n{body}\n")
+}
+
+/// (case, scene text, the complete error message) for every validation error of the scene reader.
+fn cases() -> Vec<(&'static str, String, &'static str)> {
+    let no_rho_star = edit(BASE, "rho_star = \"0.7\"\n", "");
+    vec![
+        ("name", edit(BASE, "name = \"base\"", "name = \"a b\""), "name = \"a b\": the name is used as a directory name (allowed: a non-empty name of letters, digits, '_', '-', '.')"),
+        ("particles low", edit(BASE, "particles = 10", "particles = 1"), "model.particles = 1: N counts the particles 0..N, so at least one particle moves (allowed: 2 <= particles <= 100000000)"),
+        ("particles high", edit(BASE, "particles = 10", "particles = 200000000"), "model.particles = 200000000: N counts the particles 0..N, so at least one particle moves (allowed: 2 <= particles <= 100000000)"),
+        ("mu negative", edit(BASE, "mu = 0.01", "mu = -1"), "model.mu = -1: the lubrication coefficient must be positive (allowed: mu > 0)"),
+        ("mu nan", edit(BASE, "mu = 0.01", "mu = nan"), "model.mu = NaN: not a finite number (allowed: a finite number)"),
+        ("gamma low", edit(BASE, "gamma = 1.0", "gamma = 0.5"), "model.gamma = 0.5: repulsion exponent out of range (allowed: 1 <= gamma <= 1000)"),
+        ("gamma high", edit(BASE, "gamma = 1.0", "gamma = 2000.0"), "model.gamma = 2000: repulsion exponent out of range (allowed: 1 <= gamma <= 1000)"),
+        ("gamma inf", edit(BASE, "gamma = 1.0", "gamma = inf"), "model.gamma = inf: not a finite number (allowed: a finite number)"),
+        ("forcing", edit(BASE, "gamma = 1.0", "gamma = 1.0\nforcing = \"2*\""), "model.forcing = \"2*\": cannot parse expression at position 2: unexpected end of input (expected a number, variable, function or '(')"),
+        ("quadrature low", edit(BASE, "gamma = 1.0", "gamma = 1.0\nquadrature = 1"), "model.quadrature = 1: Gauss-Legendre points per particle for the forcing integral (allowed: 2 ..= 8)"),
+        ("quadrature high", edit(BASE, "gamma = 1.0", "gamma = 1.0\nquadrature = 9"), "model.quadrature = 9: Gauss-Legendre points per particle for the forcing integral (allowed: 2 ..= 8)"),
+        ("particles and profiles", edit(BASE, "rho = \"0.7\"", "rho = \"0.7\"\nparticles = \"p.csv\""), "initial.particles: give either a particle file or the profiles rho/velocity/rho_star, not both"),
+        ("no initial data", edit(BASE, "rho = \"0.7\"\nvelocity = \"0.5*sin(2*pi*x)\"\nrho_star = \"0.7\"\n", ""), "initial: give the profiles (initial.rho, initial.velocity, optional initial.rho_star) or initial.particles = \"file.csv\""),
+        ("radius missing", edit(BASE_FILE, "radius = 0.02\n", ""), "model.radius: a particle file needs the particle radius eps (model.radius > 0)"),
+        ("radius nan", edit(BASE_FILE, "radius = 0.02", "radius = nan"), "model.radius = NaN: not a finite number (allowed: a finite number)"),
+        ("radius zero", edit(BASE_FILE, "radius = 0.02", "radius = 0.0"), "model.radius = 0: the particle radius eps (allowed: 0 < radius < 0.5)"),
+        ("radius half", edit(BASE_FILE, "radius = 0.02", "radius = 0.5"), "model.radius = 0.5: the particle radius eps (allowed: 0 < radius < 0.5)"),
+        ("radius with profiles", edit(BASE, "gamma = 1.0", "gamma = 1.0\nradius = 0.01"), "model.radius: only with [initial] particles: from profiles, eps = M0/(2N) follows from rho"),
+        ("particles missing", edit(BASE, "particles = 10\n", ""), "model.particles: the number N of particle intervals is required with profile initial data (2 <= particles)"),
+        ("rho above one", edit(BASE, "rho = \"0.7\"", "rho = \"1.2\""), "initial.rho = \"1.2\": value 1.2 at x = 0 is outside the allowed range (0, 1)"),
+        ("rho unparsable", edit(BASE, "rho = \"0.7\"", "rho = \"0.7+\""), "initial.rho = \"0.7+\": cannot parse expression at position 4: unexpected end of input (expected a number, variable, function or '(')"),
+        ("velocity infinite", edit(BASE, "0.5*sin(2*pi*x)", "1/x"), "initial.velocity = \"1/x\": value inf at x = 0 is outside the allowed range finite values"),
+        ("velocity unparsable", edit(BASE, "0.5*sin(2*pi*x)", "0.5*sinn(2*pi*x)"), "initial.velocity = \"0.5*sinn(2*pi*x)\": cannot parse expression at position 4: unknown identifier 'sinn' (known names: x, t, pi, e, sin, cos, tan, exp, log, sqrt, abs, tanh, min, max)"),
+        ("rho_star zero", edit(BASE, "rho_star = \"0.7\"", "rho_star = \"0\""), "initial.rho_star = \"0\": value 0 at x = 0 is outside the allowed range (0, 1]"),
+        ("rho_star above one", edit(BASE, "rho_star = \"0.7\"", "rho_star = \"1.5\""), "initial.rho_star = \"1.5\": value 1.5 at x = 0 is outside the allowed range (0, 1]"),
+        ("end zero", edit(BASE, "end = 0.01", "end = 0.0"), "time.end = 0: the final time (allowed: end > 0)"),
+        ("end nan", edit(BASE, "end = 0.01", "end = nan"), "time.end = NaN: not a finite number (allowed: a finite number)"),
+        ("outputs low", edit(BASE, "outputs = 2", "outputs = 1"), "time.outputs = 1: number of evenly spaced output times including 0 and end (allowed: 2 ..= 100000, or a list of times)"),
+        ("outputs high", edit(BASE, "outputs = 2", "outputs = 100001"), "time.outputs = 100001: number of evenly spaced output times including 0 and end (allowed: 2 ..= 100000, or a list of times)"),
+        ("outputs empty", edit(BASE, "outputs = 2", "outputs = []"), "time.outputs = []: no output time (allowed: a non-empty increasing list of times in [0, end])"),
+        ("outputs nan", edit(BASE, "outputs = 2", "outputs = [0.0, nan]"), "time.outputs[1] = NaN: not a finite number (allowed: a finite number)"),
+        ("outputs after end", edit(BASE, "outputs = 2", "outputs = [0.0, 0.02]"), "time.outputs[1] = 0.02: output times must increase strictly and lie in [0, end] (allowed: previous time < value <= 0.01)"),
+        ("outputs decreasing", edit(BASE, "outputs = 2", "outputs = [0.005, 0.001]"), "time.outputs[1] = 0.001: output times must increase strictly and lie in [0, end] (allowed: previous time < value <= 0.01)"),
+        ("dt_min zero", edit(BASE, "dt = 1e-3", "dt = 1e-3\ndt_min = 0.0"), "time.dt_min = 0: a member whose step falls below dt_min is marked failed (allowed: 0 < dt_min < end)"),
+        ("dt_min end", edit(BASE, "dt = 1e-3", "dt = 1e-3\ndt_min = 0.01"), "time.dt_min = 0.01: a member whose step falls below dt_min is marked failed (allowed: 0 < dt_min < end)"),
+        ("dt_min nan", edit(BASE, "dt = 1e-3", "dt = 1e-3\ndt_min = nan"), "time.dt_min = NaN: not a finite number (allowed: a finite number)"),
+        ("dt zero", edit(BASE, "dt = 1e-3", "dt = 0.0"), "time.dt = 0: the fixed step (allowed: 1e-14 < dt <= end = 0.01)"),
+        ("dt below dt_min", edit(BASE, "dt = 1e-3", "dt = 1e-4\ndt_min = 1e-3"), "time.dt = 0.0001: the fixed step (allowed: 1e-3 < dt <= end = 0.01)"),
+        ("dt above end", edit(BASE, "dt = 1e-3", "dt = 0.02"), "time.dt = 0.02: the fixed step (allowed: 1e-14 < dt <= end = 0.01)"),
+        ("dt nan", edit(BASE, "dt = 1e-3", "dt = nan"), "time.dt = NaN: not a finite number (allowed: a finite number)"),
+        ("dt with dt_initial", edit(BASE, "dt = 1e-3", "dt = 1e-3\ndt_initial = 1e-4"), "time.dt_initial: only with adaptive steps (time.tolerance)"),
+        ("tolerance high", edit(BASE, "dt = 1e-3", "tolerance = 1.0"), "time.tolerance = 1: local error tolerance of adaptive steps (allowed: 1e-13 <= tolerance <= 0.1)"),
+        ("tolerance low", edit(BASE, "dt = 1e-3", "tolerance = 1e-14"), "time.tolerance = 0.00000000000001: local error tolerance of adaptive steps (allowed: 1e-13 <= tolerance <= 0.1)"),
+        ("tolerance nan", edit(BASE, "dt = 1e-3", "tolerance = nan"), "time.tolerance = NaN: not a finite number (allowed: a finite number)"),
+        ("dt_initial zero", adaptive("dt_initial = 0.0\n"), "time.dt_initial = 0: the first trial step (allowed: 1e-14 < dt_initial <= end)"),
+        ("dt_initial above end", adaptive("dt_initial = 0.02\n"), "time.dt_initial = 0.02: the first trial step (allowed: 1e-14 < dt_initial <= end)"),
+        ("dt_initial nan", adaptive("dt_initial = nan\n"), "time.dt_initial = NaN: not a finite number (allowed: a finite number)"),
+        ("dt and tolerance", edit(BASE, "dt = 1e-3", "dt = 1e-3\ntolerance = 1e-6"), "time.dt: give either time.dt (fixed steps) or time.tolerance (adaptive steps), not both"),
+        ("neither dt nor tolerance", edit(BASE, "dt = 1e-3\n", ""), "time.dt: give time.dt (fixed steps, 0 < dt <= end) or time.tolerance (adaptive steps)"),
+        ("order", edit(BASE, "order = 1", "order = 3"), "solver.order = 3: order of the time scheme (allowed: 1 (linearly implicit Euler) or 2 (Richardson-extrapolated))"),
+        ("backend", edit(BASE, "order = 1", "order = 1\nbackend = \"tpu\""), "solver.backend = \"tpu\": unknown backend (allowed: \"cpu\", \"gpu\" or \"auto\")"),
+        ("precision", edit(BASE, "order = 1", "order = 1\nprecision = \"f16\""), "solver.precision = \"f16\": unknown precision (allowed: \"f64\" or \"f32\")"),
+        ("batch mu empty", format!("{BASE}\n[batch]\nmu = []\n"), "batch.mu = []: empty sweep (allowed: a non-empty list of mu > 0)"),
+        ("batch mu negative", format!("{BASE}\n[batch]\nmu = [1.0, -1.0]\n"), "batch.mu[1] = -1: the lubrication coefficient must be positive (allowed: mu > 0)"),
+        ("batch mu nan", format!("{BASE}\n[batch]\nmu = [nan]\n"), "batch.mu[0] = NaN: not a finite number (allowed: a finite number)"),
+        ("batch gamma empty", format!("{BASE}\n[batch]\ngamma = []\n"), "batch.gamma = []: empty sweep (allowed: a non-empty list of 1 <= gamma <= 1000)"),
+        ("batch gamma low", format!("{BASE}\n[batch]\ngamma = [1.0, 0.5]\n"), "batch.gamma[1] = 0.5: repulsion exponent out of range (allowed: 1 <= gamma <= 1000)"),
+        ("grid low", edit(BASE, "grid = 20", "grid = 1"), "output.grid = 1: points of the macroscopic fields (allowed: 2 ..= 1000000)"),
+        ("grid high", edit(BASE, "grid = 20", "grid = 1000001"), "output.grid = 1000001: points of the macroscopic fields (allowed: 2 ..= 1000000)"),
+        ("unknown field", edit(BASE, "grid = 20", "grid = 20\nfields = [\"rho\", \"foo\"]"), "output.fields[1] = \"foo\": unknown output field (allowed: gaps, velocities, rho, u, rho_star, energy)"),
+        ("plot_members negative", edit(BASE, "grid = 20", "grid = 20\nplot_members = -1"), "output.plot_members = -1: how many members get profile plots (allowed: 0 ..= 1000)"),
+        ("plot_members high", edit(BASE, "grid = 20", "grid = 20\nplot_members = 1001"), "output.plot_members = 1001: how many members get profile plots (allowed: 0 ..= 1000)"),
+        ("members zero", format!("{BASE}\n[ensemble]\nmembers = 0\n"), "ensemble.members = 0: members per sweep point (allowed: 1 ..= 1e9)"),
+        ("members high", format!("{BASE}\n[ensemble]\nmembers = 2000000000\n"), "ensemble.members = 2000000000: members per sweep point (allowed: 1 ..= 1e9)"),
+        ("chunk zero", with_ensemble(BASE, "chunk = 0"), "ensemble.chunk = 0: members solved at once (memory) (allowed: 1 ..= 1000000)"),
+        ("chunk high", with_ensemble(BASE, "chunk = 1000001"), "ensemble.chunk = 1000001: members solved at once (memory) (allowed: 1 ..= 1000000)"),
+        ("mean_radius negative", with_ensemble(BASE, "mean_radius = -1.0"), "ensemble.mean_radius = -1: the mean roughness radius (allowed: >= 0)"),
+        ("mean_radius nan", with_ensemble(BASE, "mean_radius = nan"), "ensemble.mean_radius = NaN: not a finite number (allowed: a finite number)"),
+        ("mean profile missing", with_ensemble(&no_rho_star, "roughness = { kind = \"uniform\", spread = 0.1 }"), "ensemble.mean_radius: random roughness needs a mean profile: give initial.rho_star or ensemble.mean_radius (>= 0)"),
+        ("amplitude spread high", with_ensemble(BASE, "velocity_amplitude_spread = 11.0"), "ensemble.velocity_amplitude_spread = 11: relative spread (allowed: 0 <= value <= 10)"),
+        ("amplitude spread nan", with_ensemble(BASE, "velocity_amplitude_spread = nan"), "ensemble.velocity_amplitude_spread = NaN: not a finite number (allowed: a finite number)"),
+        ("phase spread high", with_ensemble(BASE, "velocity_phase_spread = 1.5"), "ensemble.velocity_phase_spread = 1.5: relative spread (allowed: 0 <= value <= 1)"),
+        ("phase spread negative", with_ensemble(BASE, "velocity_phase_spread = -0.5"), "ensemble.velocity_phase_spread = -0.5: relative spread (allowed: 0 <= value <= 1)"),
+        ("phase spread with particles", with_ensemble(BASE_FILE, "velocity_phase_spread = 0.5"), "ensemble.velocity_phase_spread: a phase shift needs a velocity profile u0(x); with a particle file only the amplitude can vary"),
+        ("jitter high", with_ensemble(BASE, "jitter = 3.0"), "ensemble.jitter = 3: relative spread (allowed: 0 <= value <= 2)"),
+        ("threshold zero", with_ensemble(BASE, "threshold = 0.0"), "ensemble.threshold = 0: density threshold (allowed: 0 < threshold <= 1)"),
+        ("threshold high", with_ensemble(BASE, "threshold = 1.5"), "ensemble.threshold = 1.5: density threshold (allowed: 0 < threshold <= 1)"),
+        ("threshold nan", with_ensemble(BASE, "threshold = nan"), "ensemble.threshold = NaN: not a finite number (allowed: a finite number)"),
+        ("quantiles empty", with_ensemble(BASE, "quantiles = []"), "ensemble.quantiles = []: no quantile (allowed: a non-empty list in [0, 1])"),
+        ("quantile high", with_ensemble(BASE, "quantiles = [0.5, 1.5]"), "ensemble.quantiles[1] = 1.5: a quantile level (allowed: 0 <= q <= 1)"),
+        ("quantile nan", with_ensemble(BASE, "quantiles = [nan]"), "ensemble.quantiles[0] = NaN: a quantile level (allowed: 0 <= q <= 1)"),
+        ("quantile inf", with_ensemble(BASE, "quantiles = [-inf]"), "ensemble.quantiles[0] = -inf: a quantile level (allowed: 0 <= q <= 1)"),
+        ("bins low", with_ensemble(BASE, "bins = 3"), "ensemble.bins = 3: histogram bins of the field bands (allowed: 4 ..= 100000)"),
+        ("bins high", with_ensemble(BASE, "bins = 100001"), "ensemble.bins = 100001: histogram bins of the field bands (allowed: 4 ..= 100000)"),
+        ("u_range reversed", with_ensemble(BASE, "u_range = [1.0, 0.0]"), "ensemble.u_range = [1, 0]: velocity range of the u band (allowed: [lo, hi] with lo < hi)"),
+        ("u_range nan", with_ensemble(BASE, "u_range = [nan, 1.0]"), "ensemble.u_range = [NaN, 1]: velocity range of the u band (allowed: [lo, hi] with lo < hi)"),
+    ]
+}
+
+#[test]
+fn validation_messages_are_unchanged() {
+    let mut wrong = Vec::new();
+    for (case, text, expected) in cases() {
+        let actual = match Scene::from_toml(&text, Path::new("dir/scene.toml")) {
+            Ok(_) => "accepted".to_string(),
+            Err(e) => e.to_string(),
+        };
+        if actual != expected {
+            wrong.push(format!(
+                "{case}:\n  expected {expected}\n  actual   {actual}"
+            ));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}

@@ -1,0 +1,134 @@
+//! The `[time]` section: final time, output times and the step control (fixed or adaptive).
+
+use super::checks::{check_finite, check_non_empty, check_range, Range};
+use super::file::{OutputsSpec, TimeSection};
+use crate::error::{Error, Result};
+use crate::model::params::Stepping;
+
+pub(super) struct Time {
+    pub output_times: Vec<f64>,
+    pub stepping: Stepping,
+}
+
+pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
+    let end = check_range(
+        "time.end",
+        t.end,
+        Range::of("end").gt(0.0),
+        "the final time",
+    )?;
+    let output_times = output_times(&t.outputs, end)?;
+    let dt_min = match t.dt_min {
+        Some(v) => check_range(
+            "time.dt_min",
+            v,
+            Range::of("dt_min").gt(0.0).lt(end).upper_text("end"),
+            "a member whose step falls below dt_min is marked failed",
+        )?,
+        None => 1e-12 * end,
+    };
+    let stepping =
+        match (t.dt, t.tolerance) {
+            (Some(dt), None) => {
+                let range = Range::of("dt")
+                    .gt(dt_min)
+                    .le(end)
+                    .lower_text(format!("{dt_min:e}"))
+                    .upper_text(format!("end = {end}"));
+                let dt = check_range("time.dt", dt, range, "the fixed step")?;
+                if t.dt_initial.is_some() {
+                    return Err(Error::missing(
+                        "time.dt_initial",
+                        "only with adaptive steps (time.tolerance)",
+                    ));
+                }
+                Stepping::Fixed { dt, dt_min }
+            }
+            (None, Some(tol)) => {
+                let tolerance = check_range(
+                    "time.tolerance",
+                    tol,
+                    Range::of("tolerance")
+                        .ge(1e-13)
+                        .le(1e-1)
+                        .lower_text("1e-13"),
+                    "local error tolerance of adaptive steps",
+                )?;
+                let range = Range::of("dt_initial")
+                    .gt(dt_min)
+                    .le(end)
+                    .lower_text(format!("{dt_min:e}"))
+                    .upper_text("end");
+                let dt_initial = check_range(
+                    "time.dt_initial",
+                    t.dt_initial.unwrap_or(1e-4 * end),
+                    range,
+                    "the first trial step",
+                )?;
+                Stepping::Adaptive {
+                    tolerance,
+                    dt_initial,
+                    dt_min,
+                }
+            }
+            (Some(_), Some(_)) => return Err(Error::missing(
+                "time.dt",
+                "give either time.dt (fixed steps) or time.tolerance (adaptive steps), not both",
+            )),
+            (None, None) => {
+                return Err(Error::missing(
+                    "time.dt",
+                    "give time.dt (fixed steps, 0 < dt <= end) or time.tolerance (adaptive steps)",
+                ))
+            }
+        };
+    Ok(Time {
+        output_times,
+        stepping,
+    })
+}
+
+/// Evenly spaced times from 0 to `end` (both included, `end` exact), or the given list, which
+/// must increase strictly within [0, end].
+fn output_times(outputs: &OutputsSpec, end: f64) -> Result<Vec<f64>> {
+    match outputs {
+        OutputsSpec::Count(k) => {
+            let k = check_range(
+                "time.outputs",
+                *k,
+                Range::count(2, 100_000).or("a list of times"),
+                "number of evenly spaced output times including 0 and end",
+            )? as usize;
+            Ok((0..k)
+                .map(|j| {
+                    if j + 1 == k {
+                        end
+                    } else {
+                        end * j as f64 / (k - 1) as f64
+                    }
+                })
+                .collect())
+        }
+        OutputsSpec::Times(list) => {
+            check_non_empty(
+                "time.outputs",
+                list,
+                "no output time",
+                "a non-empty increasing list of times in [0, end]",
+            )?;
+            for (j, &v) in list.iter().enumerate() {
+                let field = format!("time.outputs[{j}]");
+                check_finite(&field, v)?;
+                if !(0.0..=end).contains(&v) || (j > 0 && v <= list[j - 1]) {
+                    return Err(Error::invalid(
+                        field,
+                        v,
+                        "output times must increase strictly and lie in [0, end]",
+                        format!("previous time < value <= {end}"),
+                    ));
+                }
+            }
+            Ok(list.clone())
+        }
+    }
+}
