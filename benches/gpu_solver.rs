@@ -11,9 +11,10 @@
 //! and no repulsion (no d*). The time ratios say what each specialisation of the kernel saves.
 //!
 //! The solver (buffers, pipelines) is built and its t = 0 output taken outside the timed part;
-//! the timed part is one `next_output()` over an interval of `STEPS` fixed steps (one submit of
-//! `GpuStats::dispatches_per_submit` `advance` dispatches (each up to `attempts_per_dispatch` steps), the running-counter read-back, `gather`,
-//! the read-backs of controls, gaps and velocities, and the host-side observables).
+//! the timed part is one `next_output()` over an interval of `STEPS` fixed steps: one submit of
+//! `GpuStats::dispatches_per_submit` `advance` dispatches (each up to `attempts_per_dispatch`
+//! steps), the running-counter read-back, `gather`, the read-backs of controls, gaps and
+//! velocities, and the host-side observables.
 //!
 //! Without an adapter the benchmarks are skipped. On lavapipe (llvmpipe) one invocation per
 //! member may run at most 65535 loop iterations, so N > 32767 is refused
@@ -25,14 +26,16 @@ use criterion::{
     criterion_group, criterion_main, BatchSize, BenchmarkGroup, BenchmarkId, Criterion,
     SamplingMode, Throughput,
 };
-use roughlub::backend::BatchSolver;
-use roughlub::expr::Expr;
 use roughlub::backend::gpu::solver::{GpuSolver, GpuStats};
 use roughlub::backend::gpu::{GpuContext, GpuError};
-use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
+use roughlub::backend::{BatchSolver, Precision};
+use roughlub::error::{Error, Result};
+use roughlub::expr::Expr;
+use roughlub::model::chain::Chain;
+use roughlub::model::params::{MemberParams, OutputFields, Stepping};
 use roughlub::model::plan::{Forcing, Plan};
 use roughlub::model::quadrature::GaussLegendre;
-use {roughlub::backend::Precision, roughlub::model::params::{MemberParams, OutputFields, Stepping}};
+use roughlub::scene::initial::chain_from_profiles;
 
 /// Fixed steps per timed interval: exactly one submit of 64 `advance` dispatches (one trial step
 /// per member per dispatch), so no dispatch of the submit is idle.
@@ -130,14 +133,11 @@ fn plan(case: &Case, eps: f64) -> Plan {
 
 /// Builds the solver and takes its t = 0 output, so that the next `next_output()` runs the
 /// `steps` steps of the interval.
-fn solver<'a>(
-    ctx: &'a GpuContext,
-    case: &Case,
-    precision: Precision,
-) -> Result<GpuSolver<'a>, GpuError> {
+fn solver<'a>(ctx: &'a GpuContext, case: &Case, precision: Precision) -> Result<GpuSolver<'a>> {
     let c = chain(case);
     let plan = plan(case, c.eps);
-    let mut s = GpuSolver::new(ctx, plan, vec![c; case.members], precision)?;
+    let mut s = GpuSolver::new(ctx, plan, vec![c; case.members], precision)
+        .map_err(|e| Error::gpu("GpuSolver::new", e, ""))?;
     s.next_output(&|_| {})?;
     Ok(s)
 }
@@ -163,7 +163,10 @@ fn probe(ctx: &GpuContext, case: &Case, precision: Precision, id: &str) -> bool 
         Ok(s) => s,
         Err(e) => {
             let why = match e {
-                GpuError::LoopLimit { .. } => " (refused on lavapipe)",
+                Error::GpuBackend {
+                    source: GpuError::LoopLimit { .. },
+                    ..
+                } => " (refused on lavapipe)",
                 _ => "",
             };
             println!("{id}: skipped{why}: {e}");

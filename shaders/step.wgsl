@@ -1,8 +1,9 @@
 // The batch advanced on the GPU, one invocation per member (member b's element i at
 // `i * batch + b`), each member with its own time, step size and status. WGSL twin of
-// src/cpu/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas solve; read
-// its header for the equations), of `Block::error_norm` / `Block::extrapolate` in
-// src/cpu/mod.rs and of `StepControl` in src/cpu/control.rs. Keep them in sync, loop for loop.
+// src/backend/cpu/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas
+// solve; read its header for the equations), of `Block::error_norm` / `Block::extrapolate` in
+// src/backend/cpu/mod.rs and of `StepControl` in src/backend/cpu/control.rs. Keep them in sync,
+// loop for loop.
 //
 // Entry points: `begin_interval` (StepControl::begin_interval), `advance` (up to
 // config.max_attempts trial steps per member per dispatch, as the lane loop of Block::advance:
@@ -12,7 +13,7 @@
 // A member's state lives in one of two buffer sets (its `parity`); the candidate goes to the
 // other set and an accepted step only flips the parity, so nothing is copied.
 //
-// This file is a TEMPLATE, filled by `generate_step_wgsl` (src/gpu/kernel.rs), line by line:
+// This file is a TEMPLATE, filled by `generate_step_wgsl` (src/backend/gpu/kernel.rs), line by line:
 //  - the line declaring the alias `real` is replaced by the element type (f32 or f64);
 //  - blocks between the marker lines BEGIN NAME and END NAME (comment lines starting with
 //    slash-slash-at) are kept or removed: REPULSION, CLUSTERS, FREE (= no clusters), FORCING,
@@ -28,10 +29,13 @@
 // Bindings (group 0): 0 config (uniform), 1 gap sets, 2 velocity sets, 3 member parameters,
 // 4 controls, 5 scratch (w | lambda | y, each (N-1)·batch), 6 running counter (atomic),
 // 7 gathered gaps, 8 dstar (repulsion only), 9 bonded (u32, clusters only), 10 gathered velocities.
-// Keep the Config, Param and Control layouts in sync with `src/gpu/solver.rs`.
+// The host uploads and reads back Config, Param and Control (src/backend/gpu/wgsl_types.rs and
+// src/backend/gpu/buffers.rs): keep their layouts in sync.
 
 alias real = f64;
 
+// Keep in sync with `ConfigF64` / `ConfigF32` in src/backend/gpu/wgsl_types.rs (`padding`
+// keeps the reals 8-aligned for f64).
 struct Config {
     batch: u32,
     particles: u32,
@@ -46,13 +50,15 @@ struct Config {
     tolerance: real,
 }
 
+// Uploaded as pairs of reals (mu, gamma) per member by src/backend/gpu/buffers.rs.
 struct Param {
     mu: real,
     // Used only with a per-member gamma (GammaSpec::PerMember).
     gamma: real,
 }
 
-// StepControl of src/cpu/control.rs (counters in u32, flags as u32).
+// StepControl of src/backend/cpu/control.rs (counters in u32, flags as u32). Keep in sync with
+// `ControlF64` / `ControlF32` in src/backend/gpu/wgsl_types.rs.
 struct Control {
     t: real,
     dt: real,
@@ -91,13 +97,13 @@ struct GapTerms {
 const FULL_SET: u32 = 2u;
 const HALF_SET: u32 = 3u;
 
-// Step control constants of src/cpu/control.rs.
+// Step control constants of src/backend/cpu/control.rs.
 const REJECT_SHRINK: real = 0.25;
 const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
-// MIN_GAP_RATIO of src/cpu/step.rs.
+// MIN_GAP_RATIO of src/backend/cpu/step.rs.
 const MIN_GAP_RATIO: real = 0.5;
 
 //@GENERATED

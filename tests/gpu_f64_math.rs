@@ -16,9 +16,7 @@
 mod common;
 
 use common::gpu::{acquire_for_tests, run_compute_f64};
-use roughlub::backend::gpu::{
-    validate_wgsl, GpuContext, GpuError, F64_MATH_WGSL,
-};
+use roughlub::backend::gpu::{validate_wgsl, GpuContext, GpuError, F64_MATH_WGSL};
 
 /// Maximum relative error allowed for each function.
 const TOL_EXP: f64 = 2e-15;

@@ -1,20 +1,21 @@
-//! The GPU backend (`roughlub::backend::gpu::solver::GpuSolver`) against the CPU backend. GPU tests go
-//! through `acquire_for_tests(true)`: skipped without an f64 adapter unless
+//! The GPU backend (`roughlub::backend::gpu::solver::GpuSolver`) against the CPU backend. GPU
+//! tests go through `acquire_for_tests(true)`: skipped without an f64 adapter unless
 //! `ROUGHLUB_REQUIRE_GPU=1` (CI), which turns a missing adapter into a failure.
 
 mod common;
 
-use common::{plan_for, random_chain, Rng};
-use roughlub::backend::BatchSolver;
-use {roughlub::backend::cpu::CpuSolver, roughlub::backend::{MemberReport, MemberStatus}};
-use roughlub::expr::Expr;
 use common::gpu::acquire_for_tests;
+use common::{plan_for, random_chain, Rng};
+use roughlub::backend::cpu::CpuSolver;
 use roughlub::backend::gpu::solver::GpuSolver;
 use roughlub::backend::gpu::GpuContext;
-use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
+use roughlub::backend::{BatchSolver, MemberReport, MemberStatus, Precision};
+use roughlub::expr::Expr;
+use roughlub::model::chain::Chain;
 use roughlub::model::observables::Snapshot;
+use roughlub::model::params::{MemberParams, Stepping};
 use roughlub::model::plan::Plan;
-use {roughlub::backend::Precision, roughlub::model::params::{MemberParams, Stepping}};
+use roughlub::scene::initial::chain_from_profiles;
 
 fn profile_chain(n: usize, rho: &str, u: &str, rho_star: Option<&str>) -> Chain {
     chain_from_profiles(
@@ -55,7 +56,10 @@ fn run_gpu(
     let mut solver = GpuSolver::new(ctx, plan.clone(), chains.to_vec(), precision)
         .unwrap_or_else(|e| panic!("{e}"));
     let mut out = Vec::new();
-    while let Some(s) = solver.next_output(&|_| {}).unwrap_or_else(|e| panic!("{e}")) {
+    while let Some(s) = solver
+        .next_output(&|_| {})
+        .unwrap_or_else(|e| panic!("{e}"))
+    {
         out.push(s);
     }
     eprintln!("{precision:?}: {:?}", solver.stats());

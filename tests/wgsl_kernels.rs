@@ -4,11 +4,11 @@
 //! validates with naga, and absent terms leave no code behind.
 //! The GPU kernel's results against the CPU are in tests/gpu_solver.rs.
 
-use roughlub::expr::Expr;
 use roughlub::backend::gpu::kernel::{generate_step_wgsl, GammaSpec, KernelSpec, SchemeSpec};
 use roughlub::backend::gpu::validate_wgsl;
-use roughlub::model::quadrature::GaussLegendre;
 use roughlub::backend::Precision;
+use roughlub::expr::Expr;
+use roughlub::model::quadrature::GaussLegendre;
 
 const FORCING: &str = "0.3*sin(2*pi*x)*cos(3*t)";
 

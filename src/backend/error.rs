@@ -3,9 +3,6 @@
 /// What to do when no adapter is found.
 pub const NO_ADAPTER_HINT: &str = "install a Vulkan driver, e.g. `apt-get install mesa-vulkan-drivers` for the lavapipe software device";
 
-/// Environment variable: when set to `1`, [`acquire_for_tests`] panics instead of skipping.
-pub const REQUIRE_GPU_ENV: &str = "ROUGHLUB_REQUIRE_GPU";
-
 /// Errors of the GPU backend.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {

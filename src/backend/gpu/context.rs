@@ -1,8 +1,8 @@
-//! Acquiring a wgpu device (with f64 shaders where the adapter has them) and running a compute
-//! shader once over storage buffers.
+//! Acquiring a wgpu device (with f64 shaders where the adapter has them), building compute
+//! pipelines and reading buffers back.
 //!
-//! Acquiring is separate from running (as in wgpu's `hello_compute` example): a [`GpuContext`]
-//! holds the instance, adapter, device and queue and is reused by every kernel.
+//! A [`GpuContext`] holds the instance, adapter, device and queue, so that one device serves
+//! every kernel.
 //!
 //! Errors never panic: wgpu reports validation errors through a panicking default handler unless
 //! they are caught, so every device operation here runs inside error scopes
@@ -11,7 +11,6 @@
 //! which gives readable, source-annotated messages ([`validate_wgsl`]).
 
 use std::sync::{mpsc, Arc, Mutex};
-
 
 use crate::backend::error::GpuError;
 

@@ -7,8 +7,8 @@
 
 use std::fmt::Write as _;
 
-use crate::expr::{Expr, WgslFloat};
 use crate::backend::Precision;
+use crate::expr::{Expr, WgslFloat};
 
 /// The template (`shaders/step.wgsl`).
 pub const STEP_TEMPLATE_WGSL: &str = include_str!("../../../shaders/step.wgsl");

@@ -2,13 +2,19 @@
 //!
 //! - [`context`]: acquiring an adapter and device ([`GpuContext`]) and WGSL validation.
 //! - [`kernel`]: the step kernel generated per plan from `shaders/step.wgsl`.
-//! - [`solver`]: [`solver::GpuSolver`], the batch on the GPU.
+//! - [`wgsl_types`]: the kernel's `real` arrays and its `Config` and `Control` structs on the
+//!   host side.
+//! - [`solver`]: [`solver::GpuSolver`], the batch on the GPU, with its buffers (`buffers`) and
+//!   the trial steps per dispatch and per submit (`attempts`, lavapipe's loop budget).
 //! - [`F64_MATH_WGSL`]: f64 `exp/expm1/log/sin/cos/tan/tanh/pow` for WGSL kernels (the built-in
 //!   ones are 32-bit only on Vulkan and return garbage for f64); prepend it to a kernel's source.
 
+mod attempts;
+mod buffers;
 pub mod context;
 pub mod kernel;
 pub mod solver;
+pub mod wgsl_types;
 
 pub use crate::backend::error::GpuError;
 pub use context::{describe_adapters, validate_wgsl, AdapterDescription, GpuContext};

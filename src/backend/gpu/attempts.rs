@@ -1,0 +1,89 @@
+//! How many trial steps each member takes per `advance` dispatch and per submit, and the loop
+//! budget of lavapipe that bounds them.
+
+use super::context::GpuContext;
+use super::kernel::SchemeSpec;
+use crate::backend::error::GpuError;
+
+/// Trial steps per member encoded into one command buffer (as dispatches × attempts per
+/// dispatch): many steps per submit, one read-back of 4 bytes per submit.
+pub const ATTEMPTS_PER_SUBMIT: u32 = 256;
+
+/// Most trial steps per member per `advance` dispatch (each invocation loops over them, so a
+/// dispatch advances every member by many steps).
+pub const MAX_ATTEMPTS_PER_DISPATCH: u32 = 16;
+
+/// llvmpipe (lavapipe) stops every shader invocation after 65535 loop iterations in total
+/// (measured: `gather` over 2 loops of N = 40000 left the tail unwritten; N = 20000 was right).
+/// One invocation per member sweeps the whole chain, so on that driver N is bounded; other
+/// drivers have no such limit. [`check_loop_budget`] returns a clear error instead of silently
+/// wrong results.
+pub const LAVAPIPE_LOOP_LIMIT: u64 = 65_535;
+
+/// Whether the adapter is llvmpipe (lavapipe), which bounds the loop iterations of a shader
+/// invocation ([`LAVAPIPE_LOOP_LIMIT`]).
+fn is_lavapipe(ctx: &GpuContext) -> bool {
+    let d = &ctx.description;
+    d.driver.to_lowercase().contains("llvmpipe") || d.name.to_lowercase().contains("llvmpipe")
+}
+
+/// Loop iterations over the chain per trial step: two sweeps per Euler step (one for order 1 with
+/// fixed steps, three with Richardson), plus the error norm and the extrapolation (two each).
+fn loops_per_attempt(scheme: SchemeSpec) -> u64 {
+    (if scheme.richardson() { 6 } else { 2 })
+        + if scheme.adaptive { 2 } else { 0 }
+        + if scheme.order2 { 2 } else { 0 }
+}
+
+/// Trial steps per member per `advance` dispatch: [`MAX_ATTEMPTS_PER_DISPATCH`], or on lavapipe
+/// as many as fit its loop budget (measured: past the budget the invocation stops silently and
+/// the state is wrong; within it the GPU matches the CPU bit for bit).
+/// `ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH` (1..=4096) overrides it.
+pub fn attempts_per_dispatch(ctx: &GpuContext, n: usize, scheme: SchemeSpec) -> u32 {
+    if let Some(k) = std::env::var("ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH")
+        .ok()
+        .and_then(|v| v.parse::<u32>().ok())
+        .filter(|&k| (1..=4096).contains(&k))
+    {
+        return k;
+    }
+    if is_lavapipe(ctx) {
+        // The attempt loop itself counts too: one iteration per attempt.
+        let per = loops_per_attempt(scheme) * n as u64 + 1;
+        (LAVAPIPE_LOOP_LIMIT / per).clamp(1, MAX_ATTEMPTS_PER_DISPATCH as u64) as u32
+    } else {
+        MAX_ATTEMPTS_PER_DISPATCH
+    }
+}
+
+/// `advance` dispatches per submit: [`ATTEMPTS_PER_SUBMIT`] trial steps, at least 4 and at most
+/// 64 dispatches.
+pub fn dispatches_per_submit(attempts_per_dispatch: u32) -> u32 {
+    (ATTEMPTS_PER_SUBMIT / attempts_per_dispatch).clamp(4, 64)
+}
+
+/// On lavapipe, [`GpuError::LoopLimit`] when one invocation of `advance` (`attempts` trial
+/// steps) or `gather` would exceed [`LAVAPIPE_LOOP_LIMIT`] loop iterations for N = `n`.
+pub fn check_loop_budget(
+    ctx: &GpuContext,
+    n: usize,
+    scheme: SchemeSpec,
+    attempts: u32,
+) -> Result<(), GpuError> {
+    if !is_lavapipe(ctx) {
+        return Ok(());
+    }
+    // One `advance` invocation; `gather` needs two loops over the chain.
+    let per = loops_per_attempt(scheme).max(2);
+    let iterations = attempts as u64 * (per * n as u64 + 1);
+    if iterations > LAVAPIPE_LOOP_LIMIT {
+        return Err(GpuError::LoopLimit {
+            adapter: ctx.description.short(),
+            particles: n,
+            iterations,
+            limit: LAVAPIPE_LOOP_LIMIT,
+            max_particles: (LAVAPIPE_LOOP_LIMIT / attempts as u64 - 1) / per,
+        });
+    }
+    Ok(())
+}
