@@ -1,0 +1,67 @@
+//! Counter-based per-member random streams (see the [`ensemble`](super) documentation) and the
+//! variates drawn from them.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha12Rng;
+use rand_distr::StandardNormal;
+
+/// What a random stream is used for. Each purpose has a fixed 64-bit tag (ASCII of its name);
+/// the key of member streams for that purpose is derived from (seed, tag), so purposes never share
+/// numbers. New purposes get new tags; existing tags must never change.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum Purpose {
+    /// Roughness radii ([`roughness_radii`](super::roughness_radii),
+    /// [`correlated_field`](super::correlated_field)): draw i belongs to particle i.
+    Roughness,
+    /// Velocity perturbation ([`perturbed_velocity`](super::perturbed_velocity)): draw 0
+    /// amplitude, draw 1 phase.
+    Velocity,
+    /// Gap jitter ([`jitter_gaps`](super::jitter_gaps)): draw i belongs to gap i (bonded gaps
+    /// consume theirs too).
+    Jitter,
+}
+
+impl Purpose {
+    /// The fixed tag hashed with the seed: the little-endian bytes of an 8-letter ASCII name.
+    pub const fn tag(self) -> u64 {
+        match self {
+            Purpose::Roughness => u64::from_le_bytes(*b"roughnes"),
+            Purpose::Velocity => u64::from_le_bytes(*b"velocity"),
+            Purpose::Jitter => u64::from_le_bytes(*b"jittergp"),
+        }
+    }
+}
+
+/// SplitMix64 finaliser (Steele, Lea, Flood 2014): a bijective 64-bit mixer.
+const fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// The key seed of a purpose: `splitmix64(splitmix64(seed) ^ purpose.tag())`.
+pub const fn purpose_seed(seed: u64, purpose: Purpose) -> u64 {
+    splitmix64(splitmix64(seed) ^ purpose.tag())
+}
+
+/// Member `member`'s stream for `purpose`: `ChaCha12Rng::seed_from_u64(purpose_seed(seed,
+/// purpose))` with `set_stream(member)`, starting at word 0. A pure function of its arguments.
+pub fn member_rng(seed: u64, purpose: Purpose, member: u64) -> ChaCha12Rng {
+    let mut rng = ChaCha12Rng::seed_from_u64(purpose_seed(seed, purpose));
+    rng.set_stream(member);
+    rng
+}
+
+/// A standard normal variate (`rand_distr`'s ziggurat): every normal draw of every purpose.
+pub(super) fn normal(rng: &mut ChaCha12Rng) -> f64 {
+    rng.sample(StandardNormal)
+}
+
+/// The sigma that gives the lognormal factor exp(sigma Z - sigma^2/2) mean 1 and relative
+/// standard deviation `spread`.
+pub(super) fn lognormal_sigma(spread: f64) -> f64 {
+    // sigma^2 = ln(1 + spread^2): E exp(sigma Z - sigma^2/2) = 1, Var = exp(sigma^2) - 1 = spread^2.
+    (spread * spread).ln_1p().sqrt()
+}
