@@ -24,6 +24,8 @@
 //! many members without re-validating or re-reading a file, [`RoughnessSampler`]. The pair
 //! critical distances follow with [`dstar_from_radii`].
 
+pub mod members;
+
 use std::path::{Path, PathBuf};
 
 use rand::{Rng, SeedableRng};
