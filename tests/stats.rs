@@ -651,12 +651,22 @@ fn bins_edges_are_the_exact_bin_boundaries() {
         for i in 1..n {
             let e = edges[i];
             // e is in bin i or above, the value just below it in a bin below i.
-            assert!(b.slot(e) > i, "[{lo}, {hi}] / {n}: edge {i} = {e} in slot {}", b.slot(e));
-            assert!(b.slot(e.next_down()) <= i, "[{lo}, {hi}] / {n}: below edge {i}");
+            assert!(
+                b.slot(e) > i,
+                "[{lo}, {hi}] / {n}: edge {i} = {e} in slot {}",
+                b.slot(e)
+            );
+            assert!(
+                b.slot(e.next_down()) <= i,
+                "[{lo}, {hi}] / {n}: below edge {i}"
+            );
             // Close to the nominal edge: within a few ulps of max(|lo|, |hi|).
             let nominal = lo + (hi - lo) * i as f64 / n as f64;
             let ulp = f64::EPSILON * lo.abs().max(hi.abs());
-            assert!((e - nominal).abs() <= 4.0 * ulp, "edge {i}: {e} vs {nominal}");
+            assert!(
+                (e - nominal).abs() <= 4.0 * ulp,
+                "edge {i}: {e} vs {nominal}"
+            );
         }
         // Underflow, overflow and the closed last bin.
         assert_eq!(b.slot(lo.next_down()), 0);
@@ -671,7 +681,10 @@ fn bins_edges_are_the_exact_bin_boundaries() {
             let ulp = f64::EPSILON * lo.abs().max(hi.abs());
             if a < c {
                 let err = (m - a).abs().max((c - m).abs());
-                assert!(err <= 0.5 * b.width() + 8.0 * ulp, "bin {i} [{a}, {c}]: {m}");
+                assert!(
+                    err <= 0.5 * b.width() + 8.0 * ulp,
+                    "bin {i} [{a}, {c}]: {m}"
+                );
             }
         }
     }
@@ -697,7 +710,10 @@ fn histogram_quantiles_are_bin_midpoints_within_half_a_bin() {
         let v = h.quantile(q).unwrap();
         let x = sorted[(q * (N - 1) as f64).floor() as usize];
         if (lo..=hi).contains(&x) {
-            assert!((v - x).abs() <= half_bin * (1.0 + 1e-9), "q {q}: {v} vs {x}");
+            assert!(
+                (v - x).abs() <= half_bin * (1.0 + 1e-9),
+                "q {q}: {v} vs {x}"
+            );
             inside += 1;
         } else {
             assert!(v.is_nan(), "q {q}: {v} for {x} outside the range");
@@ -705,7 +721,10 @@ fn histogram_quantiles_are_bin_midpoints_within_half_a_bin() {
         }
     }
     assert!(inside > 0 && outside > 0);
-    assert!(matches!(h.quantile(1.5), Err(StatsError::InvalidQuantile(_))));
+    assert!(matches!(
+        h.quantile(1.5),
+        Err(StatsError::InvalidQuantile(_))
+    ));
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -754,7 +773,10 @@ fn scalar_summary_push_and_merge() {
     );
     assert_eq!((hist.lo(), hist.hi()), (sorted[0], sorted[N - 1]));
     assert_eq!(hist.total(), N as u64);
-    assert_eq!((hist.underflow(), hist.overflow(), hist.non_finite()), (0, 0, 0));
+    assert_eq!(
+        (hist.underflow(), hist.overflow(), hist.non_finite()),
+        (0, 0, 0)
+    );
     let edges = hist.edges();
     let mut below = 0u64;
     for k in 1..bins {
@@ -864,8 +886,14 @@ fn field_band_matches_direct_computation() {
             assert!(e <= 1e-12, "point {g}: mean {m} vs {m_ref}");
         }
         assert!(rel(std_m[g], sd_ref) <= 1e-12, "point {g}: std");
-        assert!(rel(var_m[g], sd_ref * sd_ref) <= 1e-12, "point {g}: variance");
-        assert!(rel(whole.std_row()[g], sd_ref) <= 1e-12, "point {g}: std (whole)");
+        assert!(
+            rel(var_m[g], sd_ref * sd_ref) <= 1e-12,
+            "point {g}: variance"
+        );
+        assert!(
+            rel(whole.std_row()[g], sd_ref) <= 1e-12,
+            "point {g}: std (whole)"
+        );
         assert_eq!(merged.stats()[g].count(), col.len() as u64);
         assert_eq!(merged.stats()[g].non_finite(), (M - col.len()) as u64);
         assert_eq!(whole.stats()[g].non_finite(), (M - col.len()) as u64);
@@ -895,7 +923,11 @@ fn field_band_matches_direct_computation() {
                 worst_quantile = worst_quantile.max((row[g] - x).abs() / half_bin);
                 inside += 1;
             } else {
-                assert!(row[g].is_nan(), "point {g}, q {q}: {} for {x} outside", row[g]);
+                assert!(
+                    row[g].is_nan(),
+                    "point {g}, q {q}: {} for {x} outside",
+                    row[g]
+                );
                 outside += 1;
             }
             assert_eq!(
@@ -906,7 +938,10 @@ fn field_band_matches_direct_computation() {
         assert_eq!(merged.min_row()[g], sorted[0]);
         assert_eq!(merged.max_row()[g], sorted[sorted.len() - 1]);
     }
-    assert!(inside > 0 && outside > 0, "{inside} inside, {outside} outside");
+    assert!(
+        inside > 0 && outside > 0,
+        "{inside} inside, {outside} outside"
+    );
     eprintln!(
         "field band {M} x {G}: worst mean error / (|mean| + std) = {worst_mean:.2e}, quantile error up to {worst_quantile:.3} half bins"
     );
@@ -914,7 +949,10 @@ fn field_band_matches_direct_computation() {
     let back: FieldBand = serde_json::from_str(&json).unwrap();
     assert_eq!(serde_json::to_string(&back).unwrap(), json);
     for q in QS {
-        let (a, b) = (back.quantile_row(q).unwrap(), merged.quantile_row(q).unwrap());
+        let (a, b) = (
+            back.quantile_row(q).unwrap(),
+            merged.quantile_row(q).unwrap(),
+        );
         assert!(a.iter().zip(&b).all(|(u, v)| u.to_bits() == v.to_bits()));
     }
     assert!(back
@@ -928,10 +966,16 @@ fn field_band_matches_direct_computation() {
     let disk = r#"{"lo":0.0,"hi":1.0,"bins":4,"points":[{"count":3,"mean":0.5,"mean_lo":0.0,"m2":0.5,"min":0.1,"max":1.5,"non_finite":0}],"counts":[{"len":6,"nonzero":[[1,1],[3,1],[5,1]]}]}"#;
     let f: FieldBand = serde_json::from_str(disk).unwrap();
     let h = f.histogram(0);
-    assert_eq!((h.underflow(), h.counts(), h.overflow()), (0, &[1, 0, 1, 0][..], 1));
+    assert_eq!(
+        (h.underflow(), h.counts(), h.overflow()),
+        (0, &[1, 0, 1, 0][..], 1)
+    );
     assert_eq!(f.quantile_row(0.0).unwrap(), [0.125]);
     assert_eq!(f.quantile_row(0.5).unwrap(), [0.625]);
-    assert!(f.quantile_row(1.0).unwrap()[0].is_nan(), "rank in the overflow");
+    assert!(
+        f.quantile_row(1.0).unwrap()[0].is_nan(),
+        "rank in the overflow"
+    );
     assert_eq!(
         serde_json::from_str::<serde_json::Value>(&serde_json::to_string(&f).unwrap()).unwrap(),
         serde_json::from_str::<serde_json::Value>(disk).unwrap()

@@ -20,11 +20,11 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant, SystemTime};
 
 use roughlub::backend::BatchSolver;
-use {roughlub::backend::cpu::CpuSolver, roughlub::backend::MemberStatus};
+use roughlub::ensemble::members::EnsembleMembers;
 use roughlub::model::plan::Plan;
 use roughlub::scene::Scene;
-use roughlub::ensemble::members::EnsembleMembers;
 use serde_json::Value;
+use {roughlub::backend::cpu::CpuSolver, roughlub::backend::MemberStatus};
 
 const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
 

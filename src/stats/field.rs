@@ -63,7 +63,11 @@ impl FieldBand {
 
     /// The histogram of point `j` (panics if `j >= points()`).
     pub fn histogram(&self, j: usize) -> Histogram {
-        Histogram::from_slots(self.bins, self.slots[j].clone(), self.points[j].non_finite())
+        Histogram::from_slots(
+            self.bins,
+            self.slots[j].clone(),
+            self.points[j].non_finite(),
+        )
     }
 
     /// Adds the rows of one chunk of members (each row of length G). Moments are accumulated in

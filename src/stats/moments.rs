@@ -1,4 +1,5 @@
-//! Moments: [`RunningStats`] (count, mean, variance, extremes), mergeable exactly as documented.
+//! Moments: [`RunningStats`], count, mean, sample variance and extremes of a stream of values,
+//! merged pairwise (Chan et al.).
 
 use serde::{Deserialize, Serialize};
 
@@ -212,4 +213,3 @@ impl RunningStats {
         }
     }
 }
-

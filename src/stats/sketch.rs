@@ -445,7 +445,6 @@ impl TryFrom<SketchState> for QuantileSketch {
     }
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -110,4 +110,3 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
         statistics_seconds: 0.0,
     })
 }
-

@@ -1,8 +1,8 @@
 //! Ensemble studies (`[ensemble]` in a scene): thousands to millions of members that differ by
 //! random roughness profiles, perturbed initial data and swept parameters, solved in chunks and
 //! summarised by mergeable statistics. Member m's random inputs are a pure function of
-//! (seed, m) (`crate::ensemble`), so its result does not depend on chunking, threads, backend or
-//! shard.
+//! (seed, m) ([`crate::ensemble::members`]), so its result does not depend on chunking, threads,
+//! backend or shard.
 //!
 //! Layout of a study directory:
 //! - `study.json`: what is being computed (scene text and hash, shard, member range, times, grid);
@@ -11,7 +11,6 @@
 //!   written atomically (a killed run keeps every finished chunk; `--resume` skips them);
 //! - `partial.json`: the mergeable statistics of all members of this run (or shard);
 //! - `stats/*.npy`, `members.csv`, `plots/*.png`, and `manifest.json` last.
-
 //!
 //! The code follows the pipeline: [`EnsembleMembers`](crate::ensemble::members::EnsembleMembers)
 //! builds each member's inputs; `chunk.rs` solves a chunk of members through the backend seam and
@@ -248,4 +247,3 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         statistics_seconds: stats_seconds,
     })
 }
-

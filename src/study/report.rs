@@ -23,7 +23,12 @@ pub(super) fn quantile_method(header: &StudyHeader) -> QuantileMethod {
 }
 
 /// Writes `stats/*.npy` and the plots (`members.csv` is streamed by the caller).
-pub(super) fn finalize(dir: &Path, headers: &[StudyHeader], state: &StudyState, plots: bool) -> Result<()> {
+pub(super) fn finalize(
+    dir: &Path,
+    headers: &[StudyHeader],
+    state: &StudyState,
+    plots: bool,
+) -> Result<()> {
     let header = &headers[0];
     let stats = dir.join("stats");
     std::fs::create_dir_all(&stats).map_err(|e| Error::io(&stats, e))?;
@@ -171,8 +176,14 @@ fn write_plots(dir: &Path, header: &StudyHeader, state: &StudyState) -> Result<(
         let bands = &state.fields[field];
         let mean: Vec<Vec<f64>> = shown.iter().map(|&k| bands[k].mean_row()).collect();
         let row = |k: usize, q: f64| bands[k].quantile_row(q).map_err(|e| stats_error(&plots, e));
-        let lower = shown.iter().map(|&k| row(k, q_lo)).collect::<Result<Vec<_>>>()?;
-        let upper = shown.iter().map(|&k| row(k, q_hi)).collect::<Result<Vec<_>>>()?;
+        let lower = shown
+            .iter()
+            .map(|&k| row(k, q_lo))
+            .collect::<Result<Vec<_>>>()?;
+        let upper = shown
+            .iter()
+            .map(|&k| row(k, q_hi))
+            .collect::<Result<Vec<_>>>()?;
         let times: Vec<f64> = shown.iter().map(|&k| header.times[k]).collect();
         let reference: Option<Vec<Vec<f64>>> = (field == "rho").then(|| {
             shown
