@@ -1,5 +1,6 @@
 //! Tests of `roughlub::stats` against independent expectations: compensated two-pass moments,
-//! sorted data for quantiles, direct counting for histograms. Each assertion states its tolerance.
+//! sorted data for quantiles, direct counting for histograms and field bands. Each assertion
+//! states its tolerance.
 //! Run with `--nocapture` to see the measured errors.
 
 use rand::seq::SliceRandom;
@@ -7,7 +8,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, LogNormal, Normal, Uniform};
 use roughlub::stats::{
-    FieldSummary, Histogram, QuantileSketch, RunningStats, ScalarSummary, StatsError,
+    Bins, FieldBand, Histogram, QuantileSketch, RunningStats, ScalarSummary, StatsError,
 };
 
 const N: usize = 100_000;
@@ -625,16 +626,117 @@ fn histogram_with_colliding_edges_matches_direct_counting() {
     assert!(distinct < 100);
 }
 
+#[test]
+fn bins_edges_are_the_exact_bin_boundaries() {
+    let mut r = rng(11);
+    let mut cases: Vec<(f64, f64, usize)> = vec![
+        (0.0, 1.0, 200),
+        (0.0, 1.0, 400),
+        (-0.37, 0.37, 400),
+        (-2.0, 3.1, 37),
+        (1e8, 1e8 + 1e-6, 1000),
+        (-1e-300, 1e-300, 7),
+        (0.004, 0.013, 32),
+    ];
+    for _ in 0..200 {
+        let lo = r.random_range(-10.0..10.0) * 10f64.powi(r.random_range(-8..8));
+        let hi = lo + r.random_range(1e-3..10.0) * 10f64.powi(r.random_range(-8..8));
+        cases.push((lo, hi, r.random_range(1..=500)));
+    }
+    for (lo, hi, n) in cases {
+        let b = Bins::new(lo, hi, n).unwrap();
+        let edges = b.edges();
+        assert_eq!((edges[0], edges[n]), (lo, hi));
+        assert!(edges.windows(2).all(|w| w[0] <= w[1]), "[{lo}, {hi}] / {n}");
+        for i in 1..n {
+            let e = edges[i];
+            // e is in bin i or above, the value just below it in a bin below i.
+            assert!(
+                b.slot(e) > i,
+                "[{lo}, {hi}] / {n}: edge {i} = {e} in slot {}",
+                b.slot(e)
+            );
+            assert!(
+                b.slot(e.next_down()) <= i,
+                "[{lo}, {hi}] / {n}: below edge {i}"
+            );
+            // Close to the nominal edge: within a few ulps of max(|lo|, |hi|).
+            let nominal = lo + (hi - lo) * i as f64 / n as f64;
+            let ulp = f64::EPSILON * lo.abs().max(hi.abs());
+            assert!(
+                (e - nominal).abs() <= 4.0 * ulp,
+                "edge {i}: {e} vs {nominal}"
+            );
+        }
+        // Underflow, overflow and the closed last bin.
+        assert_eq!(b.slot(lo.next_down()), 0);
+        assert_eq!(b.slot(lo), 1);
+        assert_eq!(b.slot(hi), n);
+        assert_eq!(b.slot(hi.next_up()), n + 1);
+        // Midpoints within half a bin width of every value of their bin.
+        for i in 0..n {
+            let (a, c) = (edges[i], edges[i + 1]);
+            let m = b.midpoint(i);
+            // Tolerance: half a bin width, plus the edges' and the midpoint's rounding.
+            let ulp = f64::EPSILON * lo.abs().max(hi.abs());
+            if a < c {
+                let err = (m - a).abs().max((c - m).abs());
+                assert!(
+                    err <= 0.5 * b.width() + 8.0 * ulp,
+                    "bin {i} [{a}, {c}]: {m}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn histogram_quantiles_are_bin_midpoints_within_half_a_bin() {
+    let mut r = rng(12);
+    let normal = Normal::new(0.3, 1.2).unwrap();
+    let (lo, hi, bins) = (-2.0, 3.1, 37);
+    let mut h = Histogram::new(lo, hi, bins).unwrap();
+    assert!(h.quantile(0.5).unwrap().is_nan(), "empty");
+    let xs: Vec<f64> = (0..N).map(|_| normal.sample(&mut r)).collect();
+    xs.iter().for_each(|&x| {
+        h.push(x);
+    });
+    let mut sorted = xs.clone();
+    sorted.sort_by(f64::total_cmp);
+    let half_bin = (hi - lo) / (2.0 * bins as f64);
+    let (mut inside, mut outside) = (0, 0);
+    for i in 0..=200 {
+        let q = i as f64 / 200.0;
+        let v = h.quantile(q).unwrap();
+        let x = sorted[(q * (N - 1) as f64).floor() as usize];
+        if (lo..=hi).contains(&x) {
+            assert!(
+                (v - x).abs() <= half_bin * (1.0 + 1e-9),
+                "q {q}: {v} vs {x}"
+            );
+            inside += 1;
+        } else {
+            assert!(v.is_nan(), "q {q}: {v} for {x} outside the range");
+            outside += 1;
+        }
+    }
+    assert!(inside > 0 && outside > 0);
+    assert!(matches!(
+        h.quantile(1.5),
+        Err(StatsError::InvalidQuantile(_))
+    ));
+}
+
 // ------------------------------------------------------------------------------------------------
-// ScalarSummary and FieldSummary
+// ScalarSummary and FieldBand
 
 #[test]
 fn scalar_summary_push_and_merge() {
     let mut r = rng(9);
     let lognormal = LogNormal::new(1.0, 0.7).unwrap();
     let xs: Vec<f64> = (0..N).map(|_| lognormal.sample(&mut r)).collect();
-    let make =
-        || ScalarSummary::with_histogram(0.01, Histogram::new(0.0, 20.0, 40).unwrap()).unwrap();
+    let alpha = 0.01;
+    let make = || ScalarSummary::new(alpha).unwrap();
     let mut whole = make();
     xs.iter().for_each(|&x| {
         whole.push(x);
@@ -645,6 +747,8 @@ fn scalar_summary_push_and_merge() {
         c.iter().for_each(|&x| {
             p.push(x);
         });
+        // Shipped through JSON, as shards are.
+        let p: ScalarSummary = serde_json::from_str(&serde_json::to_string(&p).unwrap()).unwrap();
         merged.merge(&p).unwrap();
     }
     let (m_ref, m2_ref) = reference_moments(&xs);
@@ -654,27 +758,60 @@ fn scalar_summary_push_and_merge() {
         serde_json::to_string(merged.sketch()).unwrap(),
         serde_json::to_string(whole.sketch()).unwrap()
     );
-    assert_eq!(
-        merged.histogram().unwrap().counts(),
-        whole.histogram().unwrap().counts()
-    );
     let mut sorted = xs.clone();
     sorted.sort_by(f64::total_cmp);
     check_guarantee("scalar summary", merged.sketch(), &sorted);
     assert_eq!(merged.quantile(0.5), merged.sketch().quantile(0.5));
 
+    // The histogram over [min, max] from the sketch: identical for any sharding, every value
+    // counted, each within alpha |x| of where it is.
+    let bins = 40;
+    let hist = merged.range_histogram(bins).unwrap();
+    assert_eq!(
+        serde_json::to_string(&hist).unwrap(),
+        serde_json::to_string(&whole.range_histogram(bins).unwrap()).unwrap()
+    );
+    assert_eq!((hist.lo(), hist.hi()), (sorted[0], sorted[N - 1]));
+    assert_eq!(hist.total(), N as u64);
+    assert_eq!(
+        (hist.underflow(), hist.overflow(), hist.non_finite()),
+        (0, 0, 0)
+    );
+    let edges = hist.edges();
+    let mut below = 0u64;
+    for k in 1..bins {
+        below += hist.counts()[k - 1];
+        // Counted below edge k: every x with x + alpha |x| < e, none with x - alpha |x| >= e.
+        let e = edges[k];
+        let surely = xs.iter().filter(|&&x| x + alpha * x.abs() < e).count() as u64;
+        let maybe = xs.iter().filter(|&&x| x - alpha * x.abs() < e).count() as u64;
+        assert!(
+            surely <= below && below <= maybe,
+            "edge {k} = {e}: {below} counted below, direct count between {surely} and {maybe}"
+        );
+    }
+    // Degenerate ranges: all values equal (range widened around them), nothing pushed.
+    let mut same = make();
+    for _ in 0..10 {
+        same.push(2.5);
+    }
+    same.push(f64::NAN);
+    let h = same.range_histogram(4).unwrap();
+    assert_eq!((h.lo(), h.hi()), (1.25, 3.75));
+    assert_eq!((h.counts(), h.non_finite()), (&[0, 0, 10, 0][..], 1));
+    let h = make().range_histogram(4).unwrap();
+    assert_eq!((h.lo(), h.hi(), h.total()), (0.0, 1.0, 0));
+
     let json = serde_json::to_string(&merged).unwrap();
     let back: ScalarSummary = serde_json::from_str(&json).unwrap();
     assert_eq!(serde_json::to_string(&back).unwrap(), json);
+    // Files written before the optional histogram was dropped (`"histogram": null`) still read.
+    let old = json.replacen('{', r#"{"histogram":null,"#, 1);
+    let back: ScalarSummary = serde_json::from_str(&old).unwrap();
+    assert_eq!(serde_json::to_string(&back).unwrap(), json);
 
     assert!(!merged.push(f64::NAN));
-    let plain = ScalarSummary::new(0.01).unwrap();
-    assert!(matches!(
-        merged.merge(&plain),
-        Err(StatsError::HistogramPresenceMismatch)
-    ));
-    let other_alpha =
-        ScalarSummary::with_histogram(0.02, Histogram::new(0.0, 20.0, 40).unwrap()).unwrap();
+    let other_alpha = ScalarSummary::new(0.02).unwrap();
     let before = serde_json::to_string(&merged).unwrap();
     assert!(matches!(
         merged.merge(&other_alpha),
@@ -688,13 +825,13 @@ fn scalar_summary_push_and_merge() {
 }
 
 #[test]
-fn field_summary_matches_direct_computation() {
+fn field_band_matches_direct_computation() {
     const M: usize = 3000; // members
     const G: usize = 48; // grid points
     let mut r = rng(10);
     let noise = Normal::new(0.0, 1.0).unwrap();
     let lognormal = LogNormal::new(0.0, 1.5).unwrap();
-    // The stored [members, G] array, row-major; a few NaN entries in column 7.
+    // The stored [members, G] array, row-major; a few NaN entries in column 7 (member 0's too).
     let mut data = vec![0.0f64; M * G];
     for m in 0..M {
         let amp = lognormal.sample(&mut r);
@@ -707,28 +844,33 @@ fn field_summary_matches_direct_computation() {
             };
         }
     }
-    let alpha = 0.005;
-    let mut whole = FieldSummary::new(G, alpha).unwrap();
-    for row in data.chunks(G) {
-        whole.push_row(row).unwrap();
+    // The range holds most values; the large-amplitude tail overflows, the lowest underflow.
+    let (lo, hi, bins) = (-9.5, 30.0, 400);
+    let half_bin = (hi - lo) / (2.0 * bins as f64);
+    let rows: Vec<&[f64]> = data.chunks(G).collect();
+    let mut whole = FieldBand::new(G, lo, hi, bins).unwrap();
+    whole.push_rows(&rows).unwrap();
+    // The same, in chunks of members (some single rows) merged in a random tree, shipped as JSON.
+    let mut parts: Vec<FieldBand> = Vec::new();
+    for (i, block) in rows.chunks(211).enumerate() {
+        let mut f = FieldBand::new(G, lo, hi, bins).unwrap();
+        if i % 3 == 0 {
+            block.iter().for_each(|row| f.push_rows(&[row]).unwrap());
+        } else {
+            f.push_rows(block).unwrap();
+        }
+        parts.push(serde_json::from_str(&serde_json::to_string(&f).unwrap()).unwrap());
     }
-    // The same, in chunks of members merged in a random tree.
-    let parts: Vec<FieldSummary> = data
-        .chunks(G * 211)
-        .map(|block| {
-            let mut f = FieldSummary::new(G, alpha).unwrap();
-            block.chunks(G).for_each(|row| f.push_row(row).unwrap());
-            f
-        })
-        .collect();
     let merged = merge_random_tree(parts, &mut r, |a, b| a.merge(b).unwrap());
-    assert_eq!(merged.rows(), M as u64);
     assert_eq!(merged.points(), G);
 
     let mean_w = whole.mean_row();
     let mean_m = merged.mean_row();
     let std_m = merged.std_row();
+    let var_m = merged.variance_row();
     let mut worst_mean = 0.0f64;
+    let mut worst_quantile = 0.0f64;
+    let (mut inside, mut outside) = (0, 0);
     for g in 0..G {
         let col: Vec<f64> = (0..M)
             .map(|m| data[m * G + g])
@@ -744,19 +886,50 @@ fn field_summary_matches_direct_computation() {
             assert!(e <= 1e-12, "point {g}: mean {m} vs {m_ref}");
         }
         assert!(rel(std_m[g], sd_ref) <= 1e-12, "point {g}: std");
+        assert!(
+            rel(var_m[g], sd_ref * sd_ref) <= 1e-12,
+            "point {g}: variance"
+        );
+        assert!(
+            rel(whole.std_row()[g], sd_ref) <= 1e-12,
+            "point {g}: std (whole)"
+        );
         assert_eq!(merged.stats()[g].count(), col.len() as u64);
         assert_eq!(merged.stats()[g].non_finite(), (M - col.len()) as u64);
+        assert_eq!(whole.stats()[g].non_finite(), (M - col.len()) as u64);
+
+        // The point's counts are the histogram of its column (the one binning rule), merged
+        // exactly.
+        let mut direct = Histogram::new(lo, hi, bins).unwrap();
+        (0..M).for_each(|m| {
+            direct.push(data[m * G + g]);
+        });
+        let direct = serde_json::to_string(&direct).unwrap();
+        assert_eq!(serde_json::to_string(&merged.histogram(g)).unwrap(), direct);
+        assert_eq!(serde_json::to_string(&whole.histogram(g)).unwrap(), direct);
 
         let mut sorted = col.clone();
         sorted.sort_by(f64::total_cmp);
-        for q in QS {
+        for q in QS.iter().copied().chain((0..=50).map(|i| i as f64 / 50.0)) {
             let row = merged.quantile_row(q).unwrap();
             let x = sorted[(q * (sorted.len() - 1) as f64).floor() as usize];
-            assert!(
-                (row[g] - x).abs() <= alpha * x.abs(),
-                "point {g}, q {q}: {} vs {x}",
-                row[g]
-            );
+            if (lo..=hi).contains(&x) {
+                // Tolerance: the documented half bin width (and rounding of the midpoint).
+                assert!(
+                    (row[g] - x).abs() <= half_bin * (1.0 + 1e-9),
+                    "point {g}, q {q}: {} vs {x}",
+                    row[g]
+                );
+                worst_quantile = worst_quantile.max((row[g] - x).abs() / half_bin);
+                inside += 1;
+            } else {
+                assert!(
+                    row[g].is_nan(),
+                    "point {g}, q {q}: {} for {x} outside",
+                    row[g]
+                );
+                outside += 1;
+            }
             assert_eq!(
                 row[g].to_bits(),
                 whole.quantile_row(q).unwrap()[g].to_bits()
@@ -765,32 +938,78 @@ fn field_summary_matches_direct_computation() {
         assert_eq!(merged.min_row()[g], sorted[0]);
         assert_eq!(merged.max_row()[g], sorted[sorted.len() - 1]);
     }
-    eprintln!("field summary {M} x {G}: worst mean error / (|mean| + std) = {worst_mean:.2e}");
-    assert_eq!(
-        serde_json::to_string(merged.sketches()).unwrap(),
-        serde_json::to_string(whole.sketches()).unwrap()
+    assert!(
+        inside > 0 && outside > 0,
+        "{inside} inside, {outside} outside"
+    );
+    eprintln!(
+        "field band {M} x {G}: worst mean error / (|mean| + std) = {worst_mean:.2e}, quantile error up to {worst_quantile:.3} half bins"
     );
     let json = serde_json::to_string(&merged).unwrap();
-    let back: FieldSummary = serde_json::from_str(&json).unwrap();
+    let back: FieldBand = serde_json::from_str(&json).unwrap();
     assert_eq!(serde_json::to_string(&back).unwrap(), json);
+    for q in QS {
+        let (a, b) = (
+            back.quantile_row(q).unwrap(),
+            merged.quantile_row(q).unwrap(),
+        );
+        assert!(a.iter().zip(&b).all(|(u, v)| u.to_bits() == v.to_bits()));
+    }
+    assert!(back
+        .mean_row()
+        .iter()
+        .zip(&merged.mean_row())
+        .all(|(u, v)| u.to_bits() == v.to_bits()));
+
+    // The on-disk layout of study chunk and partial files: per point `bins + 2` slot counts
+    // (underflow, bins, overflow), stored sparse.
+    let disk = r#"{"lo":0.0,"hi":1.0,"bins":4,"points":[{"count":3,"mean":0.5,"mean_lo":0.0,"m2":0.5,"min":0.1,"max":1.5,"non_finite":0}],"counts":[{"len":6,"nonzero":[[1,1],[3,1],[5,1]]}]}"#;
+    let f: FieldBand = serde_json::from_str(disk).unwrap();
+    let h = f.histogram(0);
+    assert_eq!(
+        (h.underflow(), h.counts(), h.overflow()),
+        (0, &[1, 0, 1, 0][..], 1)
+    );
+    assert_eq!(f.quantile_row(0.0).unwrap(), [0.125]);
+    assert_eq!(f.quantile_row(0.5).unwrap(), [0.625]);
+    assert!(
+        f.quantile_row(1.0).unwrap()[0].is_nan(),
+        "rank in the overflow"
+    );
+    assert_eq!(
+        serde_json::from_str::<serde_json::Value>(&serde_json::to_string(&f).unwrap()).unwrap(),
+        serde_json::from_str::<serde_json::Value>(disk).unwrap()
+    );
+    let bad = disk.replace(r#""len":6"#, r#""len":5"#);
+    assert!(serde_json::from_str::<FieldBand>(&bad).is_err());
 
     // Errors.
-    let mut f = FieldSummary::new(G, alpha).unwrap();
+    let mut f = FieldBand::new(G, lo, hi, bins).unwrap();
     assert!(matches!(
-        f.push_row(&[1.0; 3]),
+        f.push_rows(&[&[1.0; G], &[1.0; 3]]),
+        Err(StatsError::LengthMismatch { .. })
+    ));
+    assert_eq!(f.stats()[0].count(), 0, "a failed push adds nothing");
+    assert!(matches!(
+        f.merge(&FieldBand::new(G + 1, lo, hi, bins).unwrap()),
         Err(StatsError::LengthMismatch { .. })
     ));
     assert!(matches!(
-        f.merge(&FieldSummary::new(G + 1, alpha).unwrap()),
-        Err(StatsError::LengthMismatch { .. })
+        f.merge(&FieldBand::new(G, lo, hi, bins + 1).unwrap()),
+        Err(StatsError::HistogramMismatch { .. })
     ));
     assert!(matches!(
-        f.merge(&FieldSummary::new(G, 0.01).unwrap()),
-        Err(StatsError::AlphaMismatch { .. })
+        f.merge(&FieldBand::new(G, lo, hi + 1.0, bins).unwrap()),
+        Err(StatsError::HistogramMismatch { .. })
+    ));
+    assert!(matches!(
+        FieldBand::new(G, 1.0, 1.0, bins),
+        Err(StatsError::InvalidHistogram { .. })
     ));
     assert!(matches!(
         f.quantile_row(2.0),
         Err(StatsError::InvalidQuantile(_))
     ));
     assert!(f.quantile_row(0.5).unwrap().iter().all(|v| v.is_nan()));
+    assert!(f.mean_row().iter().all(|v| v.is_nan()));
 }

@@ -1,8 +1,8 @@
-//! End-to-end tests of ensemble studies (`[ensemble]` scenes, `src/study.rs`) through the
+//! End-to-end tests of ensemble studies (`[ensemble]` scenes, `src/study/`) through the
 //! `roughlub` command:
 //!
 //! 1. the statistics written by a study against a direct computation over members rebuilt and
-//!    solved here with the library (`study::Base`, `cpu::CpuSolver`);
+//!    solved here with the library (`ensemble::members::EnsembleMembers`, `cpu::CpuSolver`);
 //! 2. sharding: `--shard k/3` runs merged with `roughlub merge` equal the unsharded study, and
 //!    overlapping shards are refused;
 //! 3. reproducibility of members.csv across chunk sizes and thread counts;
@@ -20,11 +20,11 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant, SystemTime};
 
 use roughlub::backend::BatchSolver;
-use {roughlub::backend::cpu::CpuSolver, roughlub::backend::MemberStatus};
+use roughlub::ensemble::members::EnsembleMembers;
 use roughlub::model::plan::Plan;
 use roughlub::scene::Scene;
-use roughlub::study::Base;
 use serde_json::Value;
+use {roughlub::backend::cpu::CpuSolver, roughlub::backend::MemberStatus};
 
 const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
 
@@ -233,21 +233,21 @@ impl Reference {
     }
 }
 
-/// Every member built with `Base::member` and all solved in one `CpuSolver`, with a plan made as
+/// Every member built with `EnsembleMembers::member` and all solved in one `CpuSolver`, with a plan made as
 /// `study::solve_chunk` makes it.
 fn reference(scene_path: &Path) -> Reference {
     let scene = Scene::from_file(scene_path).unwrap();
     let spec = scene.ensemble.clone().expect("an ensemble scene");
-    let base = Base::new(&scene, &spec).unwrap();
-    let total = spec.members * base.sweep.len() as u64;
+    let members = EnsembleMembers::new(&scene, &spec).unwrap();
+    let total = members.total(&spec);
     let mut chains = Vec::new();
     let mut params = Vec::new();
     let mut factor = Vec::new();
     for m in 0..total {
-        let (c, p, d) = base.member(&scene, &spec, m).unwrap();
-        chains.push(c);
-        params.push(p);
-        factor.push(d.factor);
+        let inputs = members.member(&scene, &spec, m).unwrap();
+        chains.push(inputs.chain);
+        params.push(inputs.params);
+        factor.push(inputs.velocity_factor);
     }
     let mut plan = Plan::new(&scene, &chains[0]);
     plan.members = params;
@@ -672,10 +672,21 @@ fn members_csv_does_not_depend_on_chunks_or_threads() {
             &run_with_env(&base_scene, &dir, &[], &[("RAYON_NUM_THREADS", threads)]),
             "thread variant",
         );
-        let engine = manifest(&dir)["engine"].as_str().unwrap_or("").to_string();
+        // What ran the members, recorded like a single run's: backend, request, adapter.
+        let man = manifest(&dir);
+        assert_eq!(man["backend"], "cpu", "manifest: {man}");
+        assert_eq!(man["backend_requested"], "cpu", "manifest: {man}");
+        assert!(man["precision"].is_string(), "manifest: {man}");
+        let adapter = &man["adapter"];
+        let name = adapter["name"].as_str().unwrap_or("").to_string();
         assert!(
-            engine.contains(&format!("{threads} thread")),
-            "engine {engine:?} should report {threads} thread(s)"
+            name.contains(&format!("{threads} thread")),
+            "adapter {name:?} should report {threads} thread(s)"
+        );
+        assert_eq!(
+            adapter["threads"],
+            threads.parse::<u64>().unwrap(),
+            "adapter: {adapter}"
         );
         assert_eq!(
             csv(&dir),

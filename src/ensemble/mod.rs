@@ -33,6 +33,7 @@
 
 use std::path::PathBuf;
 
+pub mod members;
 mod perturb;
 mod radii;
 mod roughness;
