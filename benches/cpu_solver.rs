@@ -4,12 +4,12 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use roughlub::backend::BatchSolver;
 use roughlub::backend::cpu::CpuSolver;
+use roughlub::backend::BatchSolver;
 use roughlub::expr::Expr;
-use roughlub::scene::initial::chain_from_profiles;
-use roughlub::model::plan::Plan;
 use roughlub::model::params::{MemberParams, OutputFields, Stepping};
+use roughlub::model::plan::Plan;
+use roughlub::scene::initial::chain_from_profiles;
 
 fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver {
     let chain = chain_from_profiles(

@@ -6,8 +6,8 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use {roughlub::backend::Backend, roughlub::scene::Scene};
 use roughlub::study::{run_study, StudyOptions};
+use {roughlub::backend::Backend, roughlub::scene::Scene};
 
 const MEMBERS: u64 = 10_000;
 

@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
-use crate::expr::ExprError;
 use crate::backend::GpuError;
+use crate::expr::ExprError;
 use crate::plot::PlotError;
 
 #[derive(Debug, thiserror::Error)]

@@ -4,9 +4,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use roughlub::backend::{Backend, Precision};
 use roughlub::error::Error;
 use roughlub::run::{run_scene, RunOptions};
-use roughlub::backend::{Backend, Precision};
 use roughlub::scene::Scene;
 use roughlub::study::{merge_studies, run_study, StudyOptions, StudySummary};
 

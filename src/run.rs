@@ -10,7 +10,9 @@ use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
 use crate::model::plan::Plan;
 use crate::output::manifest::{RunManifest, SceneRecord, VERSION};
-use crate::output::{prepare_dir, write_json_atomic, write_npy, NpyStream, ProgressReporter, MANIFEST};
+use crate::output::{
+    prepare_dir, write_json_atomic, write_npy, NpyStream, ProgressReporter, MANIFEST,
+};
 use crate::plot::{plot_profiles, plot_series, ProfilePlot};
 use crate::scene::Scene;
 
@@ -160,14 +162,26 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     progress.finish();
 
     let mut files = streams.finish()?;
-    files.push(write_npy(dir.join("times.npy"), &[t_count], &plan.output_times)?);
+    files.push(write_npy(
+        dir.join("times.npy"),
+        &[t_count],
+        &plan.output_times,
+    )?);
     files.push(write_npy(dir.join("x.npy"), &[g], solver.grid())?);
     if plan.fields.energy {
         files.push(write_npy(dir.join("energy.npy"), &[t_count, b], &energy)?);
-        files.push(write_npy(dir.join("dissipation.npy"), &[t_count, b], &dissipation)?);
+        files.push(write_npy(
+            dir.join("dissipation.npy"),
+            &[t_count, b],
+            &dissipation,
+        )?);
     }
     files.push(write_npy(dir.join("min_gap.npy"), &[t_count, b], &min_gap)?);
-    files.push(write_npy(dir.join("max_density.npy"), &[t_count, b], &max_density)?);
+    files.push(write_npy(
+        dir.join("max_density.npy"),
+        &[t_count, b],
+        &max_density,
+    )?);
 
     if plotted > 0 {
         let plot_dir = dir.join("plots");

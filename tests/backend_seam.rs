@@ -29,7 +29,13 @@ fn manifest(dir: &Path) -> serde_json::Value {
 
 fn study(dir: &Path, extra: &[&str]) -> Output {
     let scene = study_scene();
-    let mut args = vec!["run", scene.to_str().unwrap(), "--out", dir.to_str().unwrap(), "--quiet"];
+    let mut args = vec![
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        dir.to_str().unwrap(),
+        "--quiet",
+    ];
     args.extend_from_slice(extra);
     run(&args, &[])
 }
@@ -42,10 +48,22 @@ fn study_records_backend_and_auto_falls_back_like_a_run() {
     let dir = tmp.path().join("s");
     let scene = study_scene();
     let out = run(
-        &["run", scene.to_str().unwrap(), "--out", dir.to_str().unwrap(), "--quiet", "--backend", "auto"],
+        &[
+            "run",
+            scene.to_str().unwrap(),
+            "--out",
+            dir.to_str().unwrap(),
+            "--quiet",
+            "--backend",
+            "auto",
+        ],
         &[("WGPU_ADAPTER_NAME", "no-such-adapter-anywhere")],
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let m = manifest(&dir);
     assert_eq!(m["backend"], "cpu", "{m}");
     assert_eq!(m["backend_requested"], "auto");
@@ -55,7 +73,10 @@ fn study_records_backend_and_auto_falls_back_like_a_run() {
     assert!(why.contains("no GPU adapter"), "fallback_reason: {why:?}");
     let header: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("study.json")).unwrap()).unwrap();
-    assert_eq!((header["backend"].as_str(), header["precision"].as_str()), (Some("cpu"), Some("f64")));
+    assert_eq!(
+        (header["backend"].as_str(), header["precision"].as_str()),
+        (Some("cpu"), Some("f64"))
+    );
 }
 
 /// `--resume` of a CPU f64 study on the GPU in f32 (or f64) is refused, naming what differs, and
@@ -69,10 +90,16 @@ fn resume_on_another_backend_or_precision_is_refused() {
     let dir = tmp.path().join("s");
     assert!(study(&dir, &[]).status.success());
     std::fs::remove_file(dir.join("manifest.json")).unwrap();
-    let out = study(&dir, &["--resume", "--backend", "gpu", "--precision", "f32"]);
+    let out = study(
+        &dir,
+        &["--resume", "--backend", "gpu", "--precision", "f32"],
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.contains("backend") && err.contains("precision") && err.contains("differ"), "{err}");
+    assert!(
+        err.contains("backend") && err.contains("precision") && err.contains("differ"),
+        "{err}"
+    );
     assert!(!dir.join("manifest.json").exists());
 }
 
@@ -83,13 +110,27 @@ fn merge_of_shards_from_different_backends_is_refused() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    let (a, b, merged) = (tmp.path().join("a"), tmp.path().join("b"), tmp.path().join("m"));
+    let (a, b, merged) = (
+        tmp.path().join("a"),
+        tmp.path().join("b"),
+        tmp.path().join("m"),
+    );
     assert!(study(&a, &["--shard", "0/2"]).status.success());
     let out = study(&b, &["--shard", "1/2", "--backend", "gpu"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert_eq!(manifest(&b)["backend"], "gpu");
     let out = run(
-        &["merge", a.to_str().unwrap(), b.to_str().unwrap(), "--out", merged.to_str().unwrap()],
+        &[
+            "merge",
+            a.to_str().unwrap(),
+            b.to_str().unwrap(),
+            "--out",
+            merged.to_str().unwrap(),
+        ],
         &[],
     );
     let err = String::from_utf8_lossy(&out.stderr);

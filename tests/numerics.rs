@@ -4,14 +4,14 @@ mod common;
 
 use common::reference::{dense_reference_step, rk4_reference};
 use common::{plan_for, random_chain, run_all, Rng};
-use roughlub::backend::BatchSolver;
 use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, Terms};
+use roughlub::backend::BatchSolver;
 use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
-use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
+use roughlub::model::params::{MemberParams, Stepping};
 use roughlub::model::plan::{Forcing, Power};
 use roughlub::model::quadrature::GaussLegendre;
-use roughlub::model::params::{MemberParams, Stepping};
+use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
 
 const L: usize = 8;
 

@@ -24,12 +24,8 @@ pub enum RunsOn {
 /// What runs the batch, described the same way for the GPU (its adapter) and the CPU.
 #[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct AdapterRecord {
-    pub name: String,
-    pub backend: String,
-    pub driver: String,
-    pub driver_info: String,
-    pub device_type: String,
-    pub supports_f64: bool,
+    #[serde(flatten)]
+    pub description: AdapterDescription,
     /// CPU only: rayon's worker threads.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threads: Option<usize>,
@@ -53,12 +49,7 @@ impl BackendRecord {
             backend_requested: requested,
             precision,
             adapter: AdapterRecord {
-                name: d.name.clone(),
-                backend: d.backend.clone(),
-                driver: d.driver.clone(),
-                driver_info: d.driver_info.clone(),
-                device_type: d.device_type.clone(),
-                supports_f64: d.supports_f64,
+                description: d.clone(),
                 threads: None,
                 fallback_reason: None,
             },
@@ -72,12 +63,14 @@ impl BackendRecord {
             backend_requested: requested,
             precision,
             adapter: AdapterRecord {
-                name: format!("cpu (rayon, {threads} threads)"),
-                backend: "cpu".into(),
-                driver: "rayon".into(),
-                driver_info: String::new(),
-                device_type: "Cpu".into(),
-                supports_f64: true,
+                description: AdapterDescription {
+                    name: format!("cpu (rayon, {threads} threads)"),
+                    backend: "cpu".into(),
+                    driver: "rayon".into(),
+                    driver_info: String::new(),
+                    device_type: "Cpu".into(),
+                    supports_f64: true,
+                },
                 threads: Some(threads),
                 fallback_reason,
             },
@@ -87,16 +80,17 @@ impl BackendRecord {
     /// "name (backend)" for the GPU, "rayon, K threads" for the CPU.
     pub fn short(&self) -> String {
         match self.backend {
-            RunsOn::Gpu => format!("{} ({})", self.adapter.name, self.adapter.backend),
+            RunsOn::Gpu => self.adapter.description.short(),
             RunsOn::Cpu => format!("rayon, {} threads", self.adapter.threads.unwrap_or(1)),
         }
     }
 
     /// The line printed on stderr when a run starts.
     pub fn line(&self) -> String {
-        let a = &self.adapter;
+        let a = &self.adapter.description;
+        let fallback_reason = &self.adapter.fallback_reason;
         let precision = self.precision.name();
-        match (self.backend, self.backend_requested, &a.fallback_reason) {
+        match (self.backend, self.backend_requested, fallback_reason) {
             (RunsOn::Gpu, requested, _) => format!(
                 "{}: {} ({}, driver {} {}, {}), precision {precision}",
                 if requested == Backend::Auto {
@@ -187,7 +181,9 @@ fn auto_f32_error(why: &str) -> Error {
     Error::invalid(
         "solver.precision",
         "\"f32\"",
-        format!("backend \"auto\" cannot use the GPU ({why}) and the CPU path computes in f64 only"),
+        format!(
+            "backend \"auto\" cannot use the GPU ({why}) and the CPU path computes in f64 only"
+        ),
         "\"f64\" without a usable GPU adapter",
     )
 }

@@ -34,18 +34,7 @@ pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
         ));
     }
     let mut radii = Vec::new();
-    let mut record = csv::StringRecord::new();
-    loop {
-        let more = reader.read_record(&mut record).map_err(|e| {
-            err(
-                e.position().map_or(0, |p| p.line() as usize),
-                format!("unreadable row: {e}"),
-            )
-        })?;
-        if !more {
-            break;
-        }
-        let line = record.position().map_or(0, |p| p.line() as usize);
+    for (line, record) in crate::scene::csv_rows::rows_with_lines(&mut reader, &err)? {
         let text = record.get(0).unwrap_or("");
         let r: f64 = text
             .parse()

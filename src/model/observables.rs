@@ -2,8 +2,8 @@
 //! [q_{i-1}, q_i), u piecewise linear between particles), the discrete energy, the dissipation
 //! rate, the smallest gap and the largest density.
 
-use crate::model::plan::Plan;
 use crate::model::params::MemberParams;
+use crate::model::plan::Plan;
 
 /// One member at one output time.
 #[derive(Debug, Clone, PartialEq)]

@@ -64,4 +64,3 @@ impl OutputFields {
 }
 
 pub const FIELD_NAMES: [&str; 6] = ["gaps", "velocities", "rho", "u", "rho_star", "energy"];
-

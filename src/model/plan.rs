@@ -4,8 +4,8 @@
 
 use crate::expr::Expr;
 use crate::model::chain::Chain;
-use crate::model::quadrature::GaussLegendre;
 use crate::model::params::{MemberParams, OutputFields, Stepping};
+use crate::model::quadrature::GaussLegendre;
 use crate::scene::Scene;
 
 /// How G = ratio^gamma is evaluated.

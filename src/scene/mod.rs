@@ -6,6 +6,7 @@
 //! `particle_file` then build the initial chain.
 
 mod checks;
+pub(crate) mod csv_rows;
 mod ensemble;
 mod file;
 pub mod initial;

@@ -44,18 +44,7 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
     let mut rows: Vec<ParticleRow> = Vec::new();
     // Physical line of each row (comment lines are skipped by the reader).
     let mut lines: Vec<usize> = Vec::new();
-    let mut record = csv::StringRecord::new();
-    loop {
-        let more = reader.read_record(&mut record).map_err(|e| {
-            err(
-                e.position().map_or(0, |p| p.line() as usize),
-                format!("unreadable row: {e}"),
-            )
-        })?;
-        if !more {
-            break;
-        }
-        let line = record.position().map_or(0, |p| p.line() as usize);
+    for (line, record) in super::csv_rows::rows_with_lines(&mut reader, &err)? {
         let row: ParticleRow = record
             .deserialize(Some(&headers))
             .map_err(|e| err(line, format!("not a row of numbers x,u,r: {e}")))?;

@@ -101,12 +101,11 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
             quantile_method: quantile_method(&merged_header),
         },
     )?;
-    Ok(StudySummary {
-        out_dir: out.to_path_buf(),
-        members: state.completed + state.failed.len() as u64,
-        failed: state.failed.len() as u64,
-        chunks_reused: 0,
-        wall_seconds: started.elapsed().as_secs_f64(),
-        statistics_seconds: 0.0,
-    })
+    Ok(StudySummary::of(
+        out,
+        &state,
+        0,
+        started.elapsed().as_secs_f64(),
+        0.0,
+    ))
 }

@@ -25,7 +25,7 @@ mod merge;
 mod report;
 mod state;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::backend::{select, Backend, Engine, Precision};
@@ -79,6 +79,19 @@ pub struct StudySummary {
     pub chunks_reused: usize,
     pub wall_seconds: f64,
     pub statistics_seconds: f64,
+}
+
+impl StudySummary {
+    fn of(out_dir: &Path, state: &StudyState, chunks_reused: usize, wall: f64, stats: f64) -> Self {
+        StudySummary {
+            out_dir: out_dir.to_path_buf(),
+            members: state.completed + state.failed.len() as u64,
+            failed: state.failed.len() as u64,
+            chunks_reused,
+            wall_seconds: wall,
+            statistics_seconds: stats,
+        }
+    }
 }
 
 /// The study's backend, chosen by the one selection policy for a batch like its largest chunk.
@@ -238,12 +251,5 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             quantile_method: quantile_method(&header),
         },
     )?;
-    Ok(StudySummary {
-        out_dir: dir.clone(),
-        members: state.completed + state.failed.len() as u64,
-        failed: state.failed.len() as u64,
-        chunks_reused: reused,
-        wall_seconds: wall,
-        statistics_seconds: stats_seconds,
-    })
+    Ok(StudySummary::of(dir, &state, reused, wall, stats_seconds))
 }

@@ -4,14 +4,14 @@
 pub mod gpu;
 pub mod reference;
 
-use roughlub::backend::BatchSolver;
 use roughlub::backend::cpu::CpuSolver;
+use roughlub::backend::BatchSolver;
 use roughlub::expr::Expr;
 use roughlub::model::chain::Chain;
 use roughlub::model::observables::Snapshot;
+use roughlub::model::params::{MemberParams, OutputFields, Stepping};
 use roughlub::model::plan::{Forcing, Plan};
 use roughlub::model::quadrature::GaussLegendre;
-use roughlub::model::params::{MemberParams, OutputFields, Stepping};
 
 pub fn all_fields() -> OutputFields {
     OutputFields::all()

@@ -14,8 +14,9 @@ use std::sync::{mpsc, Arc, Mutex};
 
 use crate::backend::error::GpuError;
 
-/// Description of a wgpu adapter, for logs and result files.
-#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+/// Description of a wgpu adapter (or of the CPU, described the same way), for logs and result
+/// files.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct AdapterDescription {
     /// Adapter name, e.g. "llvmpipe (LLVM 15.0.7, 256 bits)".
     pub name: String,
