@@ -11,21 +11,14 @@ pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
         line,
         message,
     };
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_path(path)
-        .map_err(|e| EnsembleError::Io {
-            path: path.to_path_buf(),
-            source: match e.into_kind() {
-                csv::ErrorKind::Io(io) => io,
-                other => std::io::Error::other(format!("{other:?}")),
-            },
-        })?;
-    let headers = reader
-        .headers()
-        .map_err(|e| err(1, format!("cannot read the header: {e}")))?
-        .clone();
+    let open_error = |e: csv::Error| EnsembleError::Io {
+        path: path.to_path_buf(),
+        source: match e.into_kind() {
+            csv::ErrorKind::Io(io) => io,
+            other => std::io::Error::other(format!("{other:?}")),
+        },
+    };
+    let (mut reader, headers) = crate::scene::csv_rows::open_with_header(path, open_error, &err)?;
     let names: Vec<&str> = headers.iter().collect();
     if names != ["r"] {
         return Err(err(

@@ -21,3 +21,21 @@ pub(crate) fn rows_with_lines<R: std::io::Read, E>(
     }
     Ok(rows)
 }
+
+/// Opens a CSV input file (fields trimmed, `#` starts a comment line) and reads its header.
+pub(crate) fn open_with_header<E>(
+    path: &std::path::Path,
+    open_error: impl FnOnce(csv::Error) -> E,
+    error: impl Fn(usize, String) -> E,
+) -> Result<(csv::Reader<std::fs::File>, csv::StringRecord), E> {
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_path(path)
+        .map_err(open_error)?;
+    let headers = reader
+        .headers()
+        .map_err(|e| error(1, format!("cannot read the header: {e}")))?
+        .clone();
+    Ok((reader, headers))
+}

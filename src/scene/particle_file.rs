@@ -21,18 +21,11 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
         line,
         message,
     };
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_path(path)
-        .map_err(|e| Error::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::other(format!("cannot open the particle file: {e}")),
-        })?;
-    let headers = reader
-        .headers()
-        .map_err(|e| err(1, format!("cannot read the header: {e}")))?
-        .clone();
+    let open_error = |e: csv::Error| Error::Io {
+        path: path.to_path_buf(),
+        source: std::io::Error::other(format!("cannot open the particle file: {e}")),
+    };
+    let (mut reader, headers) = super::csv_rows::open_with_header(path, open_error, &err)?;
     let names: Vec<&str> = headers.iter().collect();
     if names != ["x", "u"] && names != ["x", "u", "r"] {
         return Err(err(
