@@ -37,8 +37,8 @@ pub enum Backend {
 )]
 #[serde(rename_all = "lowercase")]
 pub enum Precision {
-    F32,
     F64,
+    F32,
 }
 
 impl Precision {

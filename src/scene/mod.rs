@@ -281,32 +281,49 @@ fn validate_solver(s: &SolverSection) -> Result<(u8, Backend, Precision)> {
             ))
         }
     };
-    let backend = match s.backend.as_deref().unwrap_or("auto") {
-        "cpu" => Backend::Cpu,
-        "gpu" => Backend::Gpu,
-        "auto" => Backend::Auto,
-        other => {
-            return Err(Error::invalid(
-                "solver.backend",
-                format!("\"{other}\""),
-                "unknown backend",
-                "\"cpu\", \"gpu\" or \"auto\"",
-            ))
-        }
-    };
-    let precision = match s.precision.as_deref().unwrap_or("f64") {
-        "f64" => Precision::F64,
-        "f32" => Precision::F32,
-        other => {
-            return Err(Error::invalid(
-                "solver.precision",
-                format!("\"{other}\""),
-                "unknown precision",
-                "\"f64\" or \"f32\"",
-            ))
-        }
-    };
+    let backend = parse_choice(
+        "solver.backend",
+        "backend",
+        s.backend.as_deref(),
+        Backend::Auto,
+    )?;
+    let precision = parse_choice(
+        "solver.precision",
+        "precision",
+        s.precision.as_deref(),
+        Precision::F64,
+    )?;
     Ok((order, backend, precision))
+}
+
+/// A scene value naming a variant of a `clap::ValueEnum` (the same names the command line
+/// accepts), or `default` when absent.
+fn parse_choice<T: clap::ValueEnum>(
+    field: &str,
+    what: &str,
+    text: Option<&str>,
+    default: T,
+) -> Result<T> {
+    let Some(text) = text else {
+        return Ok(default);
+    };
+    T::from_str(text, false).map_err(|_| {
+        let names: Vec<String> = T::value_variants()
+            .iter()
+            .filter_map(|v| v.to_possible_value())
+            .map(|p| format!("\"{}\"", p.get_name()))
+            .collect();
+        let allowed = match names.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => names.concat(),
+        };
+        Error::invalid(
+            field,
+            format!("\"{text}\""),
+            format!("unknown {what}"),
+            allowed,
+        )
+    })
 }
 
 /// `[batch]`: lists replace the model's scalar mu and gamma; the members are their cartesian
