@@ -122,7 +122,24 @@ fn merge_of_shards_from_different_backends_is_refused() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    assert_eq!(manifest(&b)["backend"], "gpu");
+    let (ma, mb) = (manifest(&a), manifest(&b));
+    assert_eq!(mb["backend"], "gpu");
+    assert!(ma["gpu_stats"].is_null(), "a CPU study has gpu_stats: {ma}");
+    // The GPU's counters summed over chunks: every accepted step of every member is counted.
+    let table = std::fs::read_to_string(b.join("members.csv")).unwrap();
+    let mut rows = table.lines();
+    let header: Vec<&str> = rows.next().unwrap().split(',').collect();
+    let column = header.iter().position(|h| *h == "steps_accepted").unwrap();
+    let steps: u64 = rows
+        .map(|r| r.split(',').nth(column).unwrap().parse::<u64>().unwrap())
+        .sum();
+    assert!(steps > 0);
+    assert_eq!(
+        mb["gpu_stats"]["steps"].as_u64(),
+        Some(steps),
+        "{}",
+        mb["gpu_stats"]
+    );
     let out = run(
         &[
             "merge",

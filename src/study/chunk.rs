@@ -8,6 +8,7 @@ use std::time::Instant;
 use super::files::{ChunkFile, MemberRow, StudyHeader};
 use super::state::StudyState;
 use super::{FIELDS, SCALARS};
+use crate::backend::gpu::solver::GpuStats;
 use crate::backend::{Engine, MemberStatus};
 use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
@@ -42,6 +43,15 @@ struct RecordedObservables {
 /// Solves members [first, end) with a solver from `engine` (the study's backend, through the
 /// `BatchSolver` seam) and returns the chunk's statistics and `members.csv` rows.
 #[allow(clippy::too_many_arguments)]
+/// What the solved chunks of one invocation cost beyond the solve itself.
+#[derive(Debug, Default)]
+pub(super) struct StudyCosts {
+    /// Wall time spent on statistics.
+    pub statistics_seconds: f64,
+    /// The GPU's work counters summed over chunks (`None` on the CPU).
+    pub gpu: Option<GpuStats>,
+}
+
 pub(super) fn solve_chunk(
     scene: &Scene,
     spec: &EnsembleSpec,
@@ -50,7 +60,7 @@ pub(super) fn solve_chunk(
     engine: &Engine,
     first: u64,
     end: u64,
-    stats_seconds: &mut f64,
+    costs: &mut StudyCosts,
     progress: &ProgressReporter,
 ) -> Result<ChunkFile> {
     let mut chains = Vec::with_capacity((end - first) as usize);
@@ -119,7 +129,7 @@ pub(super) fn solve_chunk(
             }));
         }
         recorded.push(row);
-        *stats_seconds += started.elapsed().as_secs_f64();
+        costs.statistics_seconds += started.elapsed().as_secs_f64();
     };
 
     let mut solver = engine.solver(plan, chains)?;
@@ -134,6 +144,13 @@ pub(super) fn solve_chunk(
         k += 1;
     }
     let reports = solver.reports();
+    if let Some(work) = solver.gpu_stats() {
+        costs
+            .gpu
+            .get_or_insert_with(Default::default)
+            .accumulate(&work);
+    }
+    drop(solver);
     progress.inc(count as u64);
     let started = Instant::now();
     let ok_member: Vec<bool> = reports
@@ -161,7 +178,7 @@ pub(super) fn solve_chunk(
                 .expect("rows have the grid's length");
         }
     }
-    *stats_seconds += started.elapsed().as_secs_f64();
+    costs.statistics_seconds += started.elapsed().as_secs_f64();
     if keep {
         let n = header_particles(&per_time);
         for i in 0..count {

@@ -35,7 +35,7 @@ use crate::output::manifest::{StudyManifest, StudySceneRecord, VERSION};
 use crate::output::{prepare_dir, read_json, write_json_atomic, ProgressReporter, MANIFEST};
 use crate::scene::{EnsembleSpec, Scene};
 
-use chunk::{chunk_plan, solve_chunk};
+use chunk::{chunk_plan, solve_chunk, StudyCosts};
 use files::{check_resume, chunk_path, header_for, shard_range, ChunkFile, CsvOut, PartialFile};
 use report::{finalize, quantile_method};
 
@@ -173,7 +173,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         .map(|a| (a, (a + spec.chunk as u64).min(end)))
         .collect();
     let progress = ProgressReporter::new(end - first, "members", options.quiet);
-    let mut stats_seconds = 0.0;
+    let mut costs = StudyCosts::default();
     let mut reused = 0;
     let mut total: Option<StudyState> = None;
     let mut csv_out = CsvOut::create(dir.join("members.csv"))?;
@@ -185,15 +185,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             read_json(&path)?
         } else {
             let c = solve_chunk(
-                scene,
-                spec,
-                &members,
-                &header,
-                &engine,
-                a,
-                b,
-                &mut stats_seconds,
-                &progress,
+                scene, spec, &members, &header, &engine, a, b, &mut costs, &progress,
             )?;
             write_json_atomic(&path, &c)?;
             c
@@ -203,7 +195,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             None => total = Some(chunk.state),
             Some(s) => s.merge(&chunk.state)?,
         }
-        stats_seconds += t0.elapsed().as_secs_f64();
+        costs.statistics_seconds += t0.elapsed().as_secs_f64();
         for row in &chunk.rows {
             csv_out.push(row)?;
         }
@@ -223,7 +215,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     )?;
     let t0 = Instant::now();
     finalize(dir, &[header.clone()], &state, scene.plots)?;
-    stats_seconds += t0.elapsed().as_secs_f64();
+    costs.statistics_seconds += t0.elapsed().as_secs_f64();
     let wall = started.elapsed().as_secs_f64();
     write_json_atomic(
         &dir.join(MANIFEST),
@@ -236,7 +228,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
                 hash: header.scene_hash.clone(),
             },
             backend: engine.record.clone(),
-            gpu_stats: None,
+            gpu_stats: costs.gpu,
             shard: (k, n),
             member_range: header.member_range,
             members_total: header.members_total,
@@ -245,11 +237,17 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             chunks: bounds.len(),
             chunks_reused: reused,
             wall_seconds: wall,
-            statistics_seconds: stats_seconds,
-            statistics_share: stats_seconds / wall.max(1e-12),
+            statistics_seconds: costs.statistics_seconds,
+            statistics_share: costs.statistics_seconds / wall.max(1e-12),
             ensemble: spec.clone(),
             quantile_method: quantile_method(&header),
         },
     )?;
-    Ok(StudySummary::of(dir, &state, reused, wall, stats_seconds))
+    Ok(StudySummary::of(
+        dir,
+        &state,
+        reused,
+        wall,
+        costs.statistics_seconds,
+    ))
 }

@@ -59,6 +59,21 @@ pub struct GpuStats {
     pub dispatches_per_submit: u64,
 }
 
+impl GpuStats {
+    /// Adds the work of another solver (a study's next chunk): counters add up, the per-dispatch
+    /// settings are the largest seen.
+    pub fn accumulate(&mut self, other: &GpuStats) {
+        self.dispatches += other.dispatches;
+        self.steps += other.steps;
+        self.submits += other.submits;
+        self.readbacks += other.readbacks;
+        self.bytes_read += other.bytes_read;
+        self.bytes_written += other.bytes_written;
+        self.attempts_per_dispatch = self.attempts_per_dispatch.max(other.attempts_per_dispatch);
+        self.dispatches_per_submit = self.dispatches_per_submit.max(other.dispatches_per_submit);
+    }
+}
+
 /// The compute pipelines of the kernel's entry points.
 struct StepPipelines {
     begin: wgpu::ComputePipeline,
