@@ -391,12 +391,12 @@ impl<'a> GpuSolver<'a> {
         }
     }
 
-    fn read(&mut self, which: Which, bytes: u64) -> Result<Vec<u8>, GpuError> {
-        let buffer = match which {
-            Which::Running => &self.buffers.running,
-            Which::Controls => &self.buffers.controls,
-            Which::Gaps => &self.buffers.gathered_gaps,
-            Which::Vel => &self.buffers.gathered_vel,
+    fn read(&mut self, buffer: ReadBack, bytes: u64) -> Result<Vec<u8>, GpuError> {
+        let buffer = match buffer {
+            ReadBack::Running => &self.buffers.running,
+            ReadBack::Controls => &self.buffers.controls,
+            ReadBack::GatheredGaps => &self.buffers.gathered_gaps,
+            ReadBack::GatheredVelocities => &self.buffers.gathered_vel,
         };
         let data = self.ctx.read_buffer(buffer, bytes)?;
         self.stats.readbacks += 1;
@@ -437,7 +437,7 @@ impl<'a> GpuSolver<'a> {
         loop {
             self.submit_advance(first)?;
             first = false;
-            let running: Vec<u32> = bytemuck::pod_collect_to_vec(&self.read(Which::Running, 4)?);
+            let running: Vec<u32> = bytemuck::pod_collect_to_vec(&self.read(ReadBack::Running, 4)?);
             if running[0] == 0 {
                 return Ok(());
             }
@@ -449,11 +449,11 @@ impl<'a> GpuSolver<'a> {
     fn gather_and_read(&mut self) -> Result<(Vec<f64>, Vec<f64>), GpuError> {
         self.submit_gather()?;
         let bsz = self.plan.members.len() as u64;
-        let control_bytes = self.read(Which::Controls, control_size(self.precision) * bsz)?;
+        let control_bytes = self.read(ReadBack::Controls, control_size(self.precision) * bsz)?;
         self.last_controls = controls_from_bytes(&control_bytes, self.precision);
         self.stats.steps = self.last_controls.iter().map(|c| c.accepted as u64).sum();
-        let gap_bytes = self.read(Which::Gaps, self.sizes.gaps)?;
-        let vel_bytes = self.read(Which::Vel, self.sizes.velocities)?;
+        let gap_bytes = self.read(ReadBack::GatheredGaps, self.sizes.gaps)?;
+        let vel_bytes = self.read(ReadBack::GatheredVelocities, self.sizes.velocities)?;
         Ok((
             reals_from_bytes(&gap_bytes, self.precision),
             reals_from_bytes(&vel_bytes, self.precision),
@@ -572,9 +572,10 @@ impl BatchSolver for GpuSolver<'_> {
 }
 
 #[derive(Clone, Copy)]
-enum Which {
+/// The buffers the host reads back: the running count after each submit, the rest at outputs.
+enum ReadBack {
     Running,
     Controls,
-    Gaps,
-    Vel,
+    GatheredGaps,
+    GatheredVelocities,
 }
