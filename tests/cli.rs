@@ -682,6 +682,20 @@ fn rejects_one_output() {
 }
 
 #[test]
+fn rejects_fractional_output_count_in_the_users_words() {
+    let s = edit(BASE, "outputs = 2", "outputs = 2.5");
+    let err = expect_rejected(&s, &[], &["time.outputs", "whole number of output times"]);
+    assert!(!err.contains("untagged"), "{err}");
+}
+
+#[test]
+fn rejects_an_end_time_whose_output_times_overflow() {
+    let s = edit(BASE, "outputs = 2", "outputs = 100");
+    let s = s.replacen("end = ", "end = 1e308 # ", 1);
+    expect_rejected(&s, &[], &["time.end", "1e308", "strictly increasing"]);
+}
+
+#[test]
 fn rejects_nan_dt() {
     let s = edit(BASE, "dt = 1e-3", "dt = nan");
     expect_rejected(&s, &[], &["time.dt", "finite"]);

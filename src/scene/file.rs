@@ -40,11 +40,42 @@ pub(super) struct InitialSection {
 }
 
 /// `time.outputs`: a count of evenly spaced times, or the times themselves.
-#[derive(Debug, Deserialize)]
-#[serde(untagged)]
+/// `time.outputs`: a whole number of evenly spaced times, or a list of times.
+#[derive(Debug)]
 pub(super) enum OutputsSpec {
     Count(i64),
     Times(Vec<f64>),
+}
+
+// Written by hand (not `#[serde(untagged)]`) so that a wrong value gets a message in the user's
+// words instead of "data did not match any variant of untagged enum".
+impl<'de> Deserialize<'de> for OutputsSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = OutputsSpec;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("time.outputs: a whole number of output times (2 ..= 100000) or a list of times")
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<OutputsSpec, E> {
+                Ok(OutputsSpec::Count(v))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<OutputsSpec, E> {
+                Ok(OutputsSpec::Count(i64::try_from(v).unwrap_or(i64::MAX)))
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<OutputsSpec, A::Error> {
+                let mut times = Vec::new();
+                while let Some(t) = seq.next_element::<f64>()? {
+                    times.push(t);
+                }
+                Ok(OutputsSpec::Times(times))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 #[derive(Debug, Deserialize)]

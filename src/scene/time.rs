@@ -99,7 +99,7 @@ fn output_times(outputs: &OutputsSpec, end: f64) -> Result<Vec<f64>> {
                 Range::count(2, 100_000).or("a list of times"),
                 "number of evenly spaced output times including 0 and end",
             )? as usize;
-            Ok((0..k)
+            let times: Vec<f64> = (0..k)
                 .map(|j| {
                     if j + 1 == k {
                         end
@@ -107,7 +107,17 @@ fn output_times(outputs: &OutputsSpec, end: f64) -> Result<Vec<f64>> {
                         end * j as f64 / (k - 1) as f64
                     }
                 })
-                .collect())
+                .collect();
+            // end·j overflows for end near the largest float: refuse rather than write inf.
+            if times.windows(2).any(|w| !(w[1] > w[0] && w[1].is_finite())) {
+                return Err(Error::invalid(
+                    "time.end",
+                    format!("{end:e}"),
+                    format!("the {k} evenly spaced output times from 0 to end are not finite and strictly increasing"),
+                    format!("end <= {:e}", f64::MAX / k as f64),
+                ));
+            }
+            Ok(times)
         }
         OutputsSpec::Times(list) => {
             check_non_empty(
