@@ -57,6 +57,9 @@ enum Command {
         /// Skip the plots.
         #[arg(long)]
         no_plots: bool,
+        /// Merge even when shards are missing (stderr and the manifest name the missing members).
+        #[arg(long)]
+        allow_partial: bool,
     },
 }
 
@@ -171,7 +174,8 @@ fn main() -> ExitCode {
             dirs,
             out,
             no_plots,
-        } => merge_studies(&dirs, &out, !no_plots).map(|s| report_study(&s, false)),
+            allow_partial,
+        } => merge_studies(&dirs, &out, !no_plots, allow_partial).map(|s| report_study(&s, false)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -91,6 +91,8 @@ pub struct MergedManifest {
     pub members_covered: u64,
     pub complete: bool,
     pub member_ranges: Vec<(u64, u64)>,
+    /// Member ranges [first, end) no shard covered (only with `--allow-partial`).
+    pub missing_member_ranges: Vec<(u64, u64)>,
     pub members_completed: u64,
     pub failed_members: Vec<u64>,
     pub wall_seconds: f64,

@@ -12,10 +12,32 @@ use crate::output::manifest::{MergedManifest, StudySceneRecord, VERSION};
 use crate::output::{prepare_dir, read_json, write_json_atomic, MANIFEST};
 
 /// `roughlub merge`: the statistics of several shards (or runs) of one study.
-pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<StudySummary> {
+///
+/// Refused, before anything is written: an `--out` that is one of the inputs (it would overwrite
+/// that shard's statistics), and shards that leave members uncovered unless `allow_partial`
+/// (then stderr and the manifest name the missing member ranges).
+pub fn merge_studies(
+    inputs: &[PathBuf],
+    out: &Path,
+    plots: bool,
+    allow_partial: bool,
+) -> Result<StudySummary> {
     let started = Instant::now();
     if inputs.is_empty() {
         return Err(Error::missing("merge", "give at least one study directory"));
+    }
+    if let Ok(out_real) = out.canonicalize() {
+        if let Some(dir) = inputs
+            .iter()
+            .find(|d| d.canonicalize().is_ok_and(|d| d == out_real))
+        {
+            return Err(Error::invalid(
+                "merge --out",
+                dir.display(),
+                "is one of the shards being merged; the merge would overwrite its statistics",
+                "a directory that is not among the inputs",
+            ));
+        }
     }
     // Shards in member order, so that members.csv streams out in order.
     let mut partials: Vec<(PathBuf, PartialFile)> = Vec::with_capacity(inputs.len());
@@ -23,6 +45,17 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
         partials.push((dir.clone(), read_json(&dir.join("partial.json"))?));
     }
     partials.sort_by_key(|(_, p)| p.header.member_range.0);
+    let missing = missing_members(&partials)?;
+    if !missing.is_empty() {
+        let list = describe_ranges(&missing);
+        if !allow_partial {
+            return Err(Error::missing(
+                "merge",
+                format!("the shards leave members {list} uncovered; merge every shard, or pass --allow-partial to merge what there is"),
+            ));
+        }
+        eprintln!("warning: merging a partial study: members {list} are missing");
+    }
     prepare_dir(out)?;
     let mut csv_out = CsvOut::create(out.join("members.csv"))?;
     let mut headers: Vec<StudyHeader> = Vec::new();
@@ -95,6 +128,7 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
             members_covered: covered,
             complete: covered == merged_header.members_total,
             member_ranges: state.ranges.clone(),
+            missing_member_ranges: missing,
             members_completed: state.completed,
             failed_members: state.failed.clone(),
             wall_seconds: started.elapsed().as_secs_f64(),
@@ -108,4 +142,40 @@ pub fn merge_studies(inputs: &[PathBuf], out: &Path, plots: bool) -> Result<Stud
         started.elapsed().as_secs_f64(),
         0.0,
     ))
+}
+
+/// Member ranges [first, end) of the study that no shard covers; shards that overlap (a member
+/// counted twice) are an error.
+fn missing_members(partials: &[(PathBuf, PartialFile)]) -> Result<Vec<(u64, u64)>> {
+    let Some((_, first)) = partials.first() else {
+        return Ok(Vec::new());
+    };
+    let mut covered: Vec<(u64, u64)> = partials
+        .iter()
+        .flat_map(|(_, p)| p.state.ranges.iter().copied())
+        .collect();
+    covered.sort_unstable();
+    let mut missing = Vec::new();
+    let mut next = 0;
+    for (a, b) in covered {
+        if a < next {
+            return Err(Error::missing(
+                "merge",
+                format!("member ranges overlap at member {a}: a member would be counted twice (is a shard given twice?)"),
+            ));
+        }
+        if a > next {
+            missing.push((next, a));
+        }
+        next = next.max(b);
+    }
+    if next < first.header.members_total {
+        missing.push((next, first.header.members_total));
+    }
+    Ok(missing)
+}
+
+fn describe_ranges(ranges: &[(u64, u64)]) -> String {
+    let parts: Vec<String> = ranges.iter().map(|(a, b)| format!("{a}..{b}")).collect();
+    parts.join(", ")
 }
