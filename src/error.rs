@@ -56,7 +56,7 @@ pub enum Error {
         source: std::io::Error,
     },
 
-    #[error("output {path}: {message}")]
+    #[error("{path}: {message}")]
     Output { path: PathBuf, message: String },
 
     #[error(transparent)]

@@ -45,6 +45,25 @@ pub fn merge_studies(
         partials.push((dir.clone(), read_json(&dir.join("partial.json"))?));
     }
     partials.sort_by_key(|(_, p)| p.header.member_range.0);
+    // Every shard must belong to the same study; checked before anything is written.
+    let (_, first) = &partials[0];
+    for (dir, p) in &partials[1..] {
+        let h0 = &first.header;
+        let differs = [
+            ("scene text", h0.scene_hash != p.header.scene_hash),
+            ("times", h0.times != p.header.times),
+            ("grid", h0.x != p.header.x),
+            ("backend", h0.backend != p.header.backend),
+            ("precision", h0.precision != p.header.precision),
+        ];
+        let what: Vec<&str> = differs.iter().filter(|d| d.1).map(|d| d.0).collect();
+        if !what.is_empty() {
+            return Err(Error::Output {
+                path: dir.clone(),
+                message: format!("not a shard of the same study ({} differ)", what.join(", ")),
+            });
+        }
+    }
     let missing = missing_members(&partials)?;
     if !missing.is_empty() {
         let list = describe_ranges(&missing);
@@ -61,22 +80,6 @@ pub fn merge_studies(
     let mut headers: Vec<StudyHeader> = Vec::new();
     let mut state: Option<StudyState> = None;
     for (dir, p) in partials {
-        if let Some(h0) = headers.first() {
-            let differs = [
-                ("scene text", h0.scene_hash != p.header.scene_hash),
-                ("times", h0.times != p.header.times),
-                ("grid", h0.x != p.header.x),
-                ("backend", h0.backend != p.header.backend),
-                ("precision", h0.precision != p.header.precision),
-            ];
-            let what: Vec<&str> = differs.iter().filter(|d| d.1).map(|d| d.0).collect();
-            if !what.is_empty() {
-                return Err(Error::Output {
-                    path: dir.clone(),
-                    message: format!("not a shard of the same study ({} differ)", what.join(", ")),
-                });
-            }
-        }
         match &mut state {
             None => state = Some(p.state),
             Some(s) => s.merge(&p.state)?,
