@@ -502,49 +502,10 @@ fn particle_file_clusters_stay_rigid() {
 // and no manifest.json in the output directory.
 
 /// A good profile scene; each bad case changes one piece of it.
-const BASE: &str = r#"name = "base"
-
-[model]
-particles = 10
-mu = 0.01
-gamma = 1.0
-
-[initial]
-rho = "0.7"
-velocity = "0.5*sin(2*pi*x)"
-rho_star = "0.7"
-
-[time]
-end = 0.01
-outputs = 2
-dt = 1e-3
-
-[solver]
-order = 1
-backend = "cpu"
-
-[output]
-grid = 20
-"#;
+const BASE: &str = include_str!("data/validation_base.toml");
 
 /// A good particle-file scene reading `p.csv` next to it.
-const BASE_FILE: &str = r#"name = "base_file"
-
-[model]
-mu = 0.01
-radius = 0.02
-
-[initial]
-particles = "p.csv"
-
-[time]
-end = 0.01
-outputs = 2
-dt = 1e-3
-
-[solver]
-backend = "cpu"
-"#;
+const BASE_FILE: &str = include_str!("data/validation_base_file.toml");
 
 /// A good particle file for BASE_FILE: N = 4, all gaps positive.
 const GOOD_CSV: &str =

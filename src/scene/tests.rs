@@ -5,46 +5,11 @@ use std::path::Path;
 
 use super::Scene;
 
-/// A good profile scene; each case changes one piece of it.
-const BASE: &str = r#"name = "base"
-
-[model]
-particles = 10
-mu = 0.01
-gamma = 1.0
-
-[initial]
-rho = "0.7"
-velocity = "0.5*sin(2*pi*x)"
-rho_star = "0.7"
-
-[time]
-end = 0.01
-outputs = 2
-dt = 1e-3
-
-[solver]
-order = 1
-
-[output]
-grid = 20
-"#;
+/// A good profile scene (shared with tests/cli.rs); each case changes one piece of it.
+const BASE: &str = include_str!("../../tests/data/validation_base.toml");
 
 /// A good particle-file scene.
-const BASE_FILE: &str = r#"name = "base_file"
-
-[model]
-mu = 0.01
-radius = 0.02
-
-[initial]
-particles = "p.csv"
-
-[time]
-end = 0.01
-outputs = 2
-dt = 1e-3
-"#;
+const BASE_FILE: &str = include_str!("../../tests/data/validation_base_file.toml");
 
 /// `base` with `from` replaced by `to` (which must occur exactly once).
 fn edit(base: &str, from: &str, to: &str) -> String {
@@ -114,8 +79,8 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         ("dt and tolerance", edit(BASE, "dt = 1e-3", "dt = 1e-3\ntolerance = 1e-6"), "time.dt: give either time.dt (fixed steps) or time.tolerance (adaptive steps), not both"),
         ("neither dt nor tolerance", edit(BASE, "dt = 1e-3\n", ""), "time.dt: give time.dt (fixed steps, 0 < dt <= end) or time.tolerance (adaptive steps)"),
         ("order", edit(BASE, "order = 1", "order = 3"), "solver.order = 3: order of the time scheme (allowed: 1 (linearly implicit Euler) or 2 (Richardson-extrapolated))"),
-        ("backend", edit(BASE, "order = 1", "order = 1\nbackend = \"tpu\""), "solver.backend = \"tpu\": unknown backend (allowed: \"cpu\", \"gpu\" or \"auto\")"),
-        ("precision", edit(BASE, "order = 1", "order = 1\nprecision = \"f16\""), "solver.precision = \"f16\": unknown precision (allowed: \"f64\" or \"f32\")"),
+        ("backend", edit(BASE, "backend = \"cpu\"", "backend = \"tpu\""), "solver.backend = \"tpu\": unknown backend (allowed: \"cpu\", \"gpu\" or \"auto\")"),
+        ("precision", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\nprecision = \"f16\""), "solver.precision = \"f16\": unknown precision (allowed: \"f64\" or \"f32\")"),
         ("batch mu empty", format!("{BASE}\n[batch]\nmu = []\n"), "batch.mu = []: empty sweep (allowed: a non-empty list of mu > 0)"),
         ("batch mu negative", format!("{BASE}\n[batch]\nmu = [1.0, -1.0]\n"), "batch.mu[1] = -1: the lubrication coefficient must be positive (allowed: mu > 0)"),
         ("batch mu nan", format!("{BASE}\n[batch]\nmu = [nan]\n"), "batch.mu[0] = NaN: not a finite number (allowed: a finite number)"),

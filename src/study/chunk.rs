@@ -150,7 +150,6 @@ pub(super) fn solve_chunk(
             .get_or_insert_with(Default::default)
             .accumulate(&work);
     }
-    drop(solver);
     progress.inc(count as u64);
     let started = Instant::now();
     let ok_member: Vec<bool> = reports
