@@ -1,9 +1,11 @@
 // The batch advanced on the GPU, one invocation per member (member b's element i at
 // `i * batch + b`), each member with its own time, step size and status. WGSL twin of
 // src/backend/cpu/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas
-// solve; read its header for the equations), of `Block::error_norm` / `Block::extrapolate` in
-// src/backend/cpu/mod.rs and of `StepControl` in src/backend/cpu/control.rs. Keep them in sync,
-// loop for loop.
+// solve, the gap update exact in ln d, the projection onto sum d and the energy; read its header
+// for the equations), of `Block::error_norm` / `extrapolate` in src/backend/cpu/block.rs and of
+// `StepControl` in src/backend/cpu/control.rs. Keep them in sync, loop for loop.
+// Gaps are stored as in `crate::model::chain::stored_gap`: d, or ln d (< 0) below GAP_FLOOR, or 0
+// when bonded.
 //
 // Entry points: `begin_interval` (StepControl::begin_interval), `advance` (up to
 // config.max_attempts trial steps per member per dispatch, as the lane loop of Block::advance:
@@ -19,7 +21,8 @@
 //    slash-slash-at) are kept or removed: REPULSION, CLUSTERS, FREE (= no clusters), FORCING,
 //    EULER (order 1, fixed steps), RICHARDSON (else), ADAPTIVE, ORDER2;
 //    terms the plan leaves out are not compiled at all;
-//  - the marker line GENERATED is replaced by the generated code: REAL_MAX, `power(r, gamma)`
+//  - the marker line GENERATED is replaced by the generated code: REAL_MAX, GAP_FLOOR,
+//    LN_GAP_FLOOR, ENERGY_RTOL, `exp_real`, `ln_real`, `power(r, gamma)`
 //    (integer gamma: a fixed square-and-multiply chain, the sequence of `powi_by_squaring`;
 //    per-member gamma: the same chain when gamma is an integer <= 64 as `Power::of` does, else
 //    exp/pow), `gamma_of(gamma)`, the forcing function `forcing(x, t)` and the unrolled
@@ -27,7 +30,7 @@
 //    generated code calls it.
 //
 // Bindings (group 0): 0 config (uniform), 1 gap sets, 2 velocity sets, 3 member parameters,
-// 4 controls, 5 scratch (w | lambda | y, each (N-1)·batch), 6 running counter (atomic),
+// 4 controls, 5 scratch (w | ls | ys | force, each (N-1)·batch), 6 running counter (atomic),
 // 7 gathered gaps, 8 dstar (repulsion only), 9 bonded (u32, clusters only), 10 gathered velocities.
 // The host uploads and reads back Config, Param and Control (src/backend/gpu/wgsl_types.rs and
 // src/backend/gpu/buffers.rs): keep their layouts in sync.
@@ -50,11 +53,13 @@ struct Config {
     tolerance: real,
 }
 
-// Uploaded as pairs of reals (mu, gamma) per member by src/backend/gpu/buffers.rs.
+// Uploaded as triples of reals (mu, gamma, total_gap) per member by src/backend/gpu/buffers.rs.
 struct Param {
     mu: real,
     // Used only with a per-member gamma (GammaSpec::PerMember).
     gamma: real,
+    // sum d_i of the member's initial chain, kept by every step's projection.
+    total_gap: real,
 }
 
 // StepControl of src/backend/cpu/control.rs (counters in u32, flags as u32). Keep in sync with
@@ -63,17 +68,45 @@ struct Control {
     t: real,
     dt: real,
     failure_time: real,
+    failure_detail: real,
+    // Discrete energy of the current state (< 0: not computed yet).
+    energy: real,
     accepted: u32,
     rejected: u32,
     regular_steps: u32,
     regular: u32,
     failure: u32,
     parity: u32,
+    failure_index: u32,
+    padding: u32,
 }
 
+// (a, G, effective d) of one gap (`gap_terms`).
 struct GapTerms {
-    c: real,
+    a: real,
     g: real,
+    d: real,
+}
+
+// `StepReport` of src/backend/cpu/step.rs; `hard` is the Failure code of a hard failure (0: none).
+struct StepReport {
+    admissible: bool,
+    hard: u32,
+    hard_index: u32,
+    hard_detail: real,
+    energy: real,
+    work: real,
+}
+
+// What `attempt` found out (the outcome and hard failure per lane of Block::attempt).
+struct Attempt {
+    admissible: bool,
+    energy_ok: bool,
+    err: real,
+    hard: u32,
+    hard_index: u32,
+    hard_detail: real,
+    energy: real,
 }
 
 @group(0) @binding(0) var<uniform> config: Config;
@@ -103,15 +136,10 @@ const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
-// MIN_GAP_RATIO of src/backend/cpu/step.rs.
-const MIN_GAP_RATIO: real = 0.5;
+// WORK_SLACK of src/backend/cpu/control.rs.
+const WORK_SLACK: real = 0.1;
 
 //@GENERATED
-
-// `gap_step_admissible`: new > MIN_GAP_RATIO * old and finite (NaN fails both comparisons).
-fn gap_step_admissible(old: real, new_gap: real) -> bool {
-    return new_gap > MIN_GAP_RATIO * old && new_gap <= REAL_MAX;
-}
 
 // Whether a gap is free (not bonded inside a cluster).
 fn is_free(index: u32) -> bool {
@@ -123,28 +151,74 @@ fn is_free(index: u32) -> bool {
 //@END FREE
 }
 
-// Coupling c and repulsion G of one gap (`gap_terms`).
-fn gap_terms(index: u32, d: real, p: Param, h: real, eps2: real) -> GapTerms {
+// `stored_gap::ln`: ln d of a stored free gap.
+fn stored_ln(v: real) -> real {
+    if v > 0.0 {
+        return ln_real(v);
+    }
+    return v;
+}
+
+// `stored_gap::decode`: the gap a stored value stands for.
+fn stored_decode(v: real) -> real {
+    if v > 0.0 {
+        return v;
+    }
+    if v < 0.0 {
+        return exp_real(v);
+    }
+    return 0.0;
+}
+
+// `encode_ln_gap`: the stored value of a gap given its logarithm.
+fn encode_ln_gap(s: real) -> real {
+    if s > LN_GAP_FLOOR {
+        return exp_real(s);
+    }
+    return s;
+}
+
+// `gap_terms`: a = mu + h gamma G d/(d + 2eps) and G of one gap, at the effective gap d.
+fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerms {
+    let d = max(stored, GAP_FLOOR);
 //@BEGIN CLUSTERS
     if bonded[index] != 0u {
-        return GapTerms(0.0, 0.0);
+        return GapTerms(p.mu, 0.0, d);
     }
 //@END CLUSTERS
-    var c: real = p.mu / d;
+    var a: real = p.mu;
     var g: real = 0.0;
 //@BEGIN REPULSION
     let inv_s = 1.0 / (d + eps2);
     let ratio = (dstar[index] + eps2) * inv_s;
     g = power(ratio, p.gamma);
-    c = c + h * gamma_of(p.gamma) * g * inv_s;
+    a = a + h * gamma_of(p.gamma) * g * d * inv_s;
 //@END REPULSION
-    return GapTerms(c, g);
+    return GapTerms(a, g, d);
 }
 
-// `euler_step`: one step h from time t, reading set `src` and writing set `dst`. Returns
-// whether the result is admissible (every free gap finite and above MIN_GAP_RATIO of its old
-// value).
-fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> bool {
+// `potential`: Phi(d) of one free gap.
+fn potential(index: u32, d: real, p: Param, eps2: real) -> real {
+//@BEGIN REPULSION
+    let s = d + eps2;
+    let s_star = dstar[index] + eps2;
+    let g = gamma_of(p.gamma);
+    if g == 1.0 {
+        return -s_star * ln_real(s);
+    }
+    return s * power(s_star / s, p.gamma) / (g - 1.0);
+//@END REPULSION
+//@BEGIN NOREPULSION
+    return 0.0;
+//@END NOREPULSION
+}
+
+fn is_finite_real(x: real) -> bool {
+    return abs(x) <= REAL_MAX;
+}
+
+// `euler_step`: one step h from time t, reading set `src` and writing set `dst`.
+fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     let batch = config.batch;
     let n = config.particles;
     let eps = config.eps;
@@ -157,20 +231,22 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> bool {
     let go = dst * n * batch;
     let vi = src * rows;
     let vo = dst * rows;
+    var report = StepReport(true, 0u, 0u, 0.0, 0.0, 0.0);
 
-    // Row 0 is the wall: u_0 = 0, so y_0 = 0; lambda_prev = 1 (infinite pivot excess).
+    // Forward sweep. The wall (u_0 = 0) has an infinite pivot: ls_0 = 1/d_1, ys_0 = 0.
     let first = gap_terms(b, gap_sets[gi + b], p, h, eps2);
-    var c_prev: real = first.c;
+    var a_prev: real = first.a;
     var g_prev: real = first.g;
-    var y_prev: real = 0.0;
-    var lambda_prev: real = 1.0;
+    var ls_prev: real = 1.0 / first.d;
+    var ys_prev: real = 0.0;
     var q: real = 0.0;
-//@BEGIN CLUSTERS
-    // Cluster-aware sweep: a row merged into the next carries its excess and right-hand side.
-    var excess_carry: real = 0.0;
-    var delta_carry: real = 0.0;
-    var pinned = true;
-//@END CLUSTERS
+//@BEGIN REPULSION
+    if !is_finite_real(first.g) {
+        report.hard = 5u;
+        report.hard_index = 1u;
+        report.hard_detail = (dstar[b] + eps2) / (first.d + eps2);
+    }
+//@END REPULSION
 
     for (var i: u32 = 1u; i < n; i++) {
         let row = (i - 1u) * batch + b;
@@ -178,87 +254,164 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> bool {
         let next = gap_terms(next_gap, gap_sets[gi + next_gap], p, h, eps2);
         var f: real = 0.0;
 //@BEGIN FORCING
-        q = q + gap_sets[gi + row] + mass;
+        q = q + stored_decode(gap_sets[gi + row]) + mass;
         f = particle_force(eps, t, q);
+        scratch[3u * rows + row] = f;
+        if !is_finite_real(f) && report.hard == 0u {
+            report.hard = 4u;
+            report.hard_index = i;
+            report.hard_detail = q;
+        }
 //@END FORCING
+//@BEGIN REPULSION
+        if !is_finite_real(next.g) && report.hard == 0u {
+            report.hard = 5u;
+            report.hard_index = i + 1u;
+            report.hard_detail = (dstar[next_gap] + eps2) / (next.d + eps2);
+        }
+//@END REPULSION
         let rhs = m_over_h * vel_sets[vi + row] + g_prev - next.g + f;
-//@BEGIN FREE
-        let excess = m_over_h + c_prev * lambda_prev;
-        let delta = rhs + c_prev * y_prev;
-        let inv = 1.0 / (excess + next.c);
-        let w = next.c * inv;
-        let lambda = excess * inv;
-        let y = delta * inv;
-//@END FREE
-//@BEGIN CLUSTERS
-        var excess: real;
-        var delta: real;
-        if bonded[row] != 0u {
-            // Gap i bonded (c_i = 0): row i-1 was merged into this row.
-            excess = m_over_h + excess_carry;
-            delta = rhs + delta_carry;
-        } else {
-            pinned = false;
-            excess = m_over_h + c_prev * lambda_prev;
-            delta = rhs + c_prev * y_prev;
-        }
-        var w: real;
-        var lambda: real;
-        var y: real;
-        if bonded[next_gap] != 0u {
-            excess_carry = excess;
-            delta_carry = delta;
-            w = 1.0;
-            lambda = 0.0;
-            y = 0.0;
-        } else if pinned {
-            w = 0.0;
-            lambda = 1.0;
-            y = 0.0;
-        } else {
-            let inv = 1.0 / (excess + next.c);
-            w = next.c * inv;
-            lambda = excess * inv;
-            y = delta * inv;
-        }
-//@END CLUSTERS
-        scratch[row] = w;
-        scratch[rows + row] = lambda;
-        scratch[2u * rows + row] = y;
-        lambda_prev = lambda;
-        y_prev = y;
-        c_prev = next.c;
+        let excess = m_over_h + a_prev * ls_prev;
+        let delta = rhs + a_prev * ys_prev;
+        let inv = 1.0 / (excess * next.d + next.a);
+        let ls = excess * inv;
+        let ys = delta * inv;
+        scratch[row] = next.a * inv;
+        scratch[rows + row] = ls;
+        scratch[2u * rows + row] = ys;
+        ls_prev = ls;
+        ys_prev = ys;
+        a_prev = next.a;
         g_prev = next.g;
     }
 
-    // Back sweep from the right wall (u_N = 0), updating gap i+1 with u_{i+1} - u_i.
-    var ok = true;
+    // Back sweep from the right wall (u_N = 0): velocities, the rate of gap i+1 (left in the ls
+    // slot for the fix-up) and its update ln d' = ln d + h r.
+    var needs_fixup = false;
+    var kinetic: real = 0.0;
+    var work: real = 0.0;
     var u_next: real = 0.0;
     for (var i: u32 = n - 1u; i >= 1u; i--) {
         let row = (i - 1u) * batch + b;
         let gap = i * batch + b;
-        let w = scratch[row];
-        let lambda = scratch[rows + row];
-        let y = scratch[2u * rows + row];
-        let u = y + w * u_next;
-        // u_{i+1} - u_i without cancelling two large velocities.
-        let relative = lambda * u_next - y;
         // The old gap is loaded once (the store below may alias it for the compiler).
         let old = gap_sets[gi + gap];
-        let d = old + h * relative;
+        let d = max(old, GAP_FLOOR);
+        let u = d * scratch[2u * rows + row] + scratch[row] * u_next;
+        let rate = scratch[rows + row] * u_next - scratch[2u * rows + row];
+        let grown = old * exp_real(h * rate);
         vel_sets[vo + row] = u;
-        gap_sets[go + gap] = d;
-        ok = ok && (!is_free(gap) || gap_step_admissible(old, d));
+        gap_sets[go + gap] = grown;
+        scratch[rows + row] = rate;
+        kinetic = kinetic + u * u;
+//@BEGIN FORCING
+        work = work + u * scratch[3u * rows + row];
+//@END FORCING
+        needs_fixup = needs_fixup || !(grown >= GAP_FLOOR && grown <= REAL_MAX);
         u_next = u;
     }
     let old0 = gap_sets[gi + b];
-    let d0 = old0 + h * u_next;
-    gap_sets[go + b] = d0;
-    ok = ok && (!is_free(b) || gap_step_admissible(old0, d0));
-    return ok;
+    let rate_first = u_next / max(old0, GAP_FLOOR);
+    let grown0 = old0 * exp_real(h * rate_first);
+    gap_sets[go + b] = grown0;
+    needs_fixup = needs_fixup || !(grown0 >= GAP_FLOOR && grown0 <= REAL_MAX);
+
+    if needs_fixup {
+        fix_up(b, src, dst, h, rate_first);
+    }
+    report = conclude(b, dst, p, report);
+    report.energy = report.energy + eps * kinetic;
+    report.work = h * work;
+    report.admissible = report.admissible && is_finite_real(report.energy) && is_finite_real(kinetic);
+    return report;
 }
 
-// Block::error_norm: scaled max-norm of (two half steps - one full step), relative on free gaps,
+// `fix_up_lane`: redoes the update in log form where d e^{hr} does not apply.
+fn fix_up(b: u32, src: u32, dst: u32, h: real, rate_first: real) {
+    let batch = config.batch;
+    let n = config.particles;
+    let rows = (n - 1u) * batch;
+    for (var i: u32 = 0u; i < n; i++) {
+        let k = i * batch + b;
+        if !is_free(k) {
+            gap_sets[dst * n * batch + k] = 0.0;
+            continue;
+        }
+        let grown = gap_sets[dst * n * batch + k];
+        let old = gap_sets[src * n * batch + k];
+        if grown >= GAP_FLOOR && grown <= REAL_MAX && old > 0.0 {
+            continue;
+        }
+        var rate = rate_first;
+        if i > 0u {
+            rate = scratch[rows + (i - 1u) * batch + b];
+        }
+        gap_sets[dst * n * batch + k] = encode_ln_gap(stored_ln(old) + h * rate);
+    }
+}
+
+// `conclude`: the projection onto sum d = total_gap and the potential energy of set `set`.
+fn conclude(b: u32, which: u32, p: Param, report_in: StepReport) -> StepReport {
+    let batch = config.batch;
+    let n = config.particles;
+    let eps2 = 2.0 * config.eps;
+    let base = which * n * batch;
+    var report = report_in;
+    var sum: real = 0.0;
+    var logged = false;
+    for (var i: u32 = 0u; i < n; i++) {
+        let v = gap_sets[base + i * batch + b];
+        sum = sum + max(v, 0.0);
+        logged = logged || v < 0.0;
+        report.admissible = report.admissible && is_finite_real(v);
+    }
+    let scale = p.total_gap / sum;
+    var shift: real = 0.0;
+    if logged {
+        shift = ln_real(scale);
+    }
+    var energy: real = 0.0;
+    for (var i: u32 = 0u; i < n; i++) {
+        let k = i * batch + b;
+        let v = gap_sets[base + k];
+        var scaled = v + shift;
+        if v > 0.0 {
+            scaled = v * scale;
+        }
+        let d = max(scaled, 0.0);
+        if v != 0.0 {
+            gap_sets[base + k] = scaled;
+        }
+        if is_free(k) {
+            energy = energy + potential(k, d, p, eps2);
+        }
+    }
+    report.energy = energy;
+    return report;
+}
+
+// `state_energy`: E = eps sum u^2 + sum Phi of set `set` (the same sums as a step's report).
+fn state_energy(b: u32, which: u32, p: Param) -> real {
+    let batch = config.batch;
+    let n = config.particles;
+    let eps2 = 2.0 * config.eps;
+    let rows = (n - 1u) * batch;
+    var kinetic: real = 0.0;
+    for (var i: u32 = n - 1u; i >= 1u; i--) {
+        let u = vel_sets[which * rows + (i - 1u) * batch + b];
+        kinetic = kinetic + u * u;
+    }
+    var energy: real = 0.0;
+    for (var i: u32 = 0u; i < n; i++) {
+        let k = i * batch + b;
+        if is_free(k) {
+            energy = energy + potential(k, max(gap_sets[which * n * batch + k], 0.0), p, eps2);
+        }
+    }
+    return energy + config.eps * kinetic;
+}
+
+// Block::error_norm: scaled max-norm of (two half steps - one full step), on ln d for free gaps,
 // mixed absolute/relative on velocities; a NaN counts as REAL_MAX (the CPU's infinity: both
 // reject with the largest shrink).
 fn error_norm(b: u32, two_halves: u32, full: u32) -> real {
@@ -270,8 +423,14 @@ fn error_norm(b: u32, two_halves: u32, full: u32) -> real {
     for (var i: u32 = 0u; i < n; i++) {
         let k = i * batch + b;
         let a = gap_sets[two_halves * n * batch + k];
-        let e = abs(a - gap_sets[full * n * batch + k]) / (tol * abs(a));
-        // Bonded gaps (0/0) do not count; no `continue`, so the loop stays uniform.
+        let c = gap_sets[full * n * batch + k];
+        var e: real;
+        if a > 0.0 && c > 0.0 {
+            e = abs(a - c) / (tol * a);
+        } else {
+            e = abs(stored_ln(a) - stored_ln(c)) / tol;
+        }
+        // Bonded gaps do not count; no `continue`, so the loop stays uniform.
         err = select(err, select(REAL_MAX, max(err, e), e <= REAL_MAX), is_free(k));
     }
     for (var i: u32 = 0u; i + 1u < n; i++) {
@@ -283,26 +442,93 @@ fn error_norm(b: u32, two_halves: u32, full: u32) -> real {
     return err;
 }
 
-// Block::extrapolate: cand <- 2 cand - full; free gaps must stay admissible against the state
-// `cur` the step started from, velocities finite.
-fn extrapolate(b: u32, cand: u32, full: u32, cur: u32, ok_in: bool) -> bool {
+// `extrapolate`: cand <- the Richardson extrapolation of (cand = two half steps, full), in ln d
+// for gaps and linear for velocities, then the projection and the energy.
+fn extrapolate(b: u32, cand: u32, full: u32, p: Param, report_in: StepReport) -> StepReport {
     let batch = config.batch;
     let n = config.particles;
     let rows = (n - 1u) * batch;
-    var ok = ok_in;
     for (var i: u32 = 0u; i < n; i++) {
         let k = i * batch + b;
-        let a = 2.0 * gap_sets[cand * n * batch + k] - gap_sets[full * n * batch + k];
-        gap_sets[cand * n * batch + k] = a;
-        ok = ok && (!is_free(k) || gap_step_admissible(gap_sets[cur * n * batch + k], a));
+        if !is_free(k) {
+            continue;
+        }
+        let a = gap_sets[cand * n * batch + k];
+        let c = gap_sets[full * n * batch + k];
+        if a > 0.0 && c > 0.0 {
+            gap_sets[cand * n * batch + k] = a * (a / c);
+        } else {
+            gap_sets[cand * n * batch + k] = encode_ln_gap(2.0 * stored_ln(a) - stored_ln(c));
+        }
     }
-    for (var i: u32 = 0u; i + 1u < n; i++) {
+    var kinetic: real = 0.0;
+    for (var i: u32 = n - 1u; i >= 1u; i--) {
+        let k = (i - 1u) * batch + b;
+        let u = 2.0 * vel_sets[cand * rows + k] - vel_sets[full * rows + k];
+        vel_sets[cand * rows + k] = u;
+        kinetic = kinetic + u * u;
+    }
+    var report = conclude(b, cand, p, report_in);
+    report.energy = report.energy + config.eps * kinetic;
+    report.admissible = report.admissible && is_finite_real(report.energy);
+    return report;
+}
+
+// `energy_acceptable` of src/backend/cpu/control.rs.
+fn energy_acceptable(before: real, after: real, work: real) -> bool {
+    return after <= before + work + ENERGY_RTOL * abs(before) + WORK_SLACK * abs(work);
+}
+
+// Block::attempt: one trial step into set `cand`.
+fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attempt {
+    var err: real = 0.0;
+//@BEGIN EULER
+    let r = euler(b, cur, cand, h, c.t, p);
+    let work = r.work;
+    let hard = r;
+//@END EULER
+//@BEGIN RICHARDSON
+    let full = euler(b, cur, FULL_SET, h, c.t, p);
+    let half = 0.5 * h;
+    let first = euler(b, cur, HALF_SET, half, c.t, p);
+    var r = euler(b, HALF_SET, cand, half, c.t + half, p);
+    r.admissible = r.admissible && full.admissible && first.admissible;
+    let work = first.work + r.work;
+    let hard = full;
+//@END RICHARDSON
+//@BEGIN ADAPTIVE
+    err = error_norm(b, cand, FULL_SET);
+//@END ADAPTIVE
+//@BEGIN ORDER2
+    r = extrapolate(b, cand, FULL_SET, p, r);
+//@END ORDER2
+    return Attempt(
+        r.admissible,
+        energy_acceptable(c.energy, r.energy, work),
+        err,
+        hard.hard,
+        hard.hard_index,
+        hard.hard_detail,
+        r.energy
+    );
+}
+
+// Index (1-based) and ln d of the member's smallest free gap in set `set` (`smallest_gap`).
+fn smallest_gap(b: u32, which: u32) -> vec2<real> {
+    let batch = config.batch;
+    let n = config.particles;
+    var best = vec2<real>(0.0, REAL_MAX);
+    for (var i: u32 = 0u; i < n; i++) {
         let k = i * batch + b;
-        let a = 2.0 * vel_sets[cand * rows + k] - vel_sets[full * rows + k];
-        vel_sets[cand * rows + k] = a;
-        ok = ok && abs(a) <= REAL_MAX;
+        if !is_free(k) {
+            continue;
+        }
+        let s = stored_ln(gap_sets[which * n * batch + k]);
+        if s < best.y {
+            best = vec2<real>(real(i + 1u), s);
+        }
     }
-    return ok;
+    return best;
 }
 
 // StepControl::trial_step: dt, or exactly what is left when that is within rounding of dt.
@@ -314,9 +540,10 @@ fn trial_step(c: Control) -> real {
     return c.dt;
 }
 
-// StepControl::conclude_attempt. Returns whether the step is accepted.
-fn conclude_attempt(c: ptr<function, Control>, h: real, admissible: bool, err: real) -> bool {
-    if admissible && err <= 1.0 {
+// StepControl::conclude_attempt. Returns whether the step is accepted. On failure the caller
+// fills in the smallest gap.
+fn conclude_attempt(c: ptr<function, Control>, h: real, admissible: bool, energy_ok: bool, err: real) -> bool {
+    if admissible && energy_ok && err <= 1.0 {
         (*c).accepted += 1u;
         let landed = h == config.t_end - (*c).t;
         (*c).regular_steps += 1u;
@@ -342,14 +569,20 @@ fn conclude_attempt(c: ptr<function, Control>, h: real, admissible: bool, err: r
     }
     (*c).rejected += 1u;
     (*c).regular = 0u;
-    if admissible {
+    if admissible && energy_ok {
         (*c).dt = h * clamp(SAFETY / sqrt(err), MAX_SHRINK, 1.0);
     } else {
         (*c).dt = h * REJECT_SHRINK;
     }
     if (*c).dt < config.dt_min {
-        // Failure::Inadmissible = 1, Failure::ErrorTooLarge = 2.
-        (*c).failure = select(1u, 2u, admissible);
+        // Failure::Inadmissible = 1, ErrorTooLarge = 2, EnergyRose = 3.
+        if !admissible {
+            (*c).failure = 1u;
+        } else if !energy_ok {
+            (*c).failure = 3u;
+        } else {
+            (*c).failure = 2u;
+        }
         (*c).failure_time = (*c).t;
     }
     return false;
@@ -368,6 +601,9 @@ fn begin_interval(@builtin(global_invocation_id) gid: vec3<u32>) {
     var c = controls[b];
     if c.failure != 0u {
         return;
+    }
+    if c.energy < 0.0 {
+        c.energy = state_energy(b, c.parity, params[b]);
     }
     c.regular_steps = 0u;
     c.regular = 1u;
@@ -392,26 +628,20 @@ fn advance(@builtin(global_invocation_id) gid: vec3<u32>) {
             let h = trial_step(c);
             let cur = c.parity;
             let cand = 1u - cur;
-            var ok: bool;
-            var err: real = 0.0;
-//@BEGIN EULER
-            ok = euler(b, cur, cand, h, c.t, p);
-//@END EULER
-//@BEGIN RICHARDSON
-            let ok_full = euler(b, cur, FULL_SET, h, c.t, p);
-            let half = 0.5 * h;
-            let ok_half = euler(b, cur, HALF_SET, half, c.t, p);
-            let ok_two = euler(b, HALF_SET, cand, half, c.t + half, p);
-            ok = ok_full && ok_half && ok_two;
-//@END RICHARDSON
-//@BEGIN ADAPTIVE
-            err = error_norm(b, cand, FULL_SET);
-//@END ADAPTIVE
-//@BEGIN ORDER2
-            ok = extrapolate(b, cand, FULL_SET, cur, ok);
-//@END ORDER2
-            if conclude_attempt(&c, h, ok, err) {
+            let r = try_step(b, cur, cand, h, c, p);
+            if r.hard != 0u {
+                // A failure no smaller step can cure (`StepControl::fail`).
+                c.failure = r.hard;
+                c.failure_time = c.t;
+                c.failure_index = r.hard_index;
+                c.failure_detail = r.hard_detail;
+            } else if conclude_attempt(&c, h, r.admissible, r.energy_ok, r.err) {
                 c.parity = cand;
+                c.energy = r.energy;
+            } else if c.failure != 0u {
+                let smallest = smallest_gap(b, cur);
+                c.failure_index = u32(smallest.x);
+                c.failure_detail = smallest.y;
             }
         }
     }

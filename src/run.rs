@@ -138,6 +138,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let mut energy = Vec::with_capacity((t_count * b) as usize);
     let mut dissipation = Vec::with_capacity((t_count * b) as usize);
     let mut min_gap = Vec::with_capacity((t_count * b) as usize);
+    let mut log_min_gap = Vec::with_capacity((t_count * b) as usize);
     let mut max_density = Vec::with_capacity((t_count * b) as usize);
     let plotted = if scene.plots {
         scene.plot_members.min(members)
@@ -153,6 +154,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
             energy.push(s.energy);
             dissipation.push(s.dissipation);
             min_gap.push(s.min_gap);
+            log_min_gap.push(s.log_min_gap);
             max_density.push(s.max_density);
             if m < plotted {
                 profiles[m].record(s, plan.grid);
@@ -177,6 +179,11 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         )?);
     }
     files.push(write_npy(dir.join("min_gap.npy"), &[t_count, b], &min_gap)?);
+    files.push(write_npy(
+        dir.join("log_min_gap.npy"),
+        &[t_count, b],
+        &log_min_gap,
+    )?);
     files.push(write_npy(
         dir.join("max_density.npy"),
         &[t_count, b],

@@ -26,11 +26,28 @@ pub struct MemberReport {
 #[repr(u32)]
 pub enum Failure {
     None = 0,
-    /// The step fell below dt_min while every trial closed (or halved) a gap or gave a
-    /// non-finite value.
+    /// The step fell below dt_min while every trial gave a non-finite value.
     Inadmissible = 1,
     /// The step fell below dt_min while the error estimate stayed above the tolerance.
     ErrorTooLarge = 2,
+    /// The step fell below dt_min while every trial raised the energy beyond the forcing's work.
+    EnergyRose = 3,
+    /// The forcing is not finite at a particle (detail: its position).
+    Forcing = 4,
+    /// The repulsion (rho/rho*)^gamma overflows at a gap (detail: the density ratio).
+    Repulsion = 5,
+}
+
+/// Where and why a member failed, as the solvers record it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FailureRecord {
+    pub failure: Failure,
+    pub time: f64,
+    /// Particle or gap (1-based) the failure names.
+    pub index: u32,
+    /// A position (forcing), a density ratio (repulsion) or ln of the smallest gap (step size
+    /// collapse).
+    pub detail: f64,
 }
 
 impl Failure {
@@ -38,19 +55,41 @@ impl Failure {
         match code {
             0 => Failure::None,
             1 => Failure::Inadmissible,
-            _ => Failure::ErrorTooLarge,
+            2 => Failure::ErrorTooLarge,
+            3 => Failure::EnergyRose,
+            4 => Failure::Forcing,
+            _ => Failure::Repulsion,
         }
     }
+}
 
-    pub fn describe(self, dt_min: f64) -> String {
-        match self {
+impl FailureRecord {
+    /// The sentence the manifest gives for this failure of member `member` with gamma `gamma`.
+    pub fn describe(&self, dt_min: f64, member: usize, gamma: f64) -> String {
+        let t = self.time;
+        let collapse = |why: &str| {
+            format!(
+                "step size collapsed below dt_min = {dt_min:e} at t = {t}: {why} (smallest gap: d_{} = e^{:.4} = {:e})",
+                self.index,
+                self.detail,
+                self.detail.exp()
+            )
+        };
+        match self.failure {
             Failure::None => "ok".into(),
-            Failure::Inadmissible => format!(
-                "step size collapsed below dt_min = {dt_min:e}: every smaller step closed a gap, shrank one below half, or gave a non-finite value"
-            ),
-            Failure::ErrorTooLarge => {
-                format!("step size collapsed below dt_min = {dt_min:e} (error estimate stayed too large)")
+            Failure::Inadmissible => collapse("every smaller step gave a non-finite value"),
+            Failure::ErrorTooLarge => collapse("the error estimate stayed above the tolerance"),
+            Failure::EnergyRose => {
+                collapse("every smaller step raised the energy beyond the work of the forcing")
             }
+            Failure::Forcing => format!(
+                "the forcing is not finite at t = {t}, x = {} (particle {} of member {member})",
+                self.detail, self.index
+            ),
+            Failure::Repulsion => format!(
+                "the repulsion (rho/rho*)^gamma overflows at t = {t}: gamma = {gamma}, rho/rho* = {} at gap {} of member {member}",
+                self.detail, self.index
+            ),
         }
     }
 }

@@ -2,6 +2,7 @@
 //! [q_{i-1}, q_i), u piecewise linear between particles), the discrete energy, the dissipation
 //! rate, the smallest gap and the largest density.
 
+use crate::model::chain::stored_gap;
 use crate::model::params::MemberParams;
 use crate::model::plan::Plan;
 
@@ -16,6 +17,8 @@ pub struct Snapshot {
     pub energy: f64,
     pub dissipation: f64,
     pub min_gap: f64,
+    /// ln of the smallest gap: defined also when that gap is below the float range.
+    pub log_min_gap: f64,
     pub max_density: f64,
 }
 
@@ -42,6 +45,7 @@ impl Snapshot {
             energy: f64::NAN,
             dissipation: f64::NAN,
             min_gap: f64::NAN,
+            log_min_gap: f64::NAN,
             max_density: f64::NAN,
         }
     }
@@ -89,7 +93,8 @@ pub fn energy(
     kinetic + potential
 }
 
-/// Dissipation rate mu Σ (u_i − u_{i−1})² / d_i over free gaps.
+/// Dissipation rate mu Σ (u_i − u_{i−1})² / d_i over free gaps. A gap below the float range
+/// (d = 0) contributes mu d r² = 0: its two particles move as one to rounding.
 pub fn dissipation(mu: f64, gaps: &[f64], velocities: &[f64], bonded: Option<&[bool]>) -> f64 {
     let n = gaps.len();
     let mut s = 0.0;
@@ -99,24 +104,35 @@ pub fn dissipation(mu: f64, gaps: &[f64], velocities: &[f64], bonded: Option<&[b
         }
         let right = if i < n - 1 { velocities[i] } else { 0.0 };
         let left = if i > 0 { velocities[i - 1] } else { 0.0 };
-        s += (right - left).powi(2) / gaps[i];
+        if gaps[i] > 0.0 {
+            s += (right - left).powi(2) / gaps[i];
+        }
     }
     mu * s
 }
 
 #[allow(clippy::too_many_arguments)]
+/// The snapshot of one member from its state as the solvers store it (`stored_gaps` in the
+/// `stored_gap` form).
 pub fn observe(
     plan: &Plan,
     params: &MemberParams,
-    gaps: Vec<f64>,
+    stored_gaps: Vec<f64>,
     velocities: Vec<f64>,
     dstar: Option<&[f64]>,
     bonded: Option<&[bool]>,
     grid_x: &[f64],
 ) -> Snapshot {
     let eps = plan.eps;
-    let n = gaps.len();
+    let n = stored_gaps.len();
     let f = &plan.fields;
+    let mut log_min_gap = f64::INFINITY;
+    for (i, &v) in stored_gaps.iter().enumerate() {
+        if bonded.is_none_or(|b| !b[i]) {
+            log_min_gap = log_min_gap.min(stored_gap::ln(v));
+        }
+    }
+    let gaps: Vec<f64> = stored_gaps.iter().map(|&v| stored_gap::decode(v)).collect();
     let mut min_gap = f64::INFINITY;
     let mut max_density: f64 = 0.0;
     for (i, &d) in gaps.iter().enumerate() {
@@ -178,6 +194,7 @@ pub fn observe(
         energy,
         dissipation,
         min_gap,
+        log_min_gap,
         max_density,
     }
 }

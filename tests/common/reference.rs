@@ -1,7 +1,8 @@
 //! Reference models, independent of the solver's code, each with what it is a reference for.
 //!
 //! - [`dense_reference_step`]: one linearly implicit Euler step assembled densely per rigid body
-//!   and solved by LU. Reference for the batched, cancellation-free Thomas sweep
+//!   and solved by LU, with the gap update ln d' = ln d + h·(relative velocity)/d and the
+//!   projection onto sum d = const written out directly. Reference for the batched, cancellation-free Thomas sweep
 //!   (`backend::cpu::step::euler_step`), including clusters and forcing (tests/numerics.rs).
 //! - [`rk4_reference`]: classical RK4 on the position form (q, u) of the model at a tiny step.
 //!   Reference for the trajectories and the convergence orders of orders 1 and 2
@@ -85,9 +86,20 @@ pub fn dense_reference_step(
         .map(|i| index(body[i]).map_or(0.0, |k| solution[k]))
         .collect();
     let u_at = |i: usize| if i == 0 || i == n { 0.0 } else { u_new[i - 1] };
-    let gaps_new = (1..=n)
-        .map(|g| gaps[g - 1] + h * (u_at(g) - u_at(g - 1)))
+    // The gap update exact in ln d (ln d' = ln d + h (u_g - u_{g-1})/d), then every gap scaled by
+    // one factor so that sum d is kept.
+    let grown: Vec<f64> = (1..=n)
+        .map(|g| {
+            let d = gaps[g - 1];
+            if bonded[g - 1] {
+                0.0
+            } else {
+                d * (h * (u_at(g) - u_at(g - 1)) / d).exp()
+            }
+        })
         .collect();
+    let scale = gaps.iter().sum::<f64>() / grown.iter().sum::<f64>();
+    let gaps_new = grown.iter().map(|d| d * scale).collect();
     (gaps_new, u_new)
 }
 

@@ -3,11 +3,14 @@
 //! norm (`error_norm`, `extrapolate`: twins of the same functions in `shaders/step.wgsl`), and
 //! per-lane step control (`control`).
 
-use super::control::{Rules, StepControl};
-use super::step::{euler_step, gap_step_admissible, Gamma, Scratch, Terms};
+use super::control::{energy_acceptable, Outcome, Rules, StepControl, ENERGY_RTOL_F64};
+use super::step::{
+    conclude, encode_ln_gap, euler_step, state_energy, Gamma, HardFailure, Scratch, StepReport,
+    Terms, GAP_FLOOR,
+};
 use crate::backend::layout::interleave;
-use crate::backend::report::{Failure, MemberReport, MemberStatus};
-use crate::model::chain::Chain;
+use crate::backend::report::{Failure, FailureRecord, MemberReport, MemberStatus};
+use crate::model::chain::{stored_gap, Chain};
 use crate::model::observables::{observe, Snapshot};
 use crate::model::params::{MemberParams, Stepping};
 use crate::model::plan::{Plan, Power};
@@ -24,6 +27,9 @@ pub(super) struct Block<const L: usize> {
     gamma: Gamma<L>,
     dstar: Option<Vec<f64>>,
     bonded: Option<Vec<bool>>,
+    /// sum d_i of each lane's initial chain (kept by every step's projection).
+    total_gap: [f64; L],
+    /// Gaps in the stored form (`stored_gap`): d, or ln d below GAP_FLOOR, or 0 when bonded.
     gaps: Vec<f64>,
     vel: Vec<f64>,
     cand_gaps: Vec<f64>,
@@ -49,7 +55,13 @@ impl<const L: usize> Block<L> {
         dt0: f64,
     ) -> Self {
         let n = plan.particles;
-        let gaps = interleave::<f64>(&chains.map(|c| c.gaps.as_slice()));
+        let total_gap = chains.map(|c| c.gaps.iter().sum::<f64>());
+        let mut gaps = interleave::<f64>(&chains.map(|c| c.gaps.as_slice()));
+        for d in gaps.iter_mut() {
+            if *d > 0.0 && *d < GAP_FLOOR {
+                *d = d.ln();
+            }
+        }
         let vel = interleave::<f64>(&chains.map(|c| c.velocities.as_slice()));
         let dstar = plan.repulsion.then(|| {
             interleave::<f64>(
@@ -73,7 +85,7 @@ impl<const L: usize> Block<L> {
         let richardson = plan.order == 2 || matches!(plan.stepping, Stepping::Adaptive { .. });
         let extra = if richardson { gaps.len() } else { 0 };
         let extra_v = if richardson { vel.len() } else { 0 };
-        Block {
+        let mut block = Block {
             lanes: members.map(lane),
             mu: params.map(|p| p.mu),
             gamma,
@@ -88,12 +100,28 @@ impl<const L: usize> Block<L> {
             gaps,
             vel,
             scratch: Scratch::new(n, L),
+            total_gap,
+        };
+        let energy = state_energy(&block.terms(plan), n, &block.gaps, &block.vel);
+        for (lane, e) in block.lanes.iter_mut().zip(energy) {
+            lane.control.energy = e;
+        }
+        block
+    }
+
+    fn terms<'a>(&'a self, plan: &'a Plan) -> Terms<'a, L> {
+        Terms::<L> {
+            eps: plan.eps,
+            mu: self.mu,
+            total_gap: self.total_gap,
+            repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
+            bonded: self.bonded.as_deref(),
+            forcing: plan.forcing.as_ref(),
         }
     }
 
     /// Advances every running lane to `t_end`.
     pub(super) fn advance(&mut self, plan: &Plan, t_start: f64, t_end: f64) {
-        let n = plan.particles;
         let (fixed_dt, adaptive_tol) = match plan.stepping {
             Stepping::Fixed { dt, .. } => (Some(dt), None),
             Stepping::Adaptive { tolerance, .. } => (None, Some(tolerance)),
@@ -120,83 +148,36 @@ impl<const L: usize> Block<L> {
             if !active.iter().any(|&a| a) {
                 break;
             }
-            let terms = Terms::<L> {
-                eps: plan.eps,
-                mu: self.mu,
-                repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
-                bonded: self.bonded.as_deref(),
-                forcing: plan.forcing.as_ref(),
-            };
-            let mut err = [0.0; L];
-            let ok = if !richardson {
-                euler_step(
-                    &terms,
-                    n,
-                    &t,
-                    &h,
-                    &self.gaps,
-                    &self.vel,
-                    &mut self.cand_gaps,
-                    &mut self.cand_vel,
-                    &mut self.scratch,
-                )
-            } else {
-                let ok_full = euler_step(
-                    &terms,
-                    n,
-                    &t,
-                    &h,
-                    &self.gaps,
-                    &self.vel,
-                    &mut self.full_gaps,
-                    &mut self.full_vel,
-                    &mut self.scratch,
-                );
-                let half = h.map(|x| 0.5 * x);
-                let ok_half = euler_step(
-                    &terms,
-                    n,
-                    &t,
-                    &half,
-                    &self.gaps,
-                    &self.vel,
-                    &mut self.half_gaps,
-                    &mut self.half_vel,
-                    &mut self.scratch,
-                );
-                let mut t_mid = t;
-                for l in 0..L {
-                    t_mid[l] += half[l];
-                }
-                let ok_two = euler_step(
-                    &terms,
-                    n,
-                    &t_mid,
-                    &half,
-                    &self.half_gaps,
-                    &self.half_vel,
-                    &mut self.cand_gaps,
-                    &mut self.cand_vel,
-                    &mut self.scratch,
-                );
-                let mut ok = [false; L];
-                for l in 0..L {
-                    ok[l] = ok_full[l] && ok_half[l] && ok_two[l];
-                }
-                if let Some(tol) = adaptive_tol {
-                    err = self.error_norm(tol);
-                }
-                if plan.order == 2 {
-                    ok = self.extrapolate(ok);
-                }
-                ok
-            };
+            let (outcome, hard, energy) = self.attempt(plan, &t, &h, adaptive_tol, richardson);
             let mut keep_old = [false; L];
             for l in 0..L {
-                keep_old[l] = !active[l]
-                    || !self.lanes[l]
-                        .control
-                        .conclude_attempt(&rules, h[l], ok[l], err[l]);
+                if !active[l] {
+                    keep_old[l] = true;
+                    continue;
+                }
+                let control = &mut self.lanes[l].control;
+                if let Some(hard) = hard[l] {
+                    match hard {
+                        HardFailure::Forcing { particle, x } => {
+                            control.fail(Failure::Forcing, particle as u32, x)
+                        }
+                        HardFailure::Repulsion { gap, ratio } => {
+                            control.fail(Failure::Repulsion, gap as u32, ratio)
+                        }
+                    }
+                    keep_old[l] = true;
+                    continue;
+                }
+                if control.conclude_attempt(&rules, h[l], outcome[l]) {
+                    control.energy = energy[l];
+                } else {
+                    keep_old[l] = true;
+                    if control.failure != Failure::None {
+                        let (index, ln_d) = smallest_gap::<L>(&self.gaps, self.bonded.as_deref(), l);
+                        control.failure_index = index;
+                        control.failure_detail = ln_d;
+                    }
+                }
             }
             // Lanes that did not move keep their old state in the candidate buffers.
             if keep_old.iter().any(|&k| k) {
@@ -216,16 +197,132 @@ impl<const L: usize> Block<L> {
         }
     }
 
-    /// Scaled max-norm of (two half steps − one full step): relative on free gaps (a gap's error
-    /// must be small against the gap itself), mixed absolute/relative on velocities.
+    /// One trial step of every lane into the candidate buffers: one Euler step, or (Richardson)
+    /// one full and two half steps with the error estimate and/or the extrapolation. Returns each
+    /// lane's outcome, any hard failure found in the current state, and the candidate's energy.
+    #[allow(clippy::type_complexity)]
+    fn attempt(
+        &mut self,
+        plan: &Plan,
+        t: &[f64; L],
+        h: &[f64; L],
+        adaptive_tol: Option<f64>,
+        richardson: bool,
+    ) -> ([Outcome; L], [Option<HardFailure>; L], [f64; L]) {
+        let n = plan.particles;
+        let terms = Terms::<L> {
+            eps: plan.eps,
+            mu: self.mu,
+            total_gap: self.total_gap,
+            repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
+            bonded: self.bonded.as_deref(),
+            forcing: plan.forcing.as_ref(),
+        };
+        let mut err = [0.0; L];
+        let (candidate, hard, work): ([StepReport; L], _, [f64; L]) = if !richardson {
+            let r = euler_step(
+                &terms,
+                n,
+                t,
+                h,
+                &self.gaps,
+                &self.vel,
+                &mut self.cand_gaps,
+                &mut self.cand_vel,
+                &mut self.scratch,
+            );
+            (r, r.map(|x| x.hard), r.map(|x| x.work))
+        } else {
+            let full = euler_step(
+                &terms,
+                n,
+                t,
+                h,
+                &self.gaps,
+                &self.vel,
+                &mut self.full_gaps,
+                &mut self.full_vel,
+                &mut self.scratch,
+            );
+            let half = h.map(|x| 0.5 * x);
+            let first = euler_step(
+                &terms,
+                n,
+                t,
+                &half,
+                &self.gaps,
+                &self.vel,
+                &mut self.half_gaps,
+                &mut self.half_vel,
+                &mut self.scratch,
+            );
+            let mut t_mid = *t;
+            for l in 0..L {
+                t_mid[l] += half[l];
+            }
+            let mut second = euler_step(
+                &terms,
+                n,
+                &t_mid,
+                &half,
+                &self.half_gaps,
+                &self.half_vel,
+                &mut self.cand_gaps,
+                &mut self.cand_vel,
+                &mut self.scratch,
+            );
+            let mut work = [0.0; L];
+            for l in 0..L {
+                second[l].admissible &= full[l].admissible && first[l].admissible;
+                work[l] = first[l].work + second[l].work;
+            }
+            if let Some(tol) = adaptive_tol {
+                err = self.error_norm(tol);
+            }
+            if plan.order == 2 {
+                second = extrapolate(
+                    &terms,
+                    n,
+                    &mut self.cand_gaps,
+                    &mut self.cand_vel,
+                    &self.full_gaps,
+                    &self.full_vel,
+                    second,
+                );
+            }
+            (second, full.map(|x| x.hard), work)
+        };
+        let mut outcome = [Outcome {
+            admissible: false,
+            energy_ok: false,
+            err: 0.0,
+        }; L];
+        for l in 0..L {
+            let before = self.lanes[l].control.energy;
+            outcome[l] = Outcome {
+                admissible: candidate[l].admissible,
+                energy_ok: energy_acceptable(before, candidate[l].energy, work[l], ENERGY_RTOL_F64),
+                err: err[l],
+            };
+        }
+        (outcome, hard, candidate.map(|x| x.energy))
+    }
+
+    /// Scaled max-norm of (two half steps − one full step): on gaps the error of ln d (a gap's
+    /// error measured against the gap itself, at any size), mixed absolute/relative on
+    /// velocities.
     fn error_norm(&self, tol: f64) -> [f64; L] {
         let mut err = [0.0f64; L];
-        for (i, (a, b)) in self.cand_gaps.iter().zip(&self.full_gaps).enumerate() {
+        for (i, (&a, &b)) in self.cand_gaps.iter().zip(&self.full_gaps).enumerate() {
             let l = i % L;
             if self.bonded.as_ref().is_some_and(|bd| bd[i]) {
                 continue;
             }
-            let e = (a - b).abs() / (tol * a.abs());
+            let e = if a > 0.0 && b > 0.0 {
+                (a - b).abs() / (tol * a)
+            } else {
+                (stored_gap::ln(a) - stored_gap::ln(b)).abs() / tol
+            };
             err[l] = if e.is_nan() {
                 f64::INFINITY
             } else {
@@ -242,26 +339,6 @@ impl<const L: usize> Block<L> {
             };
         }
         err
-    }
-
-    /// Order 2: cand ← 2·(two half steps) − (one full step); free gaps must stay positive.
-    fn extrapolate(&mut self, mut ok: [bool; L]) -> [bool; L] {
-        for (i, ((a, b), old)) in self
-            .cand_gaps
-            .iter_mut()
-            .zip(&self.full_gaps)
-            .zip(&self.gaps)
-            .enumerate()
-        {
-            *a = 2.0 * *a - b;
-            let free = self.bonded.as_ref().is_none_or(|bd| !bd[i]);
-            ok[i % L] &= !free || gap_step_admissible(*old, *a);
-        }
-        for (i, (a, b)) in self.cand_vel.iter_mut().zip(&self.full_vel).enumerate() {
-            *a = 2.0 * *a - b;
-            ok[i % L] &= a.is_finite();
-        }
-        ok
     }
 
     pub(super) fn snapshot(
@@ -310,7 +387,13 @@ impl<const L: usize> Block<L> {
                     status: match lane.control.failure {
                         Failure::None => MemberStatus::Ok,
                         f => MemberStatus::Failed {
-                            reason: f.describe(dt_min),
+                            reason: FailureRecord {
+                                failure: f,
+                                time: lane.control.failure_time,
+                                index: lane.control.failure_index,
+                                detail: lane.control.failure_detail,
+                            }
+                            .describe(dt_min, m, params[m].gamma),
                             time: lane.control.failure_time,
                         },
                     },
@@ -322,3 +405,61 @@ impl<const L: usize> Block<L> {
             .collect()
     }
 }
+
+/// Index (1-based) and ln d of lane l's smallest free gap.
+fn smallest_gap<const L: usize>(gaps: &[f64], bonded: Option<&[bool]>, l: usize) -> (u32, f64) {
+    let mut best = (0u32, f64::INFINITY);
+    for (i, &v) in gaps.iter().skip(l).step_by(L).enumerate() {
+        if bonded.is_some_and(|b| b[i * L + l]) {
+            continue;
+        }
+        let s = stored_gap::ln(v);
+        if s < best.1 {
+            best = (i as u32 + 1, s);
+        }
+    }
+    best
+}
+
+/// Order 2: cand ← the Richardson extrapolation of (two half steps, one full step), in ln d
+/// for gaps (ln d' = 2 ln a − ln b: positive by construction) and linear for velocities, then
+/// the projection and the energy of the result.
+fn extrapolate<const L: usize>(
+terms: &Terms<L>,
+n: usize,
+cand_gaps: &mut [f64],
+cand_vel: &mut [f64],
+full_gaps: &[f64],
+full_vel: &[f64],
+mut report: [StepReport; L],
+) -> [StepReport; L] {
+    for (i, (a, &b)) in cand_gaps.iter_mut().zip(full_gaps).enumerate() {
+        if terms.bonded.is_some_and(|bd| bd[i]) {
+            continue;
+        }
+        *a = if *a > 0.0 && b > 0.0 {
+            *a * (*a / b)
+        } else {
+            encode_ln_gap(2.0 * stored_gap::ln(*a) - stored_gap::ln(b))
+        };
+    }
+    let mut kinetic = [0.0; L];
+    for i in (1..n).rev() {
+        for l in 0..L {
+            let k = (i - 1) * L + l;
+            let u = 2.0 * cand_vel[k] - full_vel[k];
+            cand_vel[k] = u;
+            kinetic[l] += u * u;
+        }
+    }
+    for r in report.iter_mut() {
+        r.energy = 0.0;
+    }
+    conclude::<L>(terms, n, cand_gaps, &mut report);
+    for l in 0..L {
+        report[l].energy += terms.eps * kinetic[l];
+        report[l].admissible &= report[l].energy.is_finite();
+    }
+    report
+}
+

@@ -1,4 +1,6 @@
-//! Per-member step-size control: which step to try next, and what to do with its outcome.
+//! Per-member step-size control: which step to try next, and what to do with its outcome
+//! (accepted only when every value is finite, the energy did not rise beyond the forcing's work
+//! and the error estimate is within the tolerance).
 //! CPU twin of the control functions in `shaders/step.wgsl` (`trial_step`, `conclude_attempt`);
 //! keep the two in sync. (err^-1/2 is written 1/sqrt(err): sqrt is exact on every backend, pow
 //! is not, and the GPU must take the same accepted steps.)
@@ -47,6 +49,23 @@ pub struct StepControl {
     pub regular: bool,
     pub failure: Failure,
     pub failure_time: f64,
+    /// What the failure message names: a position, a density ratio or ln of the smallest gap.
+    pub failure_detail: f64,
+    /// ... and the particle or gap it concerns (1-based).
+    pub failure_index: u32,
+    /// Discrete energy of the current state.
+    pub energy: f64,
+}
+
+/// Why a trial step was not accepted (or that it was).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Outcome {
+    /// Every value finite.
+    pub admissible: bool,
+    /// Energy not above the previous one plus the forcing's work (to rounding).
+    pub energy_ok: bool,
+    /// Scaled error estimate (0 for fixed steps).
+    pub err: f64,
 }
 
 impl StepControl {
@@ -60,6 +79,9 @@ impl StepControl {
             regular: true,
             failure: Failure::None,
             failure_time: 0.0,
+            failure_detail: 0.0,
+            failure_index: 0,
+            energy: 0.0,
         }
     }
 
@@ -89,10 +111,16 @@ impl StepControl {
         }
     }
 
-    /// Records the outcome of a trial step h: `admissible` (gaps kept positive, finite) and the
-    /// scaled error estimate (0 for fixed steps). Returns whether the step is accepted.
-    pub fn conclude_attempt(&mut self, rules: &Rules, h: f64, admissible: bool, err: f64) -> bool {
-        if admissible && err <= 1.0 {
+    /// Records the outcome of a trial step h. Returns whether the step is accepted. When the
+    /// step falls below dt_min the member fails with the reason of the last rejection (the
+    /// caller fills in the smallest gap it names).
+    pub fn conclude_attempt(&mut self, rules: &Rules, h: f64, outcome: Outcome) -> bool {
+        let Outcome {
+            admissible,
+            energy_ok,
+            err,
+        } = outcome;
+        if admissible && energy_ok && err <= 1.0 {
             self.accepted += 1;
             let landed = h == rules.t_end - self.t;
             self.regular_steps += 1;
@@ -118,20 +146,45 @@ impl StepControl {
         } else {
             self.rejected += 1;
             self.regular = false;
-            self.dt = if admissible {
+            self.dt = if admissible && energy_ok {
                 h * (SAFETY / err.sqrt()).clamp(MAX_SHRINK, 1.0)
             } else {
                 h * REJECT_SHRINK
             };
             if self.dt < rules.dt_min {
-                self.failure = if admissible {
-                    Failure::ErrorTooLarge
-                } else {
+                self.failure = if !admissible {
                     Failure::Inadmissible
+                } else if !energy_ok {
+                    Failure::EnergyRose
+                } else {
+                    Failure::ErrorTooLarge
                 };
                 self.failure_time = self.t;
             }
             false
         }
     }
+
+    /// Fails the member at once (a failure no smaller step can cure).
+    pub fn fail(&mut self, failure: Failure, index: u32, detail: f64) {
+        self.failure = failure;
+        self.failure_time = self.t;
+        self.failure_index = index;
+        self.failure_detail = detail;
+    }
+}
+
+/// Relative slack of the energy check: rounding of the sums that make E (f64).
+pub const ENERGY_RTOL_F64: f64 = 1e-12;
+/// The same for the f32 GPU kernel (sums of N terms with 6e-8 relative rounding each, and the
+/// rounding of the projection).
+pub const ENERGY_RTOL_F32: f64 = 1e-5;
+/// With forcing, the fraction of the forcing's work h Σ u' F allowed on top of it: the work is
+/// itself an O(h) estimate.
+pub const WORK_SLACK: f64 = 0.1;
+
+/// Whether a step from energy `before` to `after`, with the forcing doing `work`, is acceptable.
+#[inline(always)]
+pub fn energy_acceptable(before: f64, after: f64, work: f64, rtol: f64) -> bool {
+    after <= before + work + rtol * before.abs() + WORK_SLACK * work.abs()
 }

@@ -1,47 +1,66 @@
-//! One linearly implicit Euler step for a block of L members, fused with the batched Thomas
-//! solve. CPU twin of `shaders/step.wgsl`: the lane loop here is the invocation there, and the
-//! loops over rows have the same shape. Keep the two in sync.
+//! One step for a block of L members: the linearly implicit Euler solve fused with the batched
+//! Thomas sweep, a gap update exact in ln d, the projection that keeps sum d_i fixed and the
+//! discrete energy of the result. CPU twin of `shaders/step.wgsl`: the lane loop here is the
+//! invocation there, and the loops over rows have the same shape. Keep the two in sync.
 //!
 //! Layout: element i of lane l at `i * L + l` (the GPU interleaves the whole batch the same way).
-//! With c_i = mu/d_i + h·gamma·G_i/(d_i + 2 eps) (lubrication plus linearised repulsion),
-//!   (2eps/h) u_i' - c_{i+1}(u_{i+1}' - u_i') + c_i(u_i' - u_{i-1}') = (2eps/h) u_i + G_i - G_{i+1} + F_i,
-//! then d_i' = d_i + h (u_i' - u_{i-1}'). The matrix is SPD and strictly diagonally dominant, so
-//! the forward sweep needs no pivoting. The sweep stores the rows in normalised form
-//! u_i = y_i + w_i u_{i+1}, so the back sweep is one fma per row and also updates the gaps (the
-//! update telescopes, so sum d_i is conserved to rounding).
 //!
-//! Precision at tiny gaps: the textbook pivot beta_i = D_i - c_i^2/beta_{i-1} cancels
-//! catastrophically when a gap is tiny (c ~ mu/d huge). The sweep instead carries the pivot's
-//! excess over its right coupling, e_i = beta_i - c_{i+1} = m/h + c_i e_{i-1}/beta_{i-1}: a sum of
-//! positive terms (c_i in series with everything to its left). With lambda_i = e_i/beta_i and
-//! w_i = c_{i+1}/beta_i, the relative velocity u_{i+1} - u_i = lambda_i u_{i+1} - y_i is a difference of
-//! two small numbers when gap i+1 is small, so gaps keep their relative precision down to ~1e-300
-//! instead of being swamped by the rounding of absolute velocities.
+//! The solve. With c_i = mu/d_i + h·gamma·G_i/(d_i + 2 eps) (lubrication plus linearised
+//! repulsion),
+//!   (2eps/h) u_i' - c_{i+1}(u_{i+1}' - u_i') + c_i(u_i' - u_{i-1}') = (2eps/h) u_i + G_i - G_{i+1} + F_i.
+//! The matrix is SPD and strictly diagonally dominant: no pivoting. The sweep never divides by a
+//! gap: it carries a_i = c_i d_i = mu + h gamma G_i d_i/(d_i + 2eps) and the rows in the form
+//! u_i = d_{i+1} ys_i + w_i u_{i+1}, r_{i+1} = (u_{i+1} - u_i)/d_{i+1} = ls_i u_{i+1} - ys_i, where
+//! r is the relative rate of a gap (d ln d/dt). It stays O(1) as a gap closes (lubrication makes
+//! mu r a force), so it is computed to full relative precision however small the gap, and a gap
+//! below the float range (d = 0 in the sweep) makes its two particles move as one, exactly as the
+//! limit says.
 //!
-//! Clusters (Appendix A): a gap that is zero at t = 0 is "bonded": its two particles move as
-//! one. The forward sweep then adds the row into the next one (mass and forces add up) and
-//! stores w = 1, y = 0 so that the back sweep copies the velocity exactly; a cluster attached to
-//! the wall is "pinned" (w = y = 0). Bonded gaps have c = G = 0: their forces cancel inside the
-//! cluster.
+//! The gap update: ln d_i' = ln d_i + h r_i. The lubrication force over the step is then exactly
+//! mu (ln d' - ln d)/h, i.e. the step integrates mu d(ln d)/dt exactly; gaps stay positive and
+//! keep their relative precision at any size, and the step need not shrink as a gap closes.
+//! Gaps at or above GAP_FLOOR are stored as d; smaller ones as ln d (a negative number; a bonded
+//! gap is stored as 0). The update is not telescoping, so the step ends by scaling all gaps by
+//! one factor that restores sum d_i (a projection onto the invariant, O(h^2)).
+//!
+//! Energy: the step returns the discrete energy E' of its result and the work h Σ u_i' F_i of the
+//! forcing, so that the caller rejects a step whose energy rose (linearising G is not
+//! energy-stable at large gamma h).
+//!
+//! Clusters (Appendix A): a bonded gap (zero at t = 0) enters the sweep as a gap of GAP_FLOOR with
+//! G = 0 and a = mu: the sweep merges its two particles to rounding (their velocities come out
+//! equal, bit for bit), and its stored 0 is never updated.
 
+use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};
 
-/// A step may shrink a gap to no less than this fraction of its old value. The gap update is
-/// explicit in d, so a step that shrinks a gap by more has left the regime where it is accurate
-/// (and the next one would close it): it is rejected and retried with a smaller step, exactly as
-/// a step that closes a gap.
-pub const MIN_GAP_RATIO: f64 = 0.5;
+/// Gaps smaller than this are stored as ln d, and enter the linear solve as this value (the
+/// velocities it yields differ from the limit d → 0 by ~GAP_FLOOR·r, far below rounding).
+pub const GAP_FLOOR: f64 = 1e-250;
+/// ln(GAP_FLOOR).
+pub const LN_GAP_FLOOR: f64 = -575.646_273_248_511_4;
+/// GAP_FLOOR of the f32 GPU kernel: far enough above f32's smallest normal (1.2e-38) that
+/// mu/GAP_FLOOR and the sweep's products stay finite for mu up to 1e12.
+pub const GAP_FLOOR_F32: f64 = 1e-24;
+/// ln(GAP_FLOOR_F32).
+pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 
-/// Whether a free gap may go from `old` to `new` in one step (NaN fails every comparison).
+/// The stored value of a gap given its logarithm.
 #[inline(always)]
-pub fn gap_step_admissible(old: f64, new: f64) -> bool {
-    new > MIN_GAP_RATIO * old && new < f64::INFINITY
+pub fn encode_ln_gap(s: f64) -> f64 {
+    if s > LN_GAP_FLOOR {
+        s.exp()
+    } else {
+        s
+    }
 }
 
 /// What the plan says exists, for one block. Absent terms cost nothing.
 pub struct Terms<'a, const L: usize> {
     pub eps: f64,
     pub mu: [f64; L],
+    /// sum d_i of each lane's initial chain, kept by the projection.
+    pub total_gap: [f64; L],
     /// d* (interleaved, length N·L) and how G is evaluated: present iff the model has repulsion.
     pub repulsion: Option<(&'a [f64], Gamma<L>)>,
     /// Bonded gaps (interleaved, length N·L): present iff some member has clusters.
@@ -58,7 +77,7 @@ pub enum Gamma<const L: usize> {
 
 impl<const L: usize> Gamma<L> {
     #[inline(always)]
-    fn gamma(&self, l: usize) -> f64 {
+    pub fn gamma(&self, l: usize) -> f64 {
         match self {
             Gamma::Uniform(Power::Integer(n)) => *n as f64,
             Gamma::Uniform(Power::Real(g)) => *g,
@@ -74,14 +93,15 @@ impl<const L: usize> Gamma<L> {
     }
 }
 
-/// Thomas sweep scratch, length (N-1)·L each: the normalised rows u_i = y_i + w_i u_{i+1} and
-/// lambda_i = 1 - w_i kept separately, so that u_{i+1} - u_i = lambda_i u_{i+1} - y_i is computed
-/// from small numbers when gap i+1 is tiny (see `euler_step`).
+/// Thomas sweep scratch, length (N-1)·L each: the rows u_i = d_{i+1} ys_i + w_i u_{i+1} with
+/// r_{i+1} = ls_i u_{i+1} - ys_i (the back sweep overwrites ls with the rate r_{i+1}, which the
+/// log-gap fix-up reads), and the forces F_i (only with forcing, for the work h Σ u' F).
 #[derive(Debug, Clone)]
 pub struct Scratch {
     pub w: Vec<f64>,
-    pub lambda: Vec<f64>,
-    pub y: Vec<f64>,
+    pub ls: Vec<f64>,
+    pub ys: Vec<f64>,
+    pub force: Vec<f64>,
 }
 
 impl Scratch {
@@ -89,35 +109,122 @@ impl Scratch {
         let len = (particles - 1) * lanes;
         Scratch {
             w: vec![0.0; len],
-            lambda: vec![0.0; len],
-            y: vec![0.0; len],
+            ls: vec![0.0; len],
+            ys: vec![0.0; len],
+            force: vec![0.0; len],
         }
     }
 }
 
-/// Coupling c and repulsion G of one gap for one lane.
+/// What one step found out, per lane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    /// Every gap and velocity of the result finite (a rejected step is retried smaller).
+    pub admissible: bool,
+    /// A failure that no smaller step can cure, found in the state the step started from:
+    /// the forcing or the repulsion is not finite there.
+    pub hard: Option<HardFailure>,
+    /// Discrete energy of the result.
+    pub energy: f64,
+    /// Work of the forcing over the step, h Σ u_i' F_i.
+    pub work: f64,
+}
+
+/// See [`StepReport::hard`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum HardFailure {
+    /// F_i is not finite: particle i (1-based) at position x.
+    Forcing { particle: usize, x: f64 },
+    /// G_i = (rho/rho*)^gamma is not finite: gap i (1-based) with that density ratio.
+    Repulsion { gap: usize, ratio: f64 },
+}
+
+impl StepReport {
+    const START: StepReport = StepReport {
+        admissible: true,
+        hard: None,
+        energy: 0.0,
+        work: 0.0,
+    };
+}
+
+/// (a, G) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) with d the effective gap.
 #[inline(always)]
 fn gap_terms<const L: usize>(
     terms: &Terms<L>,
     l: usize,
     index: usize,
-    d: f64,
+    stored: f64,
     h: f64,
-) -> (f64, f64) {
-    if let Some(bonded) = terms.bonded {
-        if bonded[index] {
-            return (0.0, 0.0);
-        }
+) -> (f64, f64, f64) {
+    let d = stored.max(GAP_FLOOR);
+    if terms.bonded.is_some_and(|b| b[index]) {
+        return (terms.mu[l], 0.0, d);
     }
-    let mut c = terms.mu[l] / d;
+    let mut a = terms.mu[l];
     let mut g = 0.0;
     if let Some((dstar, gamma)) = &terms.repulsion {
         let inv_s = 1.0 / (d + 2.0 * terms.eps);
         let ratio = (dstar[index] + 2.0 * terms.eps) * inv_s;
         g = gamma.power(l, ratio);
-        c += h * gamma.gamma(l) * g * inv_s;
+        a += h * gamma.gamma(l) * g * d * inv_s;
     }
-    (c, g)
+    (a, g, d)
+}
+
+/// Phi_i(d) of one free gap: (d + 2eps) G/(gamma - 1), or -(d* + 2eps) ln(d + 2eps) at gamma = 1.
+#[inline(always)]
+fn potential<const L: usize>(terms: &Terms<L>, l: usize, index: usize, d: f64) -> f64 {
+    let Some((dstar, gamma)) = &terms.repulsion else {
+        return 0.0;
+    };
+    let s = d + 2.0 * terms.eps;
+    let s_star = dstar[index] + 2.0 * terms.eps;
+    let g = gamma.gamma(l);
+    if g == 1.0 {
+        -s_star * s.ln()
+    } else {
+        s * gamma.power(l, s_star / s) / (g - 1.0)
+    }
+}
+
+/// The repulsion of gap `gap` (0-based; element `index`) overflowed at the effective gap d.
+fn repulsion_failure<const L: usize>(terms: &Terms<L>, gap: usize, index: usize, d: f64) -> HardFailure {
+    let dstar = terms.repulsion.map_or(0.0, |r| r.0[index]);
+    HardFailure::Repulsion {
+        gap: gap + 1,
+        ratio: (dstar + 2.0 * terms.eps) / (d + 2.0 * terms.eps),
+    }
+}
+
+/// Discrete energy E = eps Σ u_i² + Σ Phi_i(d_i) of every lane's state (the same sums as a step's
+/// report, so that the energy check compares like with like).
+pub fn state_energy<const L: usize>(
+    terms: &Terms<L>,
+    n: usize,
+    gaps: &[f64],
+    vel: &[f64],
+) -> [f64; L] {
+    let mut kinetic = [0.0; L];
+    for i in (1..n).rev() {
+        for l in 0..L {
+            let u = vel[(i - 1) * L + l];
+            kinetic[l] += u * u;
+        }
+    }
+    let mut energy = [0.0; L];
+    for i in 0..n {
+        for l in 0..L {
+            let k = i * L + l;
+            if terms.bonded.is_none_or(|b| !b[k]) {
+                energy[l] += potential(terms, l, k, gaps[k].max(0.0));
+            }
+        }
+    }
+    for l in 0..L {
+        energy[l] += terms.eps * kinetic[l];
+    }
+    energy
 }
 
 /// F_i = ∫_{q_i - eps}^{q_i + eps} f(t, x) dx by Gauss–Legendre.
@@ -130,78 +237,9 @@ fn particle_force(forcing: &Forcing, eps: f64, t: f64, q: f64) -> f64 {
     eps * s
 }
 
-/// Registers carried along the forward sweep (per lane).
-struct SweepState<const L: usize> {
-    lambda_prev: [f64; L],
-    y_prev: [f64; L],
-    c_prev: [f64; L],
-    g_prev: [f64; L],
-    q: [f64; L],
-}
-
-#[inline(always)]
-fn forcing_or(f: &Forcing) -> Option<&Forcing> {
-    Some(f)
-}
-
-/// Forward sweep without clusters. `coupling(l, gap_index, d, h)` gives (c, G) of one gap.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn forward_sweep_free<
-    const L: usize,
-    const FORCED: bool,
-    C: Fn(usize, usize, f64, f64) -> (f64, f64),
->(
-    n: usize,
-    eps: f64,
-    forcing: Option<&Forcing>,
-    t: &[f64; L],
-    h: &[f64; L],
-    m_over_h: &[f64; L],
-    gaps_in: &[f64],
-    vel_in: &[f64],
-    scratch: &mut Scratch,
-    mut st: SweepState<L>,
-    coupling: C,
-) {
-    let mass = 2.0 * eps;
-    // The first gap with the same specialised arithmetic as the others.
-    for l in 0..L {
-        (st.c_prev[l], st.g_prev[l]) = coupling(l, l, gaps_in[l], h[l]);
-    }
-    for i in 1..n {
-        let row = (i - 1) * L;
-        let next_gap = i * L;
-        for l in 0..L {
-            let (c_next, g_next) = coupling(l, next_gap + l, gaps_in[next_gap + l], h[l]);
-            let mut f = 0.0;
-            if FORCED {
-                if let Some(forcing) = forcing {
-                    st.q[l] += gaps_in[row + l] + mass;
-                    f = particle_force(forcing, eps, t[l], st.q[l]);
-                }
-            }
-            let rhs = m_over_h[l] * vel_in[row + l] + st.g_prev[l] - g_next + f;
-            let excess = m_over_h[l] + st.c_prev[l] * st.lambda_prev[l];
-            let delta = rhs + st.c_prev[l] * st.y_prev[l];
-            let inv = 1.0 / (excess + c_next);
-            let lambda = excess * inv;
-            let y = delta * inv;
-            scratch.w[row + l] = c_next * inv;
-            scratch.lambda[row + l] = lambda;
-            scratch.y[row + l] = y;
-            st.lambda_prev[l] = lambda;
-            st.y_prev[l] = y;
-            st.c_prev[l] = c_next;
-            st.g_prev[l] = g_next;
-        }
-    }
-}
-
-/// Advances every lane by its own step h[l] from (gaps_in, vel_in) to (gaps_out, vel_out).
-/// Returns, per lane, whether the result is admissible: every free gap finite and above
-/// MIN_GAP_RATIO times its old value. Lanes
-/// with `ok = false` must be rejected by the caller (their output is garbage).
+/// Advances every lane by its own step h[l] from (gaps_in, vel_in) to (gaps_out, vel_out)
+/// (gaps in the stored form: d, or ln d below GAP_FLOOR). Lanes whose report is not admissible
+/// (or has a hard failure) must be rejected by the caller: their output is garbage.
 #[allow(clippy::too_many_arguments)]
 pub fn euler_step<const L: usize>(
     terms: &Terms<L>,
@@ -213,175 +251,201 @@ pub fn euler_step<const L: usize>(
     gaps_out: &mut [f64],
     vel_out: &mut [f64],
     scratch: &mut Scratch,
-) -> [bool; L] {
+) -> [StepReport; L] {
     let n = particles;
     let eps = terms.eps;
     debug_assert_eq!(gaps_in.len(), n * L);
     debug_assert_eq!(vel_in.len(), (n - 1) * L);
     let mass = 2.0 * eps;
+    let mut report = [StepReport::START; L];
     let mut m_over_h = [0.0; L];
     for l in 0..L {
         m_over_h[l] = mass / h[l];
     }
 
-    // Row 0 is the wall: u_0 = 0, so y_0 = 0.
-    let mut c_prev = [0.0; L];
+    // Forward sweep. The wall (row 0, u_0 = 0) has an infinite pivot: lambda_0 = 1, so
+    // ls_0 = 1/d_1 and ys_0 = 0.
+    let mut a_prev = [0.0; L];
     let mut g_prev = [0.0; L];
-    let mut y_prev = [0.0; L];
+    let mut ls_prev = [0.0; L];
+    let mut ys_prev = [0.0; L];
     let mut q = [0.0; L];
     for l in 0..L {
-        (c_prev[l], g_prev[l]) = gap_terms(terms, l, l, gaps_in[l], h[l]);
-    }
-
-    // lambda_prev = e_{i-1}/beta_{i-1}: 1 at the wall (infinite pivot excess).
-    let mut lambda_prev = [1.0; L];
-    if let Some(bonded) = terms.bonded {
-        // Cluster-aware sweep: a row merged into the next carries its excess and right-hand side.
-        let mut excess_carry = [0.0; L];
-        let mut delta_carry = [0.0; L];
-        let mut pinned = [true; L];
-        for i in 1..n {
-            let row = (i - 1) * L;
-            let next_gap = i * L;
-            for l in 0..L {
-                let (c_next, g_next) =
-                    gap_terms(terms, l, next_gap + l, gaps_in[next_gap + l], h[l]);
-                let mut f = 0.0;
-                if let Some(forcing) = terms.forcing {
-                    q[l] += gaps_in[row + l] + mass;
-                    f = particle_force(forcing, eps, t[l], q[l]);
-                }
-                let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
-                let (excess, delta);
-                if bonded[row + l] {
-                    // Gap i bonded (c_i = 0): row i-1 was merged into this row.
-                    excess = m_over_h[l] + excess_carry[l];
-                    delta = rhs + delta_carry[l];
-                } else {
-                    pinned[l] = false;
-                    excess = m_over_h[l] + c_prev[l] * lambda_prev[l];
-                    delta = rhs + c_prev[l] * y_prev[l];
-                }
-                let (w, lambda, y) = if bonded[next_gap + l] {
-                    excess_carry[l] = excess;
-                    delta_carry[l] = delta;
-                    (1.0, 0.0, 0.0)
-                } else if pinned[l] {
-                    (0.0, 1.0, 0.0)
-                } else {
-                    let inv = 1.0 / (excess + c_next);
-                    (c_next * inv, excess * inv, delta * inv)
-                };
-                scratch.w[row + l] = w;
-                scratch.lambda[row + l] = lambda;
-                scratch.y[row + l] = y;
-                lambda_prev[l] = lambda;
-                y_prev[l] = y;
-                c_prev[l] = c_next;
-                g_prev[l] = g_next;
-            }
-        }
-    } else {
-        // Without clusters: the hot path, specialised on the terms present so that the lane loop
-        // has no per-element branches (and integer gamma is a fixed chain of multiplications).
-        let state = SweepState {
-            lambda_prev,
-            y_prev,
-            c_prev,
-            g_prev,
-            q,
-        };
-        let eps2 = 2.0 * eps;
-        let mu = terms.mu;
-        macro_rules! with_forcing {
-            ($coupling:expr) => {
-                if let Some(forcing) = terms.forcing {
-                    forward_sweep_free::<L, true, _>(
-                        n,
-                        eps,
-                        forcing_or(forcing),
-                        t,
-                        h,
-                        &m_over_h,
-                        gaps_in,
-                        vel_in,
-                        scratch,
-                        state,
-                        $coupling,
-                    )
-                } else {
-                    forward_sweep_free::<L, false, _>(
-                        n, eps, None, t, h, &m_over_h, gaps_in, vel_in, scratch, state, $coupling,
-                    )
-                }
-            };
-        }
-        match &terms.repulsion {
-            None => with_forcing!(|l: usize, _i: usize, d: f64, _h: f64| (mu[l] / d, 0.0)),
-            Some((dstar, gamma)) => {
-                macro_rules! repulsion {
-                    ($pow:expr, $gamma_of:expr) => {
-                        with_forcing!(|l: usize, i: usize, d: f64, h: f64| {
-                            let inv_s = 1.0 / (d + eps2);
-                            let g = $pow((dstar[i] + eps2) * inv_s, l);
-                            (mu[l] / d + h * $gamma_of(l) * g * inv_s, g)
-                        })
-                    };
-                }
-                match *gamma {
-                    Gamma::Uniform(Power::Integer(1)) => repulsion!(|r: f64, _l| r, |_l| 1.0),
-                    Gamma::Uniform(Power::Integer(2)) => repulsion!(|r: f64, _l| r * r, |_l| 2.0),
-                    Gamma::Uniform(Power::Integer(3)) => {
-                        repulsion!(|r: f64, _l| r * r * r, |_l| 3.0)
-                    }
-                    Gamma::Uniform(Power::Integer(4)) => repulsion!(
-                        |r: f64, _l| {
-                            let r2 = r * r;
-                            r2 * r2
-                        },
-                        |_l| 4.0
-                    ),
-                    Gamma::Uniform(p) => {
-                        let g = match p {
-                            Power::Integer(k) => k as f64,
-                            Power::Real(g) => g,
-                        };
-                        repulsion!(|r: f64, _l| p.apply(r), |_l| g)
-                    }
-                    Gamma::PerLane(gs) => {
-                        repulsion!(|r: f64, l: usize| Power::of(gs[l]).apply(r), |l: usize| gs
-                            [l])
-                    }
-                }
-            }
+        let (a, g, d) = gap_terms(terms, l, l, gaps_in[l], h[l]);
+        a_prev[l] = a;
+        g_prev[l] = g;
+        ls_prev[l] = 1.0 / d;
+        if !g.is_finite() {
+            report[l].hard = Some(repulsion_failure(terms, 0, l, d));
         }
     }
-
-    // Back sweep from the right wall (u_N = 0), updating gap i+1 with u_{i+1} - u_i.
-    let mut ok = [true; L];
+    for i in 1..n {
+        let row = (i - 1) * L;
+        let next_gap = i * L;
+        for l in 0..L {
+            let stored_next = gaps_in[next_gap + l];
+            let (a_next, g_next, d_next) = gap_terms(terms, l, next_gap + l, stored_next, h[l]);
+            let mut f = 0.0;
+            if let Some(forcing) = terms.forcing {
+                q[l] += stored_gap::decode(gaps_in[row + l]) + mass;
+                f = particle_force(forcing, eps, t[l], q[l]);
+                scratch.force[row + l] = f;
+                if !f.is_finite() && report[l].hard.is_none() {
+                    report[l].hard = Some(HardFailure::Forcing {
+                        particle: i,
+                        x: q[l],
+                    });
+                }
+            }
+            if !g_next.is_finite() && report[l].hard.is_none() {
+                report[l].hard = Some(repulsion_failure(terms, i, next_gap + l, d_next));
+            }
+            let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
+            let excess = m_over_h[l] + a_prev[l] * ls_prev[l];
+            let delta = rhs + a_prev[l] * ys_prev[l];
+            let inv = 1.0 / (excess * d_next + a_next);
+            let ls = excess * inv;
+            let ys = delta * inv;
+            scratch.w[row + l] = a_next * inv;
+            scratch.ls[row + l] = ls;
+            scratch.ys[row + l] = ys;
+            ls_prev[l] = ls;
+            ys_prev[l] = ys;
+            a_prev[l] = a_next;
+            g_prev[l] = g_next;
+        }
+    }
+    // Back sweep from the right wall (u_N = 0): velocities, the rate of gap i+1 and its update
+    // ln d' = ln d + h r. Log-stored gaps and gaps that leave [GAP_FLOOR, inf) are redone by the
+    // fix-up below (rare), from the rate left in `ls`.
+    let mut needs_fixup = [false; L];
+    let mut kinetic = [0.0; L];
+    let mut work = [0.0; L];
     let mut u_next = [0.0; L];
     for i in (1..n).rev() {
         let row = (i - 1) * L;
         let gap = i * L;
         for l in 0..L {
-            let u = scratch.y[row + l] + scratch.w[row + l] * u_next[l];
-            // u_{i+1} - u_i without cancelling two large velocities.
-            let relative = scratch.lambda[row + l] * u_next[l] - scratch.y[row + l];
             let old = gaps_in[gap + l];
-            let d = old + h[l] * relative;
+            let d = old.max(GAP_FLOOR);
+            let u = d * scratch.ys[row + l] + scratch.w[row + l] * u_next[l];
+            let rate = scratch.ls[row + l] * u_next[l] - scratch.ys[row + l];
+            let grown = old * (h[l] * rate).exp();
             vel_out[row + l] = u;
-            gaps_out[gap + l] = d;
-            let free = terms.bonded.is_none_or(|b| !b[gap + l]);
-            ok[l] &= !free || gap_step_admissible(old, d);
+            gaps_out[gap + l] = grown;
+            scratch.ls[row + l] = rate;
+            kinetic[l] += u * u;
+            if terms.forcing.is_some() {
+                work[l] += u * scratch.force[row + l];
+            }
+            // NaN fails the comparison.
+            needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY);
             u_next[l] = u;
         }
     }
+    let mut rate_first = [0.0; L];
     for l in 0..L {
         let old = gaps_in[l];
-        let d = old + h[l] * u_next[l];
-        gaps_out[l] = d;
-        let free = terms.bonded.is_none_or(|b| !b[l]);
-        ok[l] &= !free || gap_step_admissible(old, d);
+        let rate = u_next[l] / old.max(GAP_FLOOR);
+        let grown = old * (h[l] * rate).exp();
+        gaps_out[l] = grown;
+        rate_first[l] = rate;
+        needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY);
     }
-    ok
+
+    for l in 0..L {
+        if needs_fixup[l] {
+            fix_up_lane::<L>(
+                terms,
+                n,
+                l,
+                h[l],
+                gaps_in,
+                gaps_out,
+                &scratch.ls,
+                rate_first[l],
+            );
+        }
+    }
+    conclude::<L>(terms, n, gaps_out, &mut report);
+    for l in 0..L {
+        report[l].energy += eps * kinetic[l];
+        report[l].work = h[l] * work[l];
+        report[l].admissible &= report[l].energy.is_finite() && kinetic[l].is_finite();
+    }
+    report
+}
+
+/// Redoes the update of one lane's gaps in log form where the fast form d·e^{hr} does not apply
+/// (a log-stored gap, or a result outside [GAP_FLOOR, inf)).
+#[allow(clippy::too_many_arguments)]
+fn fix_up_lane<const L: usize>(
+    terms: &Terms<L>,
+    n: usize,
+    l: usize,
+    h: f64,
+    gaps_in: &[f64],
+    gaps_out: &mut [f64],
+    rates: &[f64],
+    rate_first: f64,
+) {
+    for i in 0..n {
+        let k = i * L + l;
+        if terms.bonded.is_some_and(|b| b[k]) {
+            gaps_out[k] = 0.0;
+            continue;
+        }
+        let grown = gaps_out[k];
+        if grown >= GAP_FLOOR && grown < f64::INFINITY && gaps_in[k] > 0.0 {
+            continue;
+        }
+        let rate = if i == 0 {
+            rate_first
+        } else {
+            rates[(i - 1) * L + l]
+        };
+        gaps_out[k] = encode_ln_gap(stored_gap::ln(gaps_in[k]) + h * rate);
+    }
+}
+
+/// Ends a step: scales every lane's gaps so that their sum is the lane's total again (the
+/// projection; log-stored gaps are shifted by the log of the factor) and adds the potential
+/// energy of the result to `report.energy`. Non-finite gaps make the lane inadmissible.
+pub fn conclude<const L: usize>(
+    terms: &Terms<L>,
+    n: usize,
+    gaps: &mut [f64],
+    report: &mut [StepReport; L],
+) {
+    let mut sum = [0.0; L];
+    let mut logged = [false; L];
+    for i in 0..n {
+        for l in 0..L {
+            let v = gaps[i * L + l];
+            sum[l] += v.max(0.0);
+            logged[l] |= v < 0.0;
+            report[l].admissible &= v.is_finite();
+        }
+    }
+    let mut scale = [1.0; L];
+    let mut shift = [0.0; L];
+    for l in 0..L {
+        scale[l] = terms.total_gap[l] / sum[l];
+        if logged[l] {
+            shift[l] = scale[l].ln();
+        }
+    }
+    let bonded = terms.bonded;
+    for i in 0..n {
+        for l in 0..L {
+            let k = i * L + l;
+            let v = gaps[k];
+            let scaled = if v > 0.0 { v * scale[l] } else { v + shift[l] };
+            let d = scaled.max(0.0);
+            gaps[k] = if v == 0.0 { 0.0 } else { scaled };
+            if bonded.is_none_or(|b| !b[k]) {
+                report[l].energy += potential(terms, l, k, d);
+            }
+        }
+    }
 }

@@ -27,12 +27,15 @@ fn is_lavapipe(ctx: &GpuContext) -> bool {
     d.driver.to_lowercase().contains("llvmpipe") || d.name.to_lowercase().contains("llvmpipe")
 }
 
-/// Loop iterations over the chain per trial step: two sweeps per Euler step (one for order 1 with
-/// fixed steps, three with Richardson), plus the error norm and the extrapolation (two each).
+/// Loop iterations over the chain per trial step, at most: per Euler step (one for order 1 with
+/// fixed steps, three with Richardson) two sweeps, the log-gap fix-up and the projection's two
+/// loops; the error norm (two loops); the extrapolation (two, and the projection's two); the
+/// smallest gap named by a failure (one).
 fn loops_per_attempt(scheme: SchemeSpec) -> u64 {
-    (if scheme.richardson() { 6 } else { 2 })
+    (if scheme.richardson() { 15 } else { 5 })
         + if scheme.adaptive { 2 } else { 0 }
-        + if scheme.order2 { 2 } else { 0 }
+        + if scheme.order2 { 4 } else { 0 }
+        + 1
 }
 
 /// Trial steps per member per `advance` dispatch: [`MAX_ATTEMPTS_PER_DISPATCH`], or on lavapipe
@@ -73,7 +76,7 @@ pub fn check_loop_budget(
     if !is_lavapipe(ctx) {
         return Ok(());
     }
-    // One `advance` invocation; `gather` needs two loops over the chain.
+    // One `advance` invocation (`begin_interval`'s energy and `gather` need two loops).
     let per = loops_per_attempt(scheme).max(2);
     let iterations = attempts as u64 * (per * n as u64 + 1);
     if iterations > LAVAPIPE_LOOP_LIMIT {

@@ -8,6 +8,7 @@ use super::kernel::{binding, SchemeSpec};
 use super::wgsl_types::{controls_bytes, real_bytes, real_size, ControlF64, CONFIG_BUFFER_SIZE};
 use crate::backend::error::GpuError;
 use crate::backend::layout::interleave;
+use crate::backend::cpu::step::{GAP_FLOOR, GAP_FLOOR_F32};
 use crate::backend::Precision;
 use crate::model::chain::Chain;
 use crate::model::plan::Plan;
@@ -34,9 +35,9 @@ impl BufferSizes {
         }
     }
 
-    /// The Thomas solve's scratch: w, lambda and y, one set of velocities each.
+    /// The Thomas solve's scratch: w, ls, ys and the forces, one set of velocities each.
     pub fn scratch(&self) -> u64 {
-        3 * self.velocities
+        4 * self.velocities
     }
 
     /// Fails with [`GpuError::BufferTooLarge`] when a storage buffer exceeds the device limits.
@@ -58,7 +59,7 @@ pub struct InitialData {
     pub gap_sets: Vec<u8>,
     /// The initial velocities in set 0, the other sets zero.
     pub vel_sets: Vec<u8>,
-    /// `array<Param>`: mu and gamma per member.
+    /// `array<Param>`: mu, gamma and the total gap per member.
     pub params: Vec<u8>,
     /// `array<Control>`: every member at its initial control.
     pub controls: Vec<u8>,
@@ -80,13 +81,32 @@ impl InitialData {
         sizes: BufferSizes,
         precision: Precision,
     ) -> Self {
-        let gaps: Vec<&[f64]> = chains.iter().map(|c| c.gaps.as_slice()).collect();
+        // The stored form (`stored_gap`): gaps below the kernel's GAP_FLOOR as ln d.
+        let floor = match precision {
+            Precision::F64 => GAP_FLOOR,
+            Precision::F32 => GAP_FLOOR_F32,
+        };
+        let stored: Vec<Vec<f64>> = chains
+            .iter()
+            .map(|c| {
+                c.gaps
+                    .iter()
+                    .map(|&d| if d > 0.0 && d < floor { d.ln() } else { d })
+                    .collect()
+            })
+            .collect();
+        let gaps: Vec<&[f64]> = stored.iter().map(|g| g.as_slice()).collect();
         let velocities: Vec<&[f64]> = chains.iter().map(|c| c.velocities.as_slice()).collect();
         let mut gap_sets = real_bytes(&interleave(&gaps), precision);
         gap_sets.resize((sizes.sets * sizes.gaps) as usize, 0);
         let mut vel_sets = real_bytes(&interleave(&velocities), precision);
         vel_sets.resize((sizes.sets * sizes.velocities) as usize, 0);
-        let params: Vec<f64> = plan.members.iter().flat_map(|p| [p.mu, p.gamma]).collect();
+        let params: Vec<f64> = plan
+            .members
+            .iter()
+            .zip(chains)
+            .flat_map(|(p, c)| [p.mu, p.gamma, c.gaps.iter().sum::<f64>()])
+            .collect();
         let dstar = plan.repulsion.then(|| {
             let refs: Vec<&[f64]> = dstar.iter().map(|d| d.as_deref().unwrap_or(&[])).collect();
             real_bytes(&interleave(&refs), precision)

@@ -7,6 +7,8 @@
 
 use std::fmt::Write as _;
 
+use crate::backend::cpu::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64};
+use crate::backend::cpu::step::{GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32};
 use crate::backend::Precision;
 use crate::expr::{Expr, WgslFloat};
 
@@ -131,7 +133,28 @@ fn generated(spec: &KernelSpec) -> String {
         Precision::F32 => f32::MAX as f64,
         Precision::F64 => f64::MAX,
     };
-    let _ = writeln!(out, "const REAL_MAX: real = {};\n", literal(max, float));
+    let _ = writeln!(out, "const REAL_MAX: real = {};", literal(max, float));
+    let (floor, ln_floor, energy_rtol) = match spec.precision {
+        Precision::F32 => (GAP_FLOOR_F32, LN_GAP_FLOOR_F32, ENERGY_RTOL_F32),
+        Precision::F64 => (GAP_FLOOR, LN_GAP_FLOOR, ENERGY_RTOL_F64),
+    };
+    let _ = writeln!(out, "const GAP_FLOOR: real = {};", literal(floor, float));
+    let _ = writeln!(out, "const LN_GAP_FLOOR: real = {};", literal(ln_floor, float));
+    let _ = writeln!(
+        out,
+        "const ENERGY_RTOL: real = {};\n",
+        literal(energy_rtol, float)
+    );
+    // exp and ln of `real`: WGSL's f64 exp/log are wrong on Vulkan (DESIGN.md §2).
+    let (exp, ln) = match spec.precision {
+        Precision::F32 => ("exp(x)", "log(x)"),
+        Precision::F64 => ("exp_f64(x)", "log_f64(x)"),
+    };
+    let _ = writeln!(
+        out,
+        "fn exp_real(x: real) -> real {{\n    return {exp};\n}}\n\n\
+         fn ln_real(x: real) -> real {{\n    return {ln};\n}}\n"
+    );
 
     match spec.repulsion {
         None => {}
@@ -207,14 +230,10 @@ fn generated(spec: &KernelSpec) -> String {
     out
 }
 
-/// Whether the generated code calls the f64 math library.
+/// Whether the generated code calls the f64 math library: always in f64 (the gap update is
+/// exp, the log-stored gaps need ln).
 fn needs_f64_math(spec: &KernelSpec) -> bool {
     spec.precision == Precision::F64
-        && (spec.repulsion == Some(GammaSpec::PerMember)
-            || spec
-                .forcing
-                .as_ref()
-                .is_some_and(|(e, _, _)| !e.wgsl_f64_functions_used().is_empty()))
 }
 
 /// Keeps or removes the `//@BEGIN NAME` ... `//@END NAME` blocks of the template.
@@ -252,6 +271,7 @@ fn select_blocks(template: &str, keep: impl Fn(&str) -> bool) -> String {
 pub fn generate_step_wgsl(spec: &KernelSpec) -> String {
     let body = select_blocks(STEP_TEMPLATE_WGSL, |name| match name {
         "REPULSION" => spec.repulsion.is_some(),
+        "NOREPULSION" => spec.repulsion.is_none(),
         "CLUSTERS" => spec.clusters,
         "FREE" => !spec.clusters,
         "FORCING" => spec.forcing.is_some(),

@@ -31,7 +31,7 @@ use super::wgsl_types::{
 };
 use crate::backend::cpu::control::Rules;
 use crate::backend::error::GpuError;
-use crate::backend::report::{Failure, MemberReport, MemberStatus};
+use crate::backend::report::{Failure, FailureRecord, MemberReport, MemberStatus};
 use crate::backend::{BatchSolver, Precision, Progress};
 use crate::model::chain::Chain;
 use crate::model::observables::{grid_points, observe, Snapshot};
@@ -219,12 +219,17 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         t: 0.0,
         dt,
         failure_time: 0.0,
+        failure_detail: 0.0,
+        // Negative: `begin_interval` computes the initial energy on the GPU (E >= 0 otherwise).
+        energy: -1.0,
         accepted: 0,
         rejected: 0,
         regular_steps: 0,
         regular: 1,
         failure: 0,
         parity: 0,
+        failure_index: 0,
+        padding: 0,
     }
 }
 
@@ -527,7 +532,13 @@ impl<'a> GpuSolver<'a> {
                 status: match Failure::from_code(c.failure) {
                     Failure::None => MemberStatus::Ok,
                     f => MemberStatus::Failed {
-                        reason: f.describe(dt_min),
+                        reason: FailureRecord {
+                            failure: f,
+                            time: c.failure_time,
+                            index: c.failure_index,
+                            detail: c.failure_detail,
+                        }
+                        .describe(dt_min, m, self.plan.members[m].gamma),
                         time: c.failure_time,
                     },
                 },

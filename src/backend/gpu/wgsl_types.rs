@@ -54,6 +54,10 @@ macro_rules! mirror_structs {
             pub dt: $real,
             /// Time of the failure (when `failure != 0`).
             pub failure_time: $real,
+            /// `StepControl::failure_detail`.
+            pub failure_detail: $real,
+            /// Discrete energy of the current state.
+            pub energy: $real,
             pub accepted: u32,
             pub rejected: u32,
             pub regular_steps: u32,
@@ -63,6 +67,10 @@ macro_rules! mirror_structs {
             pub failure: u32,
             /// Which buffer set (0 or 1) holds the member's state.
             pub parity: u32,
+            /// `StepControl::failure_index`.
+            pub failure_index: u32,
+            /// Keeps the struct's size a multiple of 8 (WGSL field `padding`).
+            pub padding: u32,
         }
     };
 }
@@ -81,12 +89,12 @@ const _: () = {
     assert!(offset_of!(ConfigF32, tail) == 40);
     assert!(size_of::<ConfigF32>() == CONFIG_BUFFER_SIZE as usize);
     assert!(size_of::<ConfigF64>() == CONFIG_BUFFER_SIZE as usize);
-    assert!(size_of::<ControlF64>() == 48);
-    assert!(offset_of!(ControlF64, accepted) == 24);
-    assert!(offset_of!(ControlF64, parity) == 44);
-    assert!(size_of::<ControlF32>() == 36);
-    assert!(offset_of!(ControlF32, accepted) == 12);
-    assert!(offset_of!(ControlF32, parity) == 32);
+    assert!(size_of::<ControlF64>() == 72);
+    assert!(offset_of!(ControlF64, accepted) == 40);
+    assert!(offset_of!(ControlF64, parity) == 60);
+    assert!(size_of::<ControlF32>() == 52);
+    assert!(offset_of!(ControlF32, accepted) == 20);
+    assert!(offset_of!(ControlF32, parity) == 40);
 };
 
 impl ConfigF64 {
@@ -115,12 +123,16 @@ impl ControlF64 {
             t: self.t as f32,
             dt: self.dt as f32,
             failure_time: self.failure_time as f32,
+            failure_detail: self.failure_detail as f32,
+            energy: self.energy as f32,
             accepted: self.accepted,
             rejected: self.rejected,
             regular_steps: self.regular_steps,
             regular: self.regular,
             failure: self.failure,
             parity: self.parity,
+            failure_index: self.failure_index,
+            padding: 0,
         }
     }
 }
@@ -131,12 +143,16 @@ impl From<ControlF32> for ControlF64 {
             t: c.t.into(),
             dt: c.dt.into(),
             failure_time: c.failure_time.into(),
+            failure_detail: c.failure_detail.into(),
+            energy: c.energy.into(),
             accepted: c.accepted,
             rejected: c.rejected,
             regular_steps: c.regular_steps,
             regular: c.regular,
             failure: c.failure,
             parity: c.parity,
+            failure_index: c.failure_index,
+            padding: 0,
         }
     }
 }
