@@ -24,7 +24,7 @@
 //  - the marker line GENERATED is replaced by the generated code: REAL_MAX, GAP_FLOOR,
 //    LN_GAP_FLOOR, ENERGY_RTOL, `exp_real`, `ln_real`, `power(r, gamma)`
 //    (integer gamma: a fixed square-and-multiply chain, the sequence of `powi_by_squaring`;
-//    per-member gamma: the same chain when gamma is an integer <= 64 as `Power::of` does, else
+//    per-member gamma: the same chain when gamma is an integer <= 1000 as `Power::of` does, else
 //    exp/pow), `gamma_of(gamma)`, the forcing function `forcing(x, t)` and the unrolled
 //    Gauss–Legendre sum `particle_force(eps, t, q)`; the f64 math library is prepended when the
 //    generated code calls it.
@@ -297,7 +297,13 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         // The old gap is loaded once (the store below may alias it for the compiler).
         let old = gap_sets[gi + gap];
         let d = max(old, GAP_FLOOR);
-        let u = d * scratch[2u * rows + row] + scratch[row] * u_next;
+        var u = d * scratch[2u * rows + row] + scratch[row] * u_next;
+//@BEGIN CLUSTERS
+        if bonded[gap] != 0u {
+            // Exactly the velocity of the body it is bonded to.
+            u = u_next;
+        }
+//@END CLUSTERS
         let rate = scratch[rows + row] * u_next - scratch[2u * rows + row];
         let grown = old * exp_real(h * rate);
         vel_sets[vo + row] = u;
@@ -310,6 +316,15 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         needs_fixup = needs_fixup || !(grown >= GAP_FLOOR && grown <= REAL_MAX);
         u_next = u;
     }
+//@BEGIN CLUSTERS
+    // Bodies glued to the left wall do not move, exactly.
+    for (var i: u32 = 0u; i + 1u < n; i++) {
+        if bonded[i * batch + b] == 0u {
+            break;
+        }
+        vel_sets[vo + i * batch + b] = 0.0;
+    }
+//@END CLUSTERS
     let old0 = gap_sets[gi + b];
     let rate_first = u_next / max(old0, GAP_FLOOR);
     let grown0 = old0 * exp_real(h * rate_first);
@@ -357,15 +372,24 @@ fn conclude(b: u32, which: u32, p: Param, report_in: StepReport) -> StepReport {
     let eps2 = 2.0 * config.eps;
     let base = which * n * batch;
     var report = report_in;
+    // The sum compensated (Neumaier), as on the CPU.
     var sum: real = 0.0;
+    var compensation: real = 0.0;
     var logged = false;
     for (var i: u32 = 0u; i < n; i++) {
         let v = gap_sets[base + i * batch + b];
-        sum = sum + max(v, 0.0);
+        let x = max(v, 0.0);
+        let t = sum + x;
+        if abs(sum) >= x {
+            compensation = compensation + ((sum - t) + x);
+        } else {
+            compensation = compensation + ((x - t) + sum);
+        }
+        sum = t;
         logged = logged || v < 0.0;
         report.admissible = report.admissible && is_finite_real(v);
     }
-    let scale = p.total_gap / sum;
+    let scale = p.total_gap / (sum + compensation);
     var shift: real = 0.0;
     if logged {
         shift = ln_real(scale);
@@ -455,8 +479,9 @@ fn extrapolate(b: u32, cand: u32, full: u32, p: Param, report_in: StepReport) ->
         }
         let a = gap_sets[cand * n * batch + k];
         let c = gap_sets[full * n * batch + k];
-        if a > 0.0 && c > 0.0 {
-            gap_sets[cand * n * batch + k] = a * (a / c);
+        let linear = a * (a / c);
+        if a > 0.0 && c > 0.0 && linear >= GAP_FLOOR && linear <= REAL_MAX {
+            gap_sets[cand * n * batch + k] = linear;
         } else {
             gap_sets[cand * n * batch + k] = encode_ln_gap(2.0 * stored_ln(a) - stored_ln(c));
         }

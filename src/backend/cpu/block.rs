@@ -437,8 +437,11 @@ mut report: [StepReport; L],
         if terms.bonded.is_some_and(|bd| bd[i]) {
             continue;
         }
-        *a = if *a > 0.0 && b > 0.0 {
-            *a * (*a / b)
+        let linear = *a * (*a / b);
+        // The linear form where both are stored as d and the result stays a normal gap; else in
+        // logs (it may leave the range).
+        *a = if *a > 0.0 && b > 0.0 && linear >= GAP_FLOOR && linear < f64::INFINITY {
+            linear
         } else {
             encode_ln_gap(2.0 * stored_gap::ln(*a) - stored_gap::ln(b))
         };

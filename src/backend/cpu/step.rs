@@ -28,8 +28,9 @@
 //! energy-stable at large gamma h).
 //!
 //! Clusters (Appendix A): a bonded gap (zero at t = 0) enters the sweep as a gap of GAP_FLOOR with
-//! G = 0 and a = mu: the sweep merges its two particles to rounding (their velocities come out
-//! equal, bit for bit), and its stored 0 is never updated.
+//! G = 0 and a = mu: the sweep merges its two particles (to ~1e-250); the back sweep then copies
+//! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
+//! bonded gap is never updated.
 
 use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};
@@ -328,7 +329,12 @@ pub fn euler_step<const L: usize>(
         for l in 0..L {
             let old = gaps_in[gap + l];
             let d = old.max(GAP_FLOOR);
-            let u = d * scratch.ys[row + l] + scratch.w[row + l] * u_next[l];
+            let mut u = d * scratch.ys[row + l] + scratch.w[row + l] * u_next[l];
+            if terms.bonded.is_some_and(|b| b[gap + l]) {
+                // Exactly the velocity of the body it is bonded to (the penalty gives it to
+                // ~1e-250).
+                u = u_next[l];
+            }
             let rate = scratch.ls[row + l] * u_next[l] - scratch.ys[row + l];
             let grown = old * (h[l] * rate).exp();
             vel_out[row + l] = u;
@@ -341,6 +347,17 @@ pub fn euler_step<const L: usize>(
             // NaN fails the comparison.
             needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY);
             u_next[l] = u;
+        }
+    }
+    if let Some(bonded) = terms.bonded {
+        // Bodies glued to the left wall do not move, exactly.
+        for l in 0..L {
+            for i in 0..n - 1 {
+                if !bonded[i * L + l] {
+                    break;
+                }
+                vel_out[i * L + l] = 0.0;
+            }
         }
     }
     let mut rate_first = [0.0; L];
@@ -417,12 +434,22 @@ pub fn conclude<const L: usize>(
     gaps: &mut [f64],
     report: &mut [StepReport; L],
 ) {
+    // The sum compensated (Neumaier): the projection would otherwise inject its rounding
+    // (~N ulp, the dominant error of f32 runs) into every gap at every step.
     let mut sum = [0.0; L];
+    let mut compensation = [0.0; L];
     let mut logged = [false; L];
     for i in 0..n {
         for l in 0..L {
             let v = gaps[i * L + l];
-            sum[l] += v.max(0.0);
+            let x = v.max(0.0);
+            let t = sum[l] + x;
+            compensation[l] += if sum[l].abs() >= x {
+                (sum[l] - t) + x
+            } else {
+                (x - t) + sum[l]
+            };
+            sum[l] = t;
             logged[l] |= v < 0.0;
             report[l].admissible &= v.is_finite();
         }
@@ -430,7 +457,7 @@ pub fn conclude<const L: usize>(
     let mut scale = [1.0; L];
     let mut shift = [0.0; L];
     for l in 0..L {
-        scale[l] = terms.total_gap[l] / sum[l];
+        scale[l] = terms.total_gap[l] / (sum[l] + compensation[l]);
         if logged[l] {
             shift[l] = scale[l].ln();
         }

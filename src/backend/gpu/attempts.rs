@@ -28,11 +28,11 @@ fn is_lavapipe(ctx: &GpuContext) -> bool {
 }
 
 /// Loop iterations over the chain per trial step, at most: per Euler step (one for order 1 with
-/// fixed steps, three with Richardson) two sweeps, the log-gap fix-up and the projection's two
-/// loops; the error norm (two loops); the extrapolation (two, and the projection's two); the
+/// fixed steps, three with Richardson) two sweeps, the wall-glued bodies, the log-gap fix-up and
+/// the projection's two loops; the error norm (two loops); the extrapolation (two, and the projection's two); the
 /// smallest gap named by a failure (one).
 fn loops_per_attempt(scheme: SchemeSpec) -> u64 {
-    (if scheme.richardson() { 15 } else { 5 })
+    (if scheme.richardson() { 18 } else { 6 })
         + if scheme.adaptive { 2 } else { 0 }
         + if scheme.order2 { 4 } else { 0 }
         + 1
