@@ -590,7 +590,50 @@ fn rejects_unknown_key() {
 #[test]
 fn rejects_negative_mu() {
     let s = edit(BASE, "mu = 0.01", "mu = -1");
-    expect_rejected(&s, &[], &["model.mu", "mu > 0"]);
+    expect_rejected(&s, &[], &["model.mu", "0 < mu <= 1e12"]);
+}
+
+/// Issue 8, item 3: values certain to fail are refused before the run, naming the field.
+#[test]
+fn rejects_values_certain_to_fail() {
+    let s = edit(BASE, "mu = 0.01", "mu = 1e308");
+    expect_rejected(
+        &s,
+        &[],
+        &["model.mu = 1e308", "mu/d_i overflow", "0 < mu <= 1e12"],
+    );
+    let s = edit(BASE, "0.5*sin(2*pi*x)", "1e308*x");
+    expect_rejected(
+        &s,
+        &[],
+        &["initial.velocity", "x = 0.00005", "|u0| <= 1e12"],
+    );
+    let csv = "x,u,r\n0.0,0.0,0.0\n0.25,0.1,1e300\n0.5,-0.1,0.0\n0.75,0.2,0.0\n1.0,0.0,0.0\n";
+    expect_rejected(
+        BASE_FILE,
+        &[("p.csv", csv)],
+        &["p.csv", "line 3", "column r", "r = 1e300", "0 <= r < 1"],
+    );
+    // gamma = 1000 with rho/rho* = 0.9/0.3 = 3: G = 3^1000 overflows f64 at t = 0.
+    let s = edit(
+        &edit(
+            &edit(BASE, "rho = \"0.7\"", "rho = \"0.9\""),
+            "rho_star = \"0.7\"",
+            "rho_star = \"0.3\"",
+        ),
+        "gamma = 1.0",
+        "gamma = 1000.0",
+    );
+    expect_rejected(
+        &s,
+        &[],
+        &[
+            "model.gamma = 1000",
+            "overflows f64 at t = 0",
+            "rho/rho* = 3,",
+            "gamma <= 646",
+        ],
+    );
 }
 
 #[test]

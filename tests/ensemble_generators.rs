@@ -704,3 +704,46 @@ fn dstar_and_mean_radii_profiles() {
     }
     assert!(mean_radii_from_rho_star(&[]).is_empty());
 }
+
+#[test]
+fn radii_file_refuses_radii_as_large_as_the_domain() {
+    let dir = tempfile::tempdir().unwrap();
+    for (text, line, shown) in [
+        ("r\n0.001\n1e300\n0.003\n", 3, "r = 1e300"),
+        ("r\n0.001\n0.002\n# the domain is [0, 1]\n1.0\n", 5, "r = 1"),
+    ] {
+        let path = dir.path().join("big.csv");
+        std::fs::write(&path, text).unwrap();
+        let e = roughness_radii(
+            &RoughnessSpec::new(RoughnessKind::File(path), 0.0),
+            &[0.001; 3],
+            &[],
+            SEED,
+            0,
+        )
+        .unwrap_err();
+        assert!(
+            matches!(e, EnsembleError::RoughnessFile { line: l, .. } if l == line),
+            "{e:?}"
+        );
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "roughness file {}, line {line}: column r: roughness radius {shown} is not smaller than the domain [0, 1] (allowed: 0 <= r < 1)",
+                dir.path().join("big.csv").display()
+            )
+        );
+    }
+    // Just below the domain's length is accepted.
+    let path = dir.path().join("ok.csv");
+    std::fs::write(&path, "r\n0.001\n0.999\n0.003\n").unwrap();
+    let radii = roughness_radii(
+        &RoughnessSpec::new(RoughnessKind::File(path), 0.0),
+        &[0.001; 3],
+        &[],
+        SEED,
+        0,
+    )
+    .unwrap();
+    assert_eq!(radii, vec![0.001, 0.999, 0.003]);
+}

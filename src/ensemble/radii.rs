@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use super::EnsembleError;
+use crate::scene::{number_text, MAX_ROUGHNESS_RADIUS};
 
 /// Reads a CSV with header `r` and one radius per row (N+1 rows; `#` starts a comment line).
 pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
@@ -18,7 +19,7 @@ pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
             other => std::io::Error::other(format!("{other:?}")),
         },
     };
-    let (mut reader, headers) = crate::scene::csv_rows::open_with_header(path, open_error, &err)?;
+    let (mut reader, headers) = crate::scene::csv_rows::open_with_header(path, open_error, err)?;
     let names: Vec<&str> = headers.iter().collect();
     if names != ["r"] {
         return Err(err(
@@ -27,7 +28,7 @@ pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
         ));
     }
     let mut radii = Vec::new();
-    for (line, record) in crate::scene::csv_rows::rows_with_lines(&mut reader, &err)? {
+    for (line, record) in crate::scene::csv_rows::rows_with_lines(&mut reader, err)? {
         let text = record.get(0).unwrap_or("");
         let r: f64 = text
             .parse()
@@ -36,6 +37,15 @@ pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
             return Err(err(
                 line,
                 format!("r = {r}: a roughness radius must be finite and >= 0"),
+            ));
+        }
+        if r >= MAX_ROUGHNESS_RADIUS {
+            return Err(err(
+                line,
+                format!(
+                    "column r: roughness radius r = {} is not smaller than the domain [0, 1] (allowed: 0 <= r < {MAX_ROUGHNESS_RADIUS})",
+                    number_text(r)
+                ),
             ));
         }
         radii.push(r);

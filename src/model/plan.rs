@@ -8,19 +8,26 @@ use crate::model::params::{MemberParams, OutputFields, Stepping};
 use crate::model::quadrature::GaussLegendre;
 use crate::scene::Scene;
 
+/// The largest integer gamma evaluated by multiplications ([`Power::Integer`]); larger or
+/// non-integer gamma is [`Power::Real`]. 1000 (the largest gamma a scene accepts) takes 10 bits:
+/// at most 9 squarings and 10 multiplications, the same sequence on the CPU and in the GPU kernel
+/// (`crate::backend::gpu::kernel`), so that f64 results agree bit for bit.
+pub const MAX_INTEGER_GAMMA: u32 = 1000;
+
 /// How G = ratio^gamma is evaluated.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(tag = "kind", content = "value", rename_all = "lowercase")]
 pub enum Power {
-    /// A chain of multiplications (square and multiply).
+    /// A chain of multiplications (square and multiply), for integer gamma <= [`MAX_INTEGER_GAMMA`].
     Integer(u32),
     /// exp(gamma ln ratio).
     Real(f64),
 }
 
 impl Power {
+    /// Integer gamma in 0..=[`MAX_INTEGER_GAMMA`] by multiplications, anything else by `powf`.
     pub fn of(gamma: f64) -> Power {
-        if gamma.fract() == 0.0 && gamma <= 64.0 {
+        if gamma.fract() == 0.0 && (0.0..=MAX_INTEGER_GAMMA as f64).contains(&gamma) {
             Power::Integer(gamma as u32)
         } else {
             Power::Real(gamma)
@@ -123,6 +130,52 @@ impl Plan {
             forcing: self.forcing.as_ref().map(|f| f.expr.source().to_string()),
             quadrature_points: self.forcing.as_ref().map(|f| f.rule.nodes.len()),
             gamma_evaluation,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn integer_gamma_up_to_1000_is_multiplications() {
+        for g in [
+            0.0, 1.0, 2.0, 64.0, 65.0, 100.0, 127.0, 128.0, 999.0, 1000.0,
+        ] {
+            assert_eq!(Power::of(g), Power::Integer(g as u32), "gamma = {g}");
+        }
+        for g in [
+            1000.5,
+            1001.0,
+            1024.0,
+            2.5,
+            64.5,
+            -1.0,
+            -64.0,
+            f64::NAN,
+            f64::INFINITY,
+        ] {
+            assert!(matches!(Power::of(g), Power::Real(_)), "gamma = {g}");
+        }
+        assert_eq!(MAX_INTEGER_GAMMA, 1000);
+    }
+
+    #[test]
+    fn integer_power_is_square_and_multiply() {
+        for n in [65u32, 100, 999, 1000] {
+            for r in [1.001, 0.999, 1.000_000_1, 0.5, 2.0] {
+                let p = Power::of(n as f64).apply(r);
+                assert_eq!(p.to_bits(), powi_by_squaring(r, n).to_bits(), "{r}^{n}");
+                let exact = r.powf(n as f64);
+                if exact.is_finite() && exact > f64::MIN_POSITIVE {
+                    // ~2 log2(n) roundings, each amplified at most n times.
+                    let tol = 4.0 * n as f64 * f64::EPSILON;
+                    assert!((p - exact).abs() <= tol * exact, "{r}^{n}: {p} vs {exact}");
+                } else {
+                    assert_eq!(p.is_finite(), exact.is_finite(), "{r}^{n}");
+                }
+            }
         }
     }
 }

@@ -3,13 +3,52 @@
 
 use std::fmt::{self, Display};
 
-use super::MAX_GAMMA;
+use super::{MAX_GAMMA, MAX_MU};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
+
+/// How a message writes a number: as Rust writes it (`0.01`, `2000`, `NaN`), except that a
+/// magnitude of 1e16 or more is written with an exponent (`1e308`, not 309 digits).
+pub(crate) fn number_text(v: f64) -> String {
+    if v.is_finite() && v.abs() >= 1e16 {
+        format!("{v:e}")
+    } else {
+        v.to_string()
+    }
+}
+
+/// A computed number in a message, to 4 significant digits (`0.5563`, `1099`, `5.563e-297`).
+pub(crate) fn approx_text(v: f64) -> String {
+    if !v.is_finite() || v == 0.0 {
+        return v.to_string();
+    }
+    let a = v.abs();
+    let trim = |s: &str| {
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s.to_string()
+        }
+    };
+    if (1e-4..1e6).contains(&a) {
+        let decimals = (3 - a.log10().floor() as i32).max(0) as usize;
+        trim(&format!("{v:.decimals$}"))
+    } else {
+        let s = format!("{v:.3e}");
+        match s.split_once('e') {
+            Some((mantissa, exp)) => format!("{}e{exp}", trim(mantissa)),
+            None => s,
+        }
+    }
+}
 
 /// A number a [`Range`] can bound: the integers and floats of the TOML.
 pub(super) trait Number: Copy + PartialOrd + Display {
     fn is_finite(self) -> bool;
+    /// The number as a message writes it.
+    fn text(self) -> String {
+        self.to_string()
+    }
 }
 
 impl Number for i64 {
@@ -21,6 +60,10 @@ impl Number for i64 {
 impl Number for f64 {
     fn is_finite(self) -> bool {
         f64::is_finite(self)
+    }
+
+    fn text(self) -> String {
+        number_text(self)
     }
 }
 
@@ -105,7 +148,7 @@ impl<T: Number> Range<T> {
     }
 
     fn lower(mut self, value: T, inclusive: bool) -> Self {
-        let text = value.to_string();
+        let text = value.text();
         self.lo = Some(Limit {
             value,
             inclusive,
@@ -115,7 +158,7 @@ impl<T: Number> Range<T> {
     }
 
     fn upper(mut self, value: T, inclusive: bool) -> Self {
-        let text = value.to_string();
+        let text = value.text();
         self.hi = Some(Limit {
             value,
             inclusive,
@@ -194,7 +237,12 @@ pub(super) fn check_within<T: Number>(
     if range.contains(value) {
         Ok(value)
     } else {
-        Err(Error::invalid(field, value, message, range.to_string()))
+        Err(Error::invalid(
+            field,
+            value.text(),
+            message,
+            range.to_string(),
+        ))
     }
 }
 
@@ -225,11 +273,33 @@ pub(super) fn check_non_empty<T>(
     }
 }
 
+/// mu in `0 < mu <= MAX_MU`. The upper bound keeps the step's lubrication coefficients mu/d_i
+/// finite down to gaps of `MAX_MU / f64::MAX` (5.6e-297), far below any gap a run resolves; a
+/// larger mu overflows them for ever larger gaps (mu = 1e308: every gap below 0.56, i.e. all).
 pub(super) fn check_mu(field: &str, mu: f64) -> Result<f64> {
-    check_range(
+    let range = || {
+        Range::of("mu")
+            .gt(0.0)
+            .le(MAX_MU)
+            .upper_text(format!("{MAX_MU:e}"))
+    };
+    check_finite(field, mu)?;
+    if mu > MAX_MU {
+        return Err(Error::invalid(
+            field,
+            mu.text(),
+            format!(
+                "the step's lubrication coefficients mu/d_i overflow f64 for every gap d_i < mu/f64::MAX = {}; mu <= {MAX_MU:e} keeps them finite down to gaps of {}",
+                approx_text(mu / f64::MAX),
+                approx_text(MAX_MU / f64::MAX)
+            ),
+            range().to_string(),
+        ));
+    }
+    check_within(
         field,
         mu,
-        Range::of("mu").gt(0.0),
+        range(),
         "the lubrication coefficient must be positive",
     )
 }
@@ -260,18 +330,24 @@ pub(super) fn check_profile(
     allowed: &str,
     ok: impl Fn(f64) -> bool,
 ) -> Result<()> {
-    const M: usize = 20_000;
-    for x in (0..=M).map(|k| k as f64 / M as f64) {
-        let v = e.eval(x, 0.0);
-        if !ok(v) {
-            return Err(Error::ProfileRange {
-                field: field.to_string(),
-                expression: e.source().to_string(),
-                value: v,
-                x,
-                allowed: allowed.to_string(),
-            });
-        }
+    match first_violation(e, ok) {
+        None => Ok(()),
+        Some((x, v)) => Err(Error::ProfileRange {
+            field: field.to_string(),
+            expression: e.source().to_string(),
+            value: v,
+            x,
+            allowed: allowed.to_string(),
+        }),
     }
-    Ok(())
+}
+
+/// The first point x (of the sampling of [`check_profile`]) where the profile's value v fails
+/// `ok`, as (x, v).
+pub(super) fn first_violation(e: &Expr, ok: impl Fn(f64) -> bool) -> Option<(f64, f64)> {
+    const M: usize = 20_000;
+    (0..=M)
+        .map(|k| k as f64 / M as f64)
+        .map(|x| (x, e.eval(x, 0.0)))
+        .find(|&(_, v)| !ok(v))
 }

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use super::checks::{check_non_empty, check_range, check_within, Range};
 use super::file::EnsembleSection;
-use super::InitialSpec;
+use super::{InitialSpec, MAX_ROUGHNESS_RADIUS};
 use crate::ensemble::{RoughnessKind, RoughnessSpec};
 use crate::error::{Error, Result};
 
@@ -60,7 +60,7 @@ pub(super) fn validate_ensemble(
         check_range(
             "ensemble.mean_radius",
             r,
-            Range::unnamed().ge(0.0),
+            Range::of("mean_radius").ge(0.0).lt(MAX_ROUGHNESS_RADIUS),
             "the mean roughness radius",
         )?;
     }

@@ -2,6 +2,7 @@
 //! file (`super::particle_file`). The state is gaps and velocities (never positions), see
 //! DESIGN.md §2.
 
+use super::checks::approx_text;
 use super::{InitialSpec, Scene};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
@@ -51,8 +52,9 @@ pub fn chain_from_profiles(
         ));
     }
 
-    let mut q = vec![0.0; n + 1];
-    q[n] = 1.0;
+    // q_0 = 0, the cell boundaries q_1..q_{N-1}, q_N = 1.
+    let mut q = Vec::with_capacity(n + 1);
+    q.push(0.0);
     let mut panel = 0;
     for i in 1..n {
         let target = total_mass * i as f64 / n as f64;
@@ -86,13 +88,14 @@ pub fn chain_from_profiles(
             }
             x = next;
         }
-        q[i] = x;
+        q.push(x);
     }
+    q.push(1.0);
 
     let mut gaps = Vec::with_capacity(n);
     for i in 1..=n {
         let d = q[i] - q[i - 1] - 2.0 * eps;
-        if !(d > 0.0) {
+        if d.is_nan() || d <= 0.0 {
             return Err(Error::invalid(
                 "model.particles",
                 n,
@@ -126,8 +129,10 @@ pub fn chain_from_profiles(
 
 impl Scene {
     /// The initial chain the scene describes (Prop. 3.1 from profiles, or the particle file).
+    /// A single run (or an ensemble whose members all start from it unchanged) whose repulsion
+    /// overflows at t = 0 is refused here, see [`check_repulsion_at_start`].
     pub fn initial_chain(&self) -> Result<Chain> {
-        match &self.initial {
+        let chain = match &self.initial {
             InitialSpec::Profiles {
                 rho,
                 velocity,
@@ -136,11 +141,88 @@ impl Scene {
                 let n = self.particles.ok_or_else(|| {
                     Error::missing("model.particles", "required with profile initial data")
                 })?;
-                chain_from_profiles(n, rho, velocity, rho_star.as_ref())
+                chain_from_profiles(n, rho, velocity, rho_star.as_ref())?
             }
             InitialSpec::Particles { path, radius } => {
-                chain_from_particle_file(path, *radius, self.particles)
+                chain_from_particle_file(path, *radius, self.particles)?
+            }
+        };
+        // An ensemble's members draw their own roughness or jitter their gaps: their repulsion at
+        // t = 0 is theirs, and a member that overflows fails with its own reason.
+        let members_start_here = self
+            .ensemble
+            .as_ref()
+            .is_none_or(|e| e.roughness.is_none() && e.jitter == 0.0);
+        if members_start_here {
+            for (j, &gamma) in self.gamma.iter().enumerate() {
+                let field = if self.gamma_swept {
+                    format!("batch.gamma[{j}]")
+                } else {
+                    "model.gamma".to_string()
+                };
+                check_repulsion_at_start(&chain, gamma, &field)?;
             }
         }
+        Ok(chain)
     }
+}
+
+/// Refuses a gamma whose repulsion G_i = (rho_i/rho*_i)^gamma = ((d*_i + 2 eps)/(d_i + 2 eps))^gamma
+/// overflows f64 at t = 0 (gamma ln(rho_i/rho*_i) > ln(f64::MAX) for some free gap): the first
+/// step would fail. The message names the gap with the largest ratio, its place and the largest
+/// gamma these initial data allow.
+pub fn check_repulsion_at_start(chain: &Chain, gamma: f64, field: &str) -> Result<()> {
+    let Some(dstar) = &chain.dstar else {
+        return Ok(());
+    };
+    let two_eps = 2.0 * chain.eps;
+    let bonded = |i: usize| chain.bonded.as_ref().is_some_and(|b| b[i]);
+    // The largest ratio over the free gaps (bonded gaps have no repulsion), first one on ties,
+    // computed as the step computes it.
+    let mut worst: Option<(usize, f64)> = None;
+    for (i, (&d, &ds)) in chain.gaps.iter().zip(dstar).enumerate() {
+        if bonded(i) {
+            continue;
+        }
+        let ratio = (ds + two_eps) * (1.0 / (d + two_eps));
+        if worst.is_none_or(|(_, r)| ratio > r) {
+            worst = Some((i, ratio));
+        }
+    }
+    let Some((i, ratio)) = worst else {
+        return Ok(());
+    };
+    let ln_max = f64::MAX.ln();
+    let exponent = gamma * ratio.ln();
+    if exponent <= ln_max {
+        return Ok(());
+    }
+    let positions = chain.positions();
+    let x = 0.5 * (positions[i] + positions[i + 1]);
+    // Bounds rounded down so that the values they name are accepted.
+    let gamma_max = ln_max / ratio.ln();
+    let gamma_max = if gamma_max >= 10.0 {
+        gamma_max.floor()
+    } else {
+        (gamma_max * 100.0).floor() / 100.0
+    };
+    let ratio_max = ((ln_max / gamma).exp() * 1000.0).floor() / 1000.0;
+    Err(Error::invalid(
+        field,
+        gamma,
+        format!(
+            "the repulsion G = (rho/rho*)^gamma overflows f64 at t = 0: gap {} (particles {i} and {}, x = {}) starts at rho/rho* = {}, so gamma ln(rho/rho*) = {} > ln(f64::MAX) = {}",
+            i + 1,
+            i + 1,
+            approx_text(x),
+            approx_text(ratio),
+            approx_text(exponent),
+            approx_text(ln_max)
+        ),
+        format!(
+            "gamma <= {} with these initial data, or rho/rho* <= {} in every gap with gamma = {gamma}",
+            approx_text(gamma_max),
+            approx_text(ratio_max)
+        ),
+    ))
 }

@@ -23,8 +23,10 @@ use crate::backend::{Backend, Precision};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
 use crate::model::params::{MemberParams, OutputFields, Stepping, FIELD_NAMES};
+pub(crate) use checks::number_text;
 use checks::{
-    check_gamma, check_mu, check_non_empty, check_profile, check_range, parse_expr, Range,
+    approx_text, check_gamma, check_mu, check_non_empty, check_profile, check_range,
+    first_violation, parse_expr, Range,
 };
 use file::{BatchSection, InitialSection, ModelSection, OutputSection, SceneFile, SolverSection};
 
@@ -51,6 +53,9 @@ pub struct Scene {
     pub particles: Option<usize>,
     pub mu: Vec<f64>,
     pub gamma: Vec<f64>,
+    /// Whether `gamma` is the `[batch] gamma` list (messages then name `batch.gamma[j]`) rather
+    /// than `model.gamma`.
+    pub gamma_swept: bool,
     pub forcing: Option<Expr>,
     pub quadrature_points: usize,
     pub initial: InitialSpec,
@@ -69,6 +74,15 @@ pub struct Scene {
 
 pub const MAX_PARTICLES: i64 = 100_000_000;
 pub const MAX_GAMMA: f64 = 1000.0;
+/// The largest lubrication coefficient mu (see `checks::check_mu`).
+pub const MAX_MU: f64 = 1e12;
+/// The largest initial speed |u0|, in domain lengths per unit time: beyond it one step of the
+/// smallest size moves a particle across the domain, and from about 1e154 the kinetic energy
+/// eps Σ u_i² overflows f64.
+pub const MAX_VELOCITY: f64 = 1e12;
+/// Roughness radii r (particle files, roughness files) lie in 0 <= r < MAX_ROUGHNESS_RADIUS, the
+/// length of the domain [0, 1].
+pub const MAX_ROUGHNESS_RADIUS: f64 = 1.0;
 
 impl Scene {
     pub fn from_file(path: &Path) -> Result<Scene> {
@@ -104,6 +118,7 @@ impl Scene {
             particles: model.particles,
             mu,
             gamma,
+            gamma_swept: file.batch.as_ref().is_some_and(|b| b.gamma.is_some()),
             forcing: model.forcing,
             quadrature_points: model.quadrature_points,
             initial,
@@ -246,6 +261,7 @@ fn validate_initial(
             check_profile("initial.rho", &rho, "(0, 1)", |v| v > 0.0 && v < 1.0)?;
             let velocity = parse_expr("initial.velocity", ini.velocity.as_deref().unwrap_or("0"))?;
             check_profile("initial.velocity", &velocity, "finite values", f64::is_finite)?;
+            check_velocity_magnitude(&velocity)?;
             let rho_star = ini
                 .rho_star
                 .as_deref()
@@ -263,6 +279,19 @@ fn validate_initial(
         (None, None) => Err(Error::missing(
             "initial",
             "give the profiles (initial.rho, initial.velocity, optional initial.rho_star) or initial.particles = \"file.csv\"",
+        )),
+    }
+}
+
+/// An initial velocity profile whose values are finite but beyond [`MAX_VELOCITY`] somewhere.
+fn check_velocity_magnitude(velocity: &Expr) -> Result<()> {
+    match first_violation(velocity, |v| v.abs() <= MAX_VELOCITY) {
+        None => Ok(()),
+        Some((x, v)) => Err(Error::invalid(
+            "initial.velocity",
+            format!("\"{}\"", velocity.source()),
+            format!("u0 = {} at x = {x} is far beyond what the solver can follow (velocities are in domain lengths per unit time: from |u| = {MAX_VELOCITY:e} one step of 1e-12 moves a particle across the domain, and from about 1e154 the kinetic energy eps Σ u_i² overflows f64)", approx_text(v)),
+            format!("|u0| <= {MAX_VELOCITY:e} on [0, 1]"),
         )),
     }
 }
@@ -339,7 +368,7 @@ fn validate_batch(b: Option<&BatchSection>, mu: f64, gamma: f64) -> Result<(Vec<
             "batch.mu",
             list,
             "empty sweep",
-            "a non-empty list of mu > 0",
+            "a non-empty list of 0 < mu <= 1e12",
         )?;
         for (j, &v) in list.iter().enumerate() {
             check_mu(&format!("batch.mu[{j}]"), v)?;

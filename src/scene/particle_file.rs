@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use super::{number_text, MAX_ROUGHNESS_RADIUS, MAX_VELOCITY};
 use crate::error::{Error, Result};
 use crate::model::chain::Chain;
 
@@ -25,7 +26,7 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
         path: path.to_path_buf(),
         source: std::io::Error::other(format!("cannot open the particle file: {e}")),
     };
-    let (mut reader, headers) = super::csv_rows::open_with_header(path, open_error, &err)?;
+    let (mut reader, headers) = super::csv_rows::open_with_header(path, open_error, err)?;
     let names: Vec<&str> = headers.iter().collect();
     if names != ["x", "u"] && names != ["x", "u", "r"] {
         return Err(err(
@@ -37,7 +38,7 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
     let mut rows: Vec<ParticleRow> = Vec::new();
     // Physical line of each row (comment lines are skipped by the reader).
     let mut lines: Vec<usize> = Vec::new();
-    for (line, record) in super::csv_rows::rows_with_lines(&mut reader, &err)? {
+    for (line, record) in super::csv_rows::rows_with_lines(&mut reader, err)? {
         let row: ParticleRow = record
             .deserialize(Some(&headers))
             .map_err(|e| err(line, format!("not a row of numbers x,u,r: {e}")))?;
@@ -49,9 +50,27 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
                 }
             }
         }
+        if row.u.abs() > MAX_VELOCITY {
+            return Err(err(
+                line,
+                format!(
+                    "column u: velocity u = {} is far beyond what the solver can follow (velocities are in domain lengths per unit time) (allowed: |u| <= {MAX_VELOCITY:e})",
+                    number_text(row.u)
+                ),
+            ));
+        }
         if has_roughness {
             match row.r {
-                Some(r) if r >= 0.0 => {}
+                Some(r) if (0.0..MAX_ROUGHNESS_RADIUS).contains(&r) => {}
+                Some(r) if r >= 0.0 => {
+                    return Err(err(
+                        line,
+                        format!(
+                            "column r: roughness radius r = {} is not smaller than the domain [0, 1] (allowed: 0 <= r < {MAX_ROUGHNESS_RADIUS})",
+                            number_text(r)
+                        ),
+                    ))
+                }
                 Some(r) => return Err(err(line, format!("roughness radius r = {r} must be >= 0"))),
                 None => return Err(err(line, "missing roughness radius r".into())),
             }

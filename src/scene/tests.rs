@@ -32,10 +32,14 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         ("name", edit(BASE, "name = \"base\"", "name = \"a b\""), "name = \"a b\": the name is used as a directory name (allowed: a non-empty name of letters, digits, '_', '-', '.')"),
         ("particles low", edit(BASE, "particles = 10", "particles = 1"), "model.particles = 1: N counts the particles 0..N, so at least one particle moves (allowed: 2 <= particles <= 100000000)"),
         ("particles high", edit(BASE, "particles = 10", "particles = 200000000"), "model.particles = 200000000: N counts the particles 0..N, so at least one particle moves (allowed: 2 <= particles <= 100000000)"),
-        ("mu negative", edit(BASE, "mu = 0.01", "mu = -1"), "model.mu = -1: the lubrication coefficient must be positive (allowed: mu > 0)"),
+        ("mu negative", edit(BASE, "mu = 0.01", "mu = -1"), "model.mu = -1: the lubrication coefficient must be positive (allowed: 0 < mu <= 1e12)"),
+        ("mu huge", edit(BASE, "mu = 0.01", "mu = 1e308"), "model.mu = 1e308: the step's lubrication coefficients mu/d_i overflow f64 for every gap d_i < mu/f64::MAX = 0.5563; mu <= 1e12 keeps them finite down to gaps of 5.563e-297 (allowed: 0 < mu <= 1e12)"),
+        ("mu above the bound", edit(BASE, "mu = 0.01", "mu = 2e12"), "model.mu = 2000000000000: the step's lubrication coefficients mu/d_i overflow f64 for every gap d_i < mu/f64::MAX = 1.113e-296; mu <= 1e12 keeps them finite down to gaps of 5.563e-297 (allowed: 0 < mu <= 1e12)"),
+        ("mu at the bound", edit(BASE, "mu = 0.01", "mu = 1e12"), "accepted"),
         ("mu nan", edit(BASE, "mu = 0.01", "mu = nan"), "model.mu = NaN: not a finite number (allowed: a finite number)"),
         ("gamma low", edit(BASE, "gamma = 1.0", "gamma = 0.5"), "model.gamma = 0.5: repulsion exponent out of range (allowed: 1 <= gamma <= 1000)"),
         ("gamma high", edit(BASE, "gamma = 1.0", "gamma = 2000.0"), "model.gamma = 2000: repulsion exponent out of range (allowed: 1 <= gamma <= 1000)"),
+        ("gamma at the bound", edit(BASE, "gamma = 1.0", "gamma = 1000.0"), "accepted"),
         ("gamma inf", edit(BASE, "gamma = 1.0", "gamma = inf"), "model.gamma = inf: not a finite number (allowed: a finite number)"),
         ("forcing", edit(BASE, "gamma = 1.0", "gamma = 1.0\nforcing = \"2*\""), "model.forcing = \"2*\": cannot parse expression at position 2: unexpected end of input (expected a number, variable, function or '(')"),
         ("quadrature low", edit(BASE, "gamma = 1.0", "gamma = 1.0\nquadrature = 1"), "model.quadrature = 1: Gauss-Legendre points per particle for the forcing integral (allowed: 2 ..= 8)"),
@@ -51,6 +55,8 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         ("rho above one", edit(BASE, "rho = \"0.7\"", "rho = \"1.2\""), "initial.rho = \"1.2\": value 1.2 at x = 0 is outside the allowed range (0, 1)"),
         ("rho unparsable", edit(BASE, "rho = \"0.7\"", "rho = \"0.7+\""), "initial.rho = \"0.7+\": cannot parse expression at position 4: unexpected end of input (expected a number, variable, function or '(')"),
         ("velocity infinite", edit(BASE, "0.5*sin(2*pi*x)", "1/x"), "initial.velocity = \"1/x\": value inf at x = 0 is outside the allowed range finite values"),
+        ("velocity huge", edit(BASE, "0.5*sin(2*pi*x)", "1e308*x"), "initial.velocity = \"1e308*x\": u0 = 5e303 at x = 0.00005 is far beyond what the solver can follow (velocities are in domain lengths per unit time: from |u| = 1e12 one step of 1e-12 moves a particle across the domain, and from about 1e154 the kinetic energy eps Σ u_i² overflows f64) (allowed: |u0| <= 1e12 on [0, 1])"),
+        ("velocity at the bound", edit(BASE, "0.5*sin(2*pi*x)", "-1e12"), "accepted"),
         ("velocity unparsable", edit(BASE, "0.5*sin(2*pi*x)", "0.5*sinn(2*pi*x)"), "initial.velocity = \"0.5*sinn(2*pi*x)\": cannot parse expression at position 4: unknown identifier 'sinn' (known names: x, t, pi, e, sin, cos, tan, exp, log, sqrt, abs, tanh, min, max)"),
         ("rho_star zero", edit(BASE, "rho_star = \"0.7\"", "rho_star = \"0\""), "initial.rho_star = \"0\": value 0 at x = 0 is outside the allowed range (0, 1]"),
         ("rho_star above one", edit(BASE, "rho_star = \"0.7\"", "rho_star = \"1.5\""), "initial.rho_star = \"1.5\": value 1.5 at x = 0 is outside the allowed range (0, 1]"),
@@ -81,8 +87,9 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         ("order", edit(BASE, "order = 1", "order = 3"), "solver.order = 3: order of the time scheme (allowed: 1 (linearly implicit Euler) or 2 (Richardson-extrapolated))"),
         ("backend", edit(BASE, "backend = \"cpu\"", "backend = \"tpu\""), "solver.backend = \"tpu\": unknown backend (allowed: \"cpu\", \"gpu\" or \"auto\")"),
         ("precision", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\nprecision = \"f16\""), "solver.precision = \"f16\": unknown precision (allowed: \"f64\" or \"f32\")"),
-        ("batch mu empty", format!("{BASE}\n[batch]\nmu = []\n"), "batch.mu = []: empty sweep (allowed: a non-empty list of mu > 0)"),
-        ("batch mu negative", format!("{BASE}\n[batch]\nmu = [1.0, -1.0]\n"), "batch.mu[1] = -1: the lubrication coefficient must be positive (allowed: mu > 0)"),
+        ("batch mu empty", format!("{BASE}\n[batch]\nmu = []\n"), "batch.mu = []: empty sweep (allowed: a non-empty list of 0 < mu <= 1e12)"),
+        ("batch mu negative", format!("{BASE}\n[batch]\nmu = [1.0, -1.0]\n"), "batch.mu[1] = -1: the lubrication coefficient must be positive (allowed: 0 < mu <= 1e12)"),
+        ("batch mu huge", format!("{BASE}\n[batch]\nmu = [1.0, 1e300]\n"), "batch.mu[1] = 1e300: the step's lubrication coefficients mu/d_i overflow f64 for every gap d_i < mu/f64::MAX = 5.563e-9; mu <= 1e12 keeps them finite down to gaps of 5.563e-297 (allowed: 0 < mu <= 1e12)"),
         ("batch mu nan", format!("{BASE}\n[batch]\nmu = [nan]\n"), "batch.mu[0] = NaN: not a finite number (allowed: a finite number)"),
         ("batch gamma empty", format!("{BASE}\n[batch]\ngamma = []\n"), "batch.gamma = []: empty sweep (allowed: a non-empty list of 1 <= gamma <= 1000)"),
         ("batch gamma low", format!("{BASE}\n[batch]\ngamma = [1.0, 0.5]\n"), "batch.gamma[1] = 0.5: repulsion exponent out of range (allowed: 1 <= gamma <= 1000)"),
@@ -95,7 +102,8 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         ("members high", format!("{BASE}\n[ensemble]\nmembers = 2000000000\n"), "ensemble.members = 2000000000: members per sweep point (allowed: 1 ..= 1e9)"),
         ("chunk zero", with_ensemble(BASE, "chunk = 0"), "ensemble.chunk = 0: members solved at once (memory) (allowed: 1 ..= 1000000)"),
         ("chunk high", with_ensemble(BASE, "chunk = 1000001"), "ensemble.chunk = 1000001: members solved at once (memory) (allowed: 1 ..= 1000000)"),
-        ("mean_radius negative", with_ensemble(BASE, "mean_radius = -1.0"), "ensemble.mean_radius = -1: the mean roughness radius (allowed: >= 0)"),
+        ("mean_radius negative", with_ensemble(BASE, "mean_radius = -1.0"), "ensemble.mean_radius = -1: the mean roughness radius (allowed: 0 <= mean_radius < 1)"),
+        ("mean_radius one", with_ensemble(BASE, "mean_radius = 1.0"), "ensemble.mean_radius = 1: the mean roughness radius (allowed: 0 <= mean_radius < 1)"),
         ("mean_radius nan", with_ensemble(BASE, "mean_radius = nan"), "ensemble.mean_radius = NaN: not a finite number (allowed: a finite number)"),
         ("mean profile missing", with_ensemble(&no_rho_star, "roughness = { kind = \"uniform\", spread = 0.1 }"), "ensemble.mean_radius: random roughness needs a mean profile: give initial.rho_star or ensemble.mean_radius (>= 0)"),
         ("amplitude spread high", with_ensemble(BASE, "velocity_amplitude_spread = 11.0"), "ensemble.velocity_amplitude_spread = 11: relative spread (allowed: 0 <= value <= 10)"),
@@ -125,6 +133,55 @@ fn validation_messages_are_unchanged() {
         let actual = match Scene::from_toml(&text, Path::new("dir/scene.toml")) {
             Ok(_) => "accepted".to_string(),
             Err(e) => e.to_string(),
+        };
+        if actual != expected {
+            wrong.push(format!(
+                "{case}:\n  expected {expected}\n  actual   {actual}"
+            ));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+/// The complete message of every error of the initial data that the scene reader cannot see
+/// (particle files are read, and the initial chain built, by `Scene::initial_chain`).
+fn chain_cases() -> Vec<(&'static str, String, Option<&'static str>, &'static str)> {
+    let good_csv = "x,u,r\n0.0,0.0,0.0\n0.25,0.1,0.0\n0.5,-0.1,0.0\n0.75,0.2,0.0\n1.0,0.0,0.0\n";
+    let dense = edit(
+        &edit(BASE, "rho = \"0.7\"", "rho = \"0.9\""),
+        "rho_star = \"0.7\"",
+        "rho_star = \"0.3 + 0.4*x\"",
+    );
+    vec![
+        ("good file", BASE_FILE.to_string(), Some(good_csv), "accepted"),
+        ("radius huge", BASE_FILE.to_string(), Some("x,u,r\n0.0,0.0,0.0\n0.25,0.1,1e300\n0.5,-0.1,0.0\n0.75,0.2,0.0\n1.0,0.0,0.0\n"), "particle file dir/p.csv, line 3: column r: roughness radius r = 1e300 is not smaller than the domain [0, 1] (allowed: 0 <= r < 1)"),
+        ("radius huge after a comment", BASE_FILE.to_string(), Some("x,u,r\n0.0,0.0,0.0\n0.25,0.1,0.0\n# a rough one\n0.5,-0.1,2e300\n0.75,0.2,0.0\n1.0,0.0,0.0\n"), "particle file dir/p.csv, line 5: column r: roughness radius r = 2e300 is not smaller than the domain [0, 1] (allowed: 0 <= r < 1)"),
+        ("radius one", BASE_FILE.to_string(), Some("x,u,r\n0.0,0.0,0.0\n0.25,0.1,0.0\n0.5,-0.1,0.0\n0.75,0.2,1.0\n1.0,0.0,0.0\n"), "particle file dir/p.csv, line 5: column r: roughness radius r = 1 is not smaller than the domain [0, 1] (allowed: 0 <= r < 1)"),
+        ("velocity huge in file", BASE_FILE.to_string(), Some("x,u,r\n0.0,0.0,0.0\n0.25,0.1,0.0\n0.5,-1e300,0.0\n0.75,0.2,0.0\n1.0,0.0,0.0\n"), "particle file dir/p.csv, line 4: column u: velocity u = -1e300 is far beyond what the solver can follow (velocities are in domain lengths per unit time) (allowed: |u| <= 1e12)"),
+        ("gamma 686 at ratio 2.812", edit(&dense, "gamma = 1.0", "gamma = 686.0"), None, "accepted"),
+        ("repulsion overflows", edit(&dense, "gamma = 1.0", "gamma = 1000.0"), None, "model.gamma = 1000: the repulsion G = (rho/rho*)^gamma overflows f64 at t = 0: gap 1 (particles 0 and 1, x = 0.05) starts at rho/rho* = 2.812, so gamma ln(rho/rho*) = 1034 > ln(f64::MAX) = 709.8 (allowed: gamma <= 686 with these initial data, or rho/rho* <= 2.033 in every gap with gamma = 1000)"),
+        ("repulsion overflows in a sweep", format!("{dense}\n[batch]\ngamma = [2.0, 1000.0]\n"), None, "batch.gamma[1] = 1000: the repulsion G = (rho/rho*)^gamma overflows f64 at t = 0: gap 1 (particles 0 and 1, x = 0.05) starts at rho/rho* = 2.812, so gamma ln(rho/rho*) = 1034 > ln(f64::MAX) = 709.8 (allowed: gamma <= 686 with these initial data, or rho/rho* <= 2.033 in every gap with gamma = 1000)"),
+        ("repulsion left to the members", with_ensemble(&edit(&dense, "gamma = 1.0", "gamma = 1000.0"), "roughness = { kind = \"lognormal\", spread = 0.2 }"), None, "accepted"),
+    ]
+}
+
+#[test]
+fn initial_chain_messages_are_unchanged() {
+    let mut wrong = Vec::new();
+    for (case, text, csv, expected) in chain_cases() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("dir");
+        std::fs::create_dir(&dir).unwrap();
+        if let Some(csv) = csv {
+            std::fs::write(dir.join("p.csv"), csv).unwrap();
+        }
+        let actual = match Scene::from_toml(&text, &dir.join("scene.toml"))
+            .and_then(|s| s.initial_chain())
+        {
+            Ok(_) => "accepted".to_string(),
+            Err(e) => e
+                .to_string()
+                .replace(&format!("{}/", tmp.path().display()), ""),
         };
         if actual != expected {
             wrong.push(format!(

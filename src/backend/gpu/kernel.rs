@@ -11,6 +11,7 @@ use crate::backend::cpu::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64};
 use crate::backend::cpu::step::{GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32};
 use crate::backend::Precision;
 use crate::expr::{Expr, WgslFloat};
+use crate::model::plan::MAX_INTEGER_GAMMA;
 
 /// The template (`shaders/step.wgsl`).
 pub const STEP_TEMPLATE_WGSL: &str = include_str!("../../../shaders/step.wgsl");
@@ -57,7 +58,8 @@ impl SchemeSpec {
 /// How G = ratio^gamma is evaluated in the kernel.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum GammaSpec {
-    /// The same integer gamma for every member: a fixed chain of multiplications.
+    /// The same integer gamma (<= `MAX_INTEGER_GAMMA`) for every member: a fixed chain of
+    /// multiplications.
     Integer(u32),
     /// gamma read per member from the `gamma` field of the member parameters.
     PerMember,
@@ -124,6 +126,68 @@ fn integer_power_body(n: u32, out: &mut String) {
     out.push_str("    return result;\n");
 }
 
+/// Bits of the largest integer gamma evaluated by multiplications (10 for 1000).
+const INTEGER_GAMMA_BITS: u32 = u32::BITS - MAX_INTEGER_GAMMA.leading_zeros();
+
+/// The WGSL functions `power(r, gamma)` (G = r^gamma, evaluated as
+/// `crate::model::plan::Power::of(gamma).apply(r)` does on the CPU) and `gamma_of(gamma)` for
+/// `gamma`, in the element type `real` (which the caller declares, e.g. `alias real = f64;`).
+/// With [`GammaSpec::PerMember`] in f64 they call `pow_f64` from `super::F64_MATH_WGSL`, which
+/// the caller includes.
+pub fn power_wgsl(gamma: GammaSpec, precision: Precision) -> String {
+    let float = wgsl_float(precision);
+    let mut out = String::new();
+    match gamma {
+        GammaSpec::Integer(n) => {
+            let _ = writeln!(
+                out,
+                "// G = ratio^{n}: square and multiply (powi_by_squaring).\n\
+                 fn power(r: real, gamma: real) -> real {{"
+            );
+            integer_power_body(n, &mut out);
+            out.push_str("}\n\n");
+            let _ = writeln!(
+                out,
+                "fn gamma_of(gamma: real) -> real {{\n    return {};\n}}\n",
+                literal(n as f64, float)
+            );
+        }
+        GammaSpec::PerMember => {
+            // Power::of: integer 0 <= gamma <= MAX_INTEGER_GAMMA by square and multiply, else
+            // exp(gamma ln r).
+            let unrolled = "                 \
+                 result = select(result, result * base, (e & 1u) == 1u);\n\
+                 e = e >> 1u;\n\
+                 base = select(base, base * base, e > 0u);\n"
+                .repeat(INTEGER_GAMMA_BITS as usize);
+            let real_pow = match precision {
+                Precision::F32 => "exp(gamma * log(r))",
+                Precision::F64 => "pow_f64(r, gamma)",
+            };
+            let max = literal(MAX_INTEGER_GAMMA as f64, float);
+            let bits = INTEGER_GAMMA_BITS;
+            let _ = writeln!(
+                out,
+                "// G = ratio^gamma with a per-member gamma, as Power::of(gamma).apply(ratio).\n\
+                 fn power(r: real, gamma: real) -> real {{\n\
+                 \x20   if gamma == floor(gamma) && gamma >= 0.0 && gamma <= {max} {{\n\
+                 \x20       // The same multiplications as powi_by_squaring, unrolled over the {bits} bits of\n\
+                 \x20       // gamma <= {MAX_INTEGER_GAMMA} with selects: no data-dependent loop (members with different\n\
+                 \x20       // gammas do not diverge, and lavapipe's per-invocation loop budget is spared).\n\
+                 \x20       var result: real = 1.0;\n\
+                 \x20       var base: real = r;\n\
+                 \x20       var e: u32 = u32(gamma);\n\
+{unrolled}                 \x20       return result;\n\
+                 \x20   }}\n\
+                 \x20   return {real_pow};\n\
+                 }}\n\n\
+                 fn gamma_of(gamma: real) -> real {{\n    return gamma;\n}}\n"
+            );
+        }
+    }
+    out
+}
+
 /// The generated functions: `REAL_MAX`, `power`, `gamma_of`, `forcing`, `particle_force`.
 fn generated(spec: &KernelSpec) -> String {
     let float = wgsl_float(spec.precision);
@@ -156,51 +220,8 @@ fn generated(spec: &KernelSpec) -> String {
          fn ln_real(x: real) -> real {{\n    return {ln};\n}}\n"
     );
 
-    match spec.repulsion {
-        None => {}
-        Some(GammaSpec::Integer(n)) => {
-            let _ = writeln!(
-                out,
-                "// G = ratio^{n}: square and multiply (powi_by_squaring).\n\
-                 fn power(r: real, gamma: real) -> real {{"
-            );
-            integer_power_body(n, &mut out);
-            out.push_str("}\n\n");
-            let _ = writeln!(
-                out,
-                "fn gamma_of(gamma: real) -> real {{\n    return {};\n}}\n",
-                literal(n as f64, float)
-            );
-        }
-        Some(GammaSpec::PerMember) => {
-            // Power::of: integer gamma <= 64 by square and multiply, else exp(gamma ln r).
-            let unrolled = "                 \
-                 result = select(result, result * base, (e & 1u) == 1u);\n\
-                 e = e >> 1u;\n\
-                 base = select(base, base * base, e > 0u);\n"
-                .repeat(7);
-            let real_pow = match spec.precision {
-                Precision::F32 => "exp(gamma * log(r))",
-                Precision::F64 => "pow_f64(r, gamma)",
-            };
-            let _ = writeln!(
-                out,
-                "// G = ratio^gamma with a per-member gamma, as Power::of(gamma).apply(ratio).\n\
-                 fn power(r: real, gamma: real) -> real {{\n\
-                 \x20   if gamma == floor(gamma) && gamma <= 64.0 {{\n\
-                 \x20       // The same multiplications as powi_by_squaring, unrolled over the 7 bits of\n\
-                 \x20       // gamma <= 64 with selects: no data-dependent loop (members with different\n\
-                 \x20       // gammas do not diverge, and lavapipe's per-invocation loop budget is spared).\n\
-                 \x20       var result: real = 1.0;\n\
-                 \x20       var base: real = r;\n\
-                 \x20       var e: u32 = u32(gamma);\n\
-{unrolled}                 \x20       return result;\n\
-                 \x20   }}\n\
-                 \x20   return {real_pow};\n\
-                 }}\n\n\
-                 fn gamma_of(gamma: real) -> real {{\n    return gamma;\n}}\n"
-            );
-        }
+    if let Some(gamma) = spec.repulsion {
+        out.push_str(&power_wgsl(gamma, spec.precision));
     }
 
     if let Some((expr, nodes, weights)) = &spec.forcing {
