@@ -178,6 +178,16 @@ fn encode_ln_gap(s: real) -> real {
     return s;
 }
 
+// gamma of a member (1 without repulsion: no G to round).
+fn gamma_of_member(p: Param) -> real {
+//@BEGIN REPULSION
+    return gamma_of(p.gamma);
+//@END REPULSION
+//@BEGIN NOREPULSION
+    return 1.0;
+//@END NOREPULSION
+}
+
 // `gap_terms`: a = mu + h gamma G d/(d + 2eps) and G of one gap, at the effective gap d.
 fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerms {
     let d = max(stored, GAP_FLOOR);
@@ -499,9 +509,11 @@ fn extrapolate(b: u32, cand: u32, full: u32, p: Param, report_in: StepReport) ->
     return report;
 }
 
-// `energy_acceptable` of src/backend/cpu/control.rs.
-fn energy_acceptable(before: real, after: real, work: real) -> bool {
-    return after <= before + work + ENERGY_RTOL * abs(before) + WORK_SLACK * abs(work);
+// `energy_acceptable` of src/backend/cpu/control.rs, with the rounding of G (about gamma ulps)
+// added to the slack (ENERGY_RTOL_PER_GAMMA: 0 in f64, where ENERGY_RTOL covers it).
+fn energy_acceptable(before: real, after: real, work: real, gamma: real) -> bool {
+    let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma;
+    return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
 }
 
 // Block::attempt: one trial step into set `cand`.
@@ -529,7 +541,7 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
 //@END ORDER2
     return Attempt(
         r.admissible,
-        energy_acceptable(c.energy, r.energy, work),
+        energy_acceptable(c.energy, r.energy, work, gamma_of_member(p)),
         err,
         hard.hard,
         hard.hard_index,

@@ -8,9 +8,9 @@ use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, Terms};
 use roughlub::backend::BatchSolver;
 use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
+use roughlub::model::observables::energy;
 use roughlub::model::params::{MemberParams, Stepping};
 use roughlub::model::plan::{Forcing, Power};
-use roughlub::model::observables::energy;
 use roughlub::model::quadrature::GaussLegendre;
 use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
 

@@ -258,8 +258,16 @@ pub fn log_gap_reference(
         let (s_full, u_full) = step(&s, &u, h);
         let (s_half, u_half) = step(&s, &u, 0.5 * h);
         let (s_two, u_two) = step(&s_half, &u_half, 0.5 * h);
-        s = s_two.iter().zip(&s_full).map(|(a, b)| 2.0 * a - b).collect();
-        u = u_two.iter().zip(&u_full).map(|(a, b)| 2.0 * a - b).collect();
+        s = s_two
+            .iter()
+            .zip(&s_full)
+            .map(|(a, b)| 2.0 * a - b)
+            .collect();
+        u = u_two
+            .iter()
+            .zip(&u_full)
+            .map(|(a, b)| 2.0 * a - b)
+            .collect();
     }
     (s, u)
 }

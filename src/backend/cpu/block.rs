@@ -173,7 +173,8 @@ impl<const L: usize> Block<L> {
                 } else {
                     keep_old[l] = true;
                     if control.failure != Failure::None {
-                        let (index, ln_d) = smallest_gap::<L>(&self.gaps, self.bonded.as_deref(), l);
+                        let (index, ln_d) =
+                            smallest_gap::<L>(&self.gaps, self.bonded.as_deref(), l);
                         control.failure_index = index;
                         control.failure_detail = ln_d;
                     }
@@ -425,13 +426,13 @@ fn smallest_gap<const L: usize>(gaps: &[f64], bonded: Option<&[bool]>, l: usize)
 /// for gaps (ln d' = 2 ln a − ln b: positive by construction) and linear for velocities, then
 /// the projection and the energy of the result.
 fn extrapolate<const L: usize>(
-terms: &Terms<L>,
-n: usize,
-cand_gaps: &mut [f64],
-cand_vel: &mut [f64],
-full_gaps: &[f64],
-full_vel: &[f64],
-mut report: [StepReport; L],
+    terms: &Terms<L>,
+    n: usize,
+    cand_gaps: &mut [f64],
+    cand_vel: &mut [f64],
+    full_gaps: &[f64],
+    full_vel: &[f64],
+    mut report: [StepReport; L],
 ) -> [StepReport; L] {
     for (i, (a, &b)) in cand_gaps.iter_mut().zip(full_gaps).enumerate() {
         if terms.bonded.is_some_and(|bd| bd[i]) {
@@ -465,4 +466,3 @@ mut report: [StepReport; L],
     }
     report
 }
-

@@ -179,6 +179,9 @@ pub const ENERGY_RTOL_F64: f64 = 1e-12;
 /// The same for the f32 GPU kernel (sums of N terms with 6e-8 relative rounding each, and the
 /// rounding of the projection).
 pub const ENERGY_RTOL_F32: f64 = 1e-5;
+/// f32 only: G = ratio^gamma carries about gamma ulps of rounding, so the slack grows with gamma
+/// (4 ulps of f32 per unit of gamma).
+pub const ENERGY_RTOL_PER_GAMMA_F32: f64 = 2.4e-7;
 /// With forcing, the fraction of the forcing's work h Σ u' F allowed on top of it: the work is
 /// itself an O(h) estimate.
 pub const WORK_SLACK: f64 = 0.1;

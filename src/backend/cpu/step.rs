@@ -190,7 +190,12 @@ fn potential<const L: usize>(terms: &Terms<L>, l: usize, index: usize, d: f64) -
 }
 
 /// The repulsion of gap `gap` (0-based; element `index`) overflowed at the effective gap d.
-fn repulsion_failure<const L: usize>(terms: &Terms<L>, gap: usize, index: usize, d: f64) -> HardFailure {
+fn repulsion_failure<const L: usize>(
+    terms: &Terms<L>,
+    gap: usize,
+    index: usize,
+    d: f64,
+) -> HardFailure {
     let dstar = terms.repulsion.map_or(0.0, |r| r.0[index]);
     HardFailure::Repulsion {
         gap: gap + 1,

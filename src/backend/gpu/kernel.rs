@@ -7,7 +7,7 @@
 
 use std::fmt::Write as _;
 
-use crate::backend::cpu::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64};
+use crate::backend::cpu::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32};
 use crate::backend::cpu::step::{GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32};
 use crate::backend::Precision;
 use crate::expr::{Expr, WgslFloat};
@@ -203,11 +203,24 @@ fn generated(spec: &KernelSpec) -> String {
         Precision::F64 => (GAP_FLOOR, LN_GAP_FLOOR, ENERGY_RTOL_F64),
     };
     let _ = writeln!(out, "const GAP_FLOOR: real = {};", literal(floor, float));
-    let _ = writeln!(out, "const LN_GAP_FLOOR: real = {};", literal(ln_floor, float));
     let _ = writeln!(
         out,
-        "const ENERGY_RTOL: real = {};\n",
+        "const LN_GAP_FLOOR: real = {};",
+        literal(ln_floor, float)
+    );
+    let _ = writeln!(
+        out,
+        "const ENERGY_RTOL: real = {};",
         literal(energy_rtol, float)
+    );
+    let per_gamma = match spec.precision {
+        Precision::F32 => ENERGY_RTOL_PER_GAMMA_F32,
+        Precision::F64 => 0.0,
+    };
+    let _ = writeln!(
+        out,
+        "const ENERGY_RTOL_PER_GAMMA: real = {};\n",
+        literal(per_gamma, float)
     );
     // exp and ln of `real`: WGSL's f64 exp/log are wrong on Vulkan (DESIGN.md §2).
     let (exp, ln) = match spec.precision {
