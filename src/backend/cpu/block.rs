@@ -5,12 +5,12 @@
 
 use super::control::{energy_acceptable, Outcome, Rules, StepControl, ENERGY_RTOL_F64};
 use super::step::{
-    conclude, encode_ln_gap, euler_step, state_energy, Gamma, HardFailure, Scratch, StepReport,
+    conclude, encode_ln_gap, euler_step, stored_ln, state_energy, Gamma, HardFailure, Scratch, StepReport,
     Terms, GAP_FLOOR,
 };
 use crate::backend::layout::interleave;
 use crate::backend::report::{Failure, FailureRecord, MemberReport, MemberStatus};
-use crate::model::chain::{stored_gap, Chain};
+use crate::model::chain::Chain;
 use crate::model::observables::{observe, Snapshot};
 use crate::model::params::{MemberParams, Stepping};
 use crate::model::plan::{Plan, Power};
@@ -322,7 +322,7 @@ impl<const L: usize> Block<L> {
             let e = if a > 0.0 && b > 0.0 {
                 (a - b).abs() / (tol * a)
             } else {
-                (stored_gap::ln(a) - stored_gap::ln(b)).abs() / tol
+                (stored_ln(a) - stored_ln(b)).abs() / tol
             };
             err[l] = if e.is_nan() {
                 f64::INFINITY
@@ -414,7 +414,7 @@ fn smallest_gap<const L: usize>(gaps: &[f64], bonded: Option<&[bool]>, l: usize)
         if bonded.is_some_and(|b| b[i * L + l]) {
             continue;
         }
-        let s = stored_gap::ln(v);
+        let s = stored_ln(v);
         if s < best.1 {
             best = (i as u32 + 1, s);
         }
@@ -444,7 +444,7 @@ fn extrapolate<const L: usize>(
         *a = if *a > 0.0 && b > 0.0 && linear >= GAP_FLOOR && linear < f64::INFINITY {
             linear
         } else {
-            encode_ln_gap(2.0 * stored_gap::ln(*a) - stored_gap::ln(b))
+            encode_ln_gap(2.0 * stored_ln(*a) - stored_ln(b))
         };
     }
     let mut kinetic = [0.0; L];

@@ -5,6 +5,7 @@
 mod block;
 pub mod control;
 pub mod step;
+pub mod twin_math;
 
 use rayon::prelude::*;
 

@@ -32,6 +32,7 @@
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
 
+use super::twin_math;
 use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};
 
@@ -50,9 +51,19 @@ pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 #[inline(always)]
 pub fn encode_ln_gap(s: f64) -> f64 {
     if s > LN_GAP_FLOOR {
-        s.exp()
+        twin_math::exp(s)
     } else {
         s
+    }
+}
+
+/// ln d of a stored free gap (`stored_gap::ln` with the kernel's ln).
+#[inline(always)]
+pub fn stored_ln(stored: f64) -> f64 {
+    if stored > 0.0 {
+        twin_math::ln(stored)
+    } else {
+        stored
     }
 }
 
@@ -183,7 +194,7 @@ fn potential<const L: usize>(terms: &Terms<L>, l: usize, index: usize, d: f64) -
     let s_star = dstar[index] + 2.0 * terms.eps;
     let g = gamma.gamma(l);
     if g == 1.0 {
-        -s_star * s.ln()
+        -s_star * twin_math::ln(s)
     } else {
         s * gamma.power(l, s_star / s) / (g - 1.0)
     }
@@ -341,7 +352,7 @@ pub fn euler_step<const L: usize>(
                 u = u_next[l];
             }
             let rate = scratch.ls[row + l] * u_next[l] - scratch.ys[row + l];
-            let grown = old * (h[l] * rate).exp();
+            let grown = old * twin_math::exp(h[l] * rate);
             vel_out[row + l] = u;
             gaps_out[gap + l] = grown;
             scratch.ls[row + l] = rate;
@@ -369,7 +380,7 @@ pub fn euler_step<const L: usize>(
     for l in 0..L {
         let old = gaps_in[l];
         let rate = u_next[l] / old.max(GAP_FLOOR);
-        let grown = old * (h[l] * rate).exp();
+        let grown = old * twin_math::exp(h[l] * rate);
         gaps_out[l] = grown;
         rate_first[l] = rate;
         needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY);
@@ -426,7 +437,7 @@ fn fix_up_lane<const L: usize>(
         } else {
             rates[(i - 1) * L + l]
         };
-        gaps_out[k] = encode_ln_gap(stored_gap::ln(gaps_in[k]) + h * rate);
+        gaps_out[k] = encode_ln_gap(stored_ln(gaps_in[k]) + h * rate);
     }
 }
 
@@ -464,7 +475,7 @@ pub fn conclude<const L: usize>(
     for l in 0..L {
         scale[l] = terms.total_gap[l] / (sum[l] + compensation[l]);
         if logged[l] {
-            shift[l] = scale[l].ln();
+            shift[l] = twin_math::ln(scale[l]);
         }
     }
     let bonded = terms.bonded;
