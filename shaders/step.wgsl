@@ -136,6 +136,9 @@ const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
+// MAX_OPENING of src/backend/cpu/step.rs.
+const MAX_OPENING: real = 5.0;
+
 // WORK_SLACK of src/backend/cpu/control.rs.
 const WORK_SLACK: real = 0.1;
 
@@ -298,6 +301,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     // Back sweep from the right wall (u_N = 0): velocities, the rate of gap i+1 (left in the ls
     // slot for the fix-up) and its update ln d' = ln d + h r.
     var needs_fixup = false;
+    var opening: real = 0.0;
     var kinetic: real = 0.0;
     var work: real = 0.0;
     var u_next: real = 0.0;
@@ -315,7 +319,11 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         }
 //@END CLUSTERS
         let rate = scratch[rows + row] * u_next - scratch[2u * rows + row];
-        let grown = old * exp_real(h * rate);
+        let x = h * rate;
+        let grown = old * exp_real(x);
+        if old > 0.0 {
+            opening = max(opening, x);
+        }
         vel_sets[vo + row] = u;
         gap_sets[go + gap] = grown;
         scratch[rows + row] = rate;
@@ -337,7 +345,11 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
 //@END CLUSTERS
     let old0 = gap_sets[gi + b];
     let rate_first = u_next / max(old0, GAP_FLOOR);
-    let grown0 = old0 * exp_real(h * rate_first);
+    let x0 = h * rate_first;
+    let grown0 = old0 * exp_real(x0);
+    if old0 > 0.0 {
+        opening = max(opening, x0);
+    }
     gap_sets[go + b] = grown0;
     needs_fixup = needs_fixup || !(grown0 >= GAP_FLOOR && grown0 <= REAL_MAX);
 
@@ -347,7 +359,8 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     report = conclude(b, dst, p, report);
     report.energy = report.energy + eps * kinetic;
     report.work = h * work;
-    report.admissible = report.admissible && is_finite_real(report.energy) && is_finite_real(kinetic);
+    report.admissible = report.admissible && is_finite_real(report.energy) && is_finite_real(kinetic)
+        && opening <= MAX_OPENING;
     return report;
 }
 

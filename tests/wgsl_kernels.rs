@@ -65,7 +65,7 @@ fn every_variant_validates_and_omits_absent_terms() {
                         assert_eq!(src.contains("fn power("), repulsion.is_some(), "{label}");
                         assert_eq!(src.contains("bonded"), clusters, "{label}");
                         // Without clusters no trace of the wall-glued bodies' loop.
-                        assert_eq!(src.contains("Bodies glued"), clusters, "{label}");
+                        assert_eq!(src.contains("bonded[i * batch + b]"), clusters, "{label}");
                         assert_eq!(src.contains("particle_force"), forced, "{label}");
                         assert_eq!(src.contains("fn forcing("), forced, "{label}");
                         let real = match precision {

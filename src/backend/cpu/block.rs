@@ -5,8 +5,8 @@
 
 use super::control::{energy_acceptable, Outcome, Rules, StepControl, ENERGY_RTOL_F64};
 use super::step::{
-    conclude, encode_ln_gap, euler_step, stored_ln, state_energy, Gamma, HardFailure, Scratch, StepReport,
-    Terms, GAP_FLOOR,
+    conclude, encode_ln_gap, euler_step, state_energy, stored_ln, Gamma, HardFailure, Scratch,
+    StepReport, Terms, GAP_FLOOR,
 };
 use crate::backend::layout::interleave;
 use crate::backend::report::{Failure, FailureRecord, MemberReport, MemberStatus};

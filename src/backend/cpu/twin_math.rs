@@ -143,10 +143,15 @@ mod tests {
         let mut x = -740.0f64;
         while x < 709.0 {
             let (a, b) = (exp(x), x.exp());
-            assert!((a - b).abs() <= 1.5 * f64::EPSILON * b, "exp({x}) = {a} vs {b}");
+            assert!(
+                (a - b).abs() <= 1.5 * f64::EPSILON * b,
+                "exp({x}) = {a} vs {b}"
+            );
             x += 0.137;
         }
-        for &x in &[1e-300, 1e-250, 1e-20, 0.001, 0.5, 0.7071, 1.0, 1.0000001, 2.0, 1e10, 1e300] {
+        for &x in &[
+            1e-300, 1e-250, 1e-20, 0.001, 0.5, 0.7071, 1.0, 1.0000001, 2.0, 1e10, 1e300,
+        ] {
             let (a, b) = (ln(x), x.ln());
             assert!(
                 (a - b).abs() <= 1.5 * f64::EPSILON * b.abs().max(f64::MIN_POSITIVE),
