@@ -136,6 +136,10 @@ const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
+// GAP_EXP_TAYLOR, EXP_FAST_MAX of src/backend/cpu/step.rs.
+const GAP_EXP_TAYLOR: real = 0.0009765625;
+const EXP_FAST_MAX: real = 700.0;
+
 // MAX_OPENING of src/backend/cpu/step.rs.
 const MAX_OPENING: real = 5.0;
 
@@ -171,6 +175,14 @@ fn stored_decode(v: real) -> real {
         return exp_real(v);
     }
     return 0.0;
+}
+
+// `gap_exp`: e^x for the gap update; the Taylor polynomial to x^4 below |x| = 2^-10, else exp.
+fn gap_exp(x: real) -> real {
+    if abs(x) < GAP_EXP_TAYLOR {
+        return 1.0 + x * (1.0 + x * (0.5 + x * (0.16666666666666666 + x * 0.041666666666666664)));
+    }
+    return exp_real(clamp(x, -EXP_FAST_MAX, EXP_FAST_MAX));
 }
 
 // `encode_ln_gap`: the stored value of a gap given its logarithm.
@@ -302,8 +314,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     // slot for the fix-up) and its update ln d' = ln d + h r.
     var needs_fixup = false;
     var opening: real = 0.0;
-    var kinetic: real = 0.0;
-    var work: real = 0.0;
+    var sum: real = 0.0;
     var u_next: real = 0.0;
     for (var i: u32 = n - 1u; i >= 1u; i--) {
         let row = (i - 1u) * batch + b;
@@ -320,18 +331,15 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
 //@END CLUSTERS
         let rate = scratch[rows + row] * u_next - scratch[2u * rows + row];
         let x = h * rate;
-        let grown = old * exp_real(x);
-        if old > 0.0 {
-            opening = max(opening, x);
-        }
+        let grown = old * gap_exp(x);
         vel_sets[vo + row] = u;
         gap_sets[go + gap] = grown;
         scratch[rows + row] = rate;
-        kinetic = kinetic + u * u;
-//@BEGIN FORCING
-        work = work + u * scratch[3u * rows + row];
-//@END FORCING
-        needs_fixup = needs_fixup || !(grown >= GAP_FLOOR && grown <= REAL_MAX);
+        sum = sum + max(grown, 0.0);
+        if old > 0.0 {
+            opening = max(opening, x);
+        }
+        needs_fixup = needs_fixup || !(grown >= GAP_FLOOR && grown <= REAL_MAX && x <= EXP_FAST_MAX);
         u_next = u;
     }
 //@BEGIN CLUSTERS
@@ -346,21 +354,22 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     let old0 = gap_sets[gi + b];
     let rate_first = u_next / max(old0, GAP_FLOOR);
     let x0 = h * rate_first;
-    let grown0 = old0 * exp_real(x0);
+    let grown0 = old0 * gap_exp(x0);
+    gap_sets[go + b] = grown0;
+    sum = sum + max(grown0, 0.0);
     if old0 > 0.0 {
         opening = max(opening, x0);
     }
-    gap_sets[go + b] = grown0;
-    needs_fixup = needs_fixup || !(grown0 >= GAP_FLOOR && grown0 <= REAL_MAX);
+    needs_fixup = needs_fixup || !(grown0 >= GAP_FLOOR && grown0 <= REAL_MAX && x0 <= EXP_FAST_MAX);
 
     if needs_fixup {
         fix_up(b, src, dst, h, rate_first);
+        sum = lane_sum(b, dst);
     }
-    report = conclude(b, dst, p, report);
-    report.energy = report.energy + eps * kinetic;
-    report.work = h * work;
-    report.admissible = report.admissible && is_finite_real(report.energy) && is_finite_real(kinetic)
-        && opening <= MAX_OPENING;
+    report.admissible = report.admissible && opening <= MAX_OPENING;
+    // The energy is always computed here; the CPU skips it for steps its certificate
+    // (`energy_certified`) proves acceptable, which the computed energy then passes too.
+    report = conclude(b, dst, p, report, sum, h, true);
     return report;
 }
 
@@ -375,87 +384,106 @@ fn fix_up(b: u32, src: u32, dst: u32, h: real, rate_first: real) {
             gap_sets[dst * n * batch + k] = 0.0;
             continue;
         }
-        let grown = gap_sets[dst * n * batch + k];
-        let old = gap_sets[src * n * batch + k];
-        if grown >= GAP_FLOOR && grown <= REAL_MAX && old > 0.0 {
-            continue;
-        }
         var rate = rate_first;
         if i > 0u {
             rate = scratch[rows + (i - 1u) * batch + b];
         }
-        gap_sets[dst * n * batch + k] = encode_ln_gap(stored_ln(old) + h * rate);
+        let x = h * rate;
+        let grown = gap_sets[dst * n * batch + k];
+        let old = gap_sets[src * n * batch + k];
+        if grown >= GAP_FLOOR && grown <= REAL_MAX && x <= EXP_FAST_MAX && old > 0.0 {
+            continue;
+        }
+        gap_sets[dst * n * batch + k] = encode_ln_gap(stored_ln(old) + x);
     }
 }
 
-// `conclude`: the projection onto sum d = total_gap and the potential energy of set `set`.
-fn conclude(b: u32, which: u32, p: Param, report_in: StepReport) -> StepReport {
+// `lane_sum`: the sum of the member's gaps in set `which`, from the last gap down (the back
+// sweep's order).
+fn lane_sum(b: u32, which: u32) -> real {
+    let batch = config.batch;
+    let n = config.particles;
+    var sum: real = 0.0;
+    for (var i: u32 = n; i >= 1u; i--) {
+        sum = sum + max(gap_sets[which * n * batch + (i - 1u) * batch + b], 0.0);
+    }
+    return sum;
+}
+
+// `conclude_impl`: the projection onto sum d = total_gap (`sum` is the gaps' sum), the energy of
+// set `which` and, with `forced`, the work h sum u F.
+fn conclude(b: u32, which: u32, p: Param, report_in: StepReport, sum: real, h: real, forced: bool) -> StepReport {
     let batch = config.batch;
     let n = config.particles;
     let eps2 = 2.0 * config.eps;
+    let rows = (n - 1u) * batch;
     let base = which * n * batch;
     var report = report_in;
-    // The sum compensated (Neumaier), as on the CPU.
-    var sum: real = 0.0;
-    var compensation: real = 0.0;
+    let scale = p.total_gap / sum;
+    var potential_sum: real = 0.0;
+    var kinetic: real = 0.0;
+    var work: real = 0.0;
     var logged = false;
-    for (var i: u32 = 0u; i < n; i++) {
-        let v = gap_sets[base + i * batch + b];
-        let x = max(v, 0.0);
-        let t = sum + x;
-        if abs(sum) >= x {
-            compensation = compensation + ((sum - t) + x);
-        } else {
-            compensation = compensation + ((x - t) + sum);
-        }
-        sum = t;
-        logged = logged || v < 0.0;
-        report.admissible = report.admissible && is_finite_real(v);
-    }
-    let scale = p.total_gap / (sum + compensation);
-    var shift: real = 0.0;
-    if logged {
-        shift = ln_real(scale);
-    }
-    var energy: real = 0.0;
     for (var i: u32 = 0u; i < n; i++) {
         let k = i * batch + b;
         let v = gap_sets[base + k];
-        var scaled = v + shift;
+        let scaled = v * scale;
+        logged = logged || v < 0.0;
+        report.admissible = report.admissible && is_finite_real(v);
         if v > 0.0 {
-            scaled = v * scale;
-        }
-        let d = max(scaled, 0.0);
-        if v != 0.0 {
             gap_sets[base + k] = scaled;
         }
+        let phi = potential(k, max(scaled, 0.0), p, eps2);
         if is_free(k) {
-            energy = energy + potential(k, d, p, eps2);
+            potential_sum = potential_sum + phi;
+        }
+        if i + 1u < n {
+            let u = vel_sets[which * rows + k];
+            kinetic = kinetic + u * u;
+//@BEGIN FORCING
+            if forced {
+                work = work + u * scratch[3u * rows + k];
+            }
+//@END FORCING
         }
     }
-    report.energy = energy;
+    if logged {
+        // `shift_logged`: log-stored gaps shifted by ln(scale).
+        let shift = ln_real(scale);
+        for (var i: u32 = 0u; i < n; i++) {
+            let k = base + i * batch + b;
+            if gap_sets[k] < 0.0 {
+                gap_sets[k] = gap_sets[k] + shift;
+            }
+        }
+    }
+    report.energy = potential_sum + config.eps * kinetic;
+    report.work = h * work;
+    report.admissible = report.admissible && is_finite_real(report.energy);
     return report;
 }
 
-// `state_energy`: E = eps sum u^2 + sum Phi of set `set` (the same sums as a step's report).
+// `state_energy`: E = eps sum u^2 + sum Phi of set `which` (the same sums, in the same order, as
+// `conclude`).
 fn state_energy(b: u32, which: u32, p: Param) -> real {
     let batch = config.batch;
     let n = config.particles;
     let eps2 = 2.0 * config.eps;
     let rows = (n - 1u) * batch;
+    var potential_sum: real = 0.0;
     var kinetic: real = 0.0;
-    for (var i: u32 = n - 1u; i >= 1u; i--) {
-        let u = vel_sets[which * rows + (i - 1u) * batch + b];
-        kinetic = kinetic + u * u;
-    }
-    var energy: real = 0.0;
     for (var i: u32 = 0u; i < n; i++) {
         let k = i * batch + b;
+        let phi = potential(k, max(gap_sets[which * n * batch + k], 0.0), p, eps2);
         if is_free(k) {
-            energy = energy + potential(k, max(gap_sets[which * n * batch + k], 0.0), p, eps2);
+            potential_sum = potential_sum + phi;
+        }
+        if i + 1u < n {
+            let u = vel_sets[which * rows + k];
+            kinetic = kinetic + u * u;
         }
     }
-    return energy + config.eps * kinetic;
+    return potential_sum + config.eps * kinetic;
 }
 
 // Block::error_norm: scaled max-norm of (two half steps - one full step), on ln d for free gaps,
@@ -509,16 +537,12 @@ fn extrapolate(b: u32, cand: u32, full: u32, p: Param, report_in: StepReport) ->
             gap_sets[cand * n * batch + k] = encode_ln_gap(2.0 * stored_ln(a) - stored_ln(c));
         }
     }
-    var kinetic: real = 0.0;
-    for (var i: u32 = n - 1u; i >= 1u; i--) {
-        let k = (i - 1u) * batch + b;
-        let u = 2.0 * vel_sets[cand * rows + k] - vel_sets[full * rows + k];
-        vel_sets[cand * rows + k] = u;
-        kinetic = kinetic + u * u;
+    for (var i: u32 = 0u; i + 1u < n; i++) {
+        let k = i * batch + b;
+        vel_sets[cand * rows + k] = 2.0 * vel_sets[cand * rows + k] - vel_sets[full * rows + k];
     }
-    var report = conclude(b, cand, p, report_in);
-    report.energy = report.energy + config.eps * kinetic;
-    report.admissible = report.admissible && is_finite_real(report.energy);
+    // The caller keeps the work of the two half steps.
+    var report = conclude(b, cand, p, report_in, lane_sum(b, cand), 1.0, false);
     return report;
 }
 

@@ -103,6 +103,11 @@ fn max_rel_diff(a: &[Vec<Snapshot>], b: &[Vec<Snapshot>]) -> (f64, f64) {
 fn assert_f64_agreement(ctx: &GpuContext, label: &str, plan: &Plan, chains: &[Chain]) {
     let (cpu, cpu_reports) = run_cpu(plan, chains);
     let (gpu, gpu_reports) = run_gpu(ctx, plan, chains, Precision::F64);
+    for (g, c) in gpu_reports.iter().zip(&cpu_reports) {
+        if g.status != c.status {
+            eprintln!("{label}: member {}: GPU {:?} vs CPU {:?}", c.index, g, c);
+        }
+    }
     let (dg, dv) = max_rel_diff(&gpu, &cpu);
     eprintln!("{label}: GPU f64 vs CPU f64: gaps {dg:.2e}, velocities {dv:.2e}");
     assert!(

@@ -59,6 +59,25 @@ pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 /// the rejections).
 pub const MAX_OPENING: f64 = 5.0;
 
+/// e^x as the gap update computes it: for |x| < 2^-10 (every gap of a mild step) the Taylor
+/// polynomial to x^4, whose truncation error x^5/120 < 1e-17 is below rounding; else the
+/// kernel's exp. The GPU kernel computes the same (`gap_exp` in shaders/step.wgsl).
+#[inline(always)]
+pub fn gap_exp(x: f64) -> f64 {
+    if x.abs() < GAP_EXP_TAYLOR {
+        1.0 + x * (1.0 + x * (0.5 + x * (0.166_666_666_666_666_66 + x * 0.041_666_666_666_666_664)))
+    } else {
+        twin_math::exp_in_range(x.clamp(-EXP_FAST_MAX, EXP_FAST_MAX))
+    }
+}
+
+/// Below this |h r| the gap update uses the Taylor polynomial ([`gap_exp`]).
+pub const GAP_EXP_TAYLOR: f64 = 1.0 / 1024.0;
+
+/// Range in which the back sweep's branch-free exp is used (`twin_math::exp_in_range`); a step
+/// whose h r leaves it is redone in log form (below) or is far beyond MAX_OPENING (above).
+const EXP_FAST_MAX: f64 = 700.0;
+
 /// The stored value of a gap given its logarithm.
 #[inline(always)]
 pub fn encode_ln_gap(s: f64) -> f64 {
@@ -85,6 +104,9 @@ pub struct Terms<'a, const L: usize> {
     pub mu: [f64; L],
     /// sum d_i of each lane's initial chain, kept by the projection.
     pub total_gap: [f64; L],
+    /// The largest repulsion a gap of the lane can reach, max_i ((d*_i + 2eps)/2eps)^gamma (0
+    /// without repulsion), for the energy certificate ([`StepReport::certified`]).
+    pub contact_repulsion: [f64; L],
     /// d* (interleaved, length N·L) and how G is evaluated: present iff the model has repulsion.
     pub repulsion: Option<(&'a [f64], Gamma<L>)>,
     /// Bonded gaps (interleaved, length N·L): present iff some member has clusters.
@@ -106,13 +128,6 @@ impl<const L: usize> Gamma<L> {
             Gamma::Uniform(Power::Integer(n)) => *n as f64,
             Gamma::Uniform(Power::Real(g)) => *g,
             Gamma::PerLane(g) => g[l],
-        }
-    }
-    #[inline(always)]
-    fn power(&self, l: usize, ratio: f64) -> f64 {
-        match self {
-            Gamma::Uniform(p) => p.apply(ratio),
-            Gamma::PerLane(g) => Power::of(g[l]).apply(ratio),
         }
     }
 }
@@ -148,7 +163,10 @@ pub struct StepReport {
     /// A failure that no smaller step can cure, found in the state the step started from:
     /// the forcing or the repulsion is not finite there.
     pub hard: Option<HardFailure>,
-    /// Discrete energy of the result.
+    /// The step provably did not raise the energy beyond the forcing's work (see
+    /// [`energy_certified`]); its energy was then not computed (`energy` is -1).
+    pub certified: bool,
+    /// Discrete energy of the result (-1 when certified and not computed).
     pub energy: f64,
     /// Work of the forcing over the step, h Σ u_i' F_i.
     pub work: f64,
@@ -167,48 +185,75 @@ impl StepReport {
     const START: StepReport = StepReport {
         admissible: true,
         hard: None,
+        certified: false,
         energy: 0.0,
         work: 0.0,
     };
 }
 
-/// (a, G) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) with d the effective gap.
+/// How G and gamma are evaluated in one specialised instance of the step (a closure per case of
+/// [`Gamma`]: integer gamma as a fixed chain of multiplications, per lane otherwise), and which
+/// terms exist (const generics): absent terms compile to nothing and the lane loops have no
+/// per-element branches, so they run in SIMD registers.
+#[derive(Clone, Copy)]
+struct Law<P, Q> {
+    power: P,
+    gamma: Q,
+}
+
+/// (a, G, d) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) at the effective gap d.
 #[inline(always)]
-fn gap_terms<const L: usize>(
+fn gap_terms<const L: usize, const REP: bool, const CLU: bool, P, Q>(
     terms: &Terms<L>,
+    law: Law<P, Q>,
     l: usize,
     index: usize,
     stored: f64,
     h: f64,
-) -> (f64, f64, f64) {
+) -> (f64, f64, f64)
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
     let d = stored.max(GAP_FLOOR);
-    if terms.bonded.is_some_and(|b| b[index]) {
-        return (terms.mu[l], 0.0, d);
+    let mu = terms.mu[l];
+    if !REP {
+        return (mu, 0.0, d);
     }
-    let mut a = terms.mu[l];
-    let mut g = 0.0;
-    if let Some((dstar, gamma)) = &terms.repulsion {
-        let inv_s = 1.0 / (d + 2.0 * terms.eps);
-        let ratio = (dstar[index] + 2.0 * terms.eps) * inv_s;
-        g = gamma.power(l, ratio);
-        a += h * gamma.gamma(l) * g * d * inv_s;
+    let dstar = terms.repulsion.map_or(&[][..], |r| r.0);
+    let inv_s = 1.0 / (d + 2.0 * terms.eps);
+    let ratio = (dstar[index] + 2.0 * terms.eps) * inv_s;
+    let mut g = (law.power)(l, ratio);
+    if CLU && terms.bonded.is_some_and(|b| b[index]) {
+        g = 0.0;
     }
-    (a, g, d)
+    (mu + h * (law.gamma)(l) * g * d * inv_s, g, d)
 }
 
 /// Phi_i(d) of one free gap: (d + 2eps) G/(gamma - 1), or -(d* + 2eps) ln(d + 2eps) at gamma = 1.
 #[inline(always)]
-fn potential<const L: usize>(terms: &Terms<L>, l: usize, index: usize, d: f64) -> f64 {
-    let Some((dstar, gamma)) = &terms.repulsion else {
+fn potential_of<const L: usize, const REP: bool, P, Q>(
+    terms: &Terms<L>,
+    law: Law<P, Q>,
+    l: usize,
+    index: usize,
+    d: f64,
+) -> f64
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    if !REP {
         return 0.0;
-    };
+    }
+    let dstar = terms.repulsion.map_or(&[][..], |r| r.0);
     let s = d + 2.0 * terms.eps;
     let s_star = dstar[index] + 2.0 * terms.eps;
-    let g = gamma.gamma(l);
+    let g = (law.gamma)(l);
     if g == 1.0 {
         -s_star * twin_math::ln(s)
     } else {
-        s * gamma.power(l, s_star / s) / (g - 1.0)
+        s * (law.power)(l, s_star / s) / (g - 1.0)
     }
 }
 
@@ -226,27 +271,95 @@ fn repulsion_failure<const L: usize>(
     }
 }
 
-/// Discrete energy E = eps Σ u_i² + Σ Phi_i(d_i) of every lane's state (the same sums as a step's
-/// report, so that the energy check compares like with like).
+/// Calls `$body` with `$law` bound to the specialised [`Law`] for the block's gamma and the
+/// const generics REP (repulsion), FRC (forcing) and CLU (clusters) set from `$terms`.
+macro_rules! specialised {
+    ($terms:expr, $f:ident, ($($arg:expr),*)) => {{
+        let terms = $terms;
+        macro_rules! with_flags {
+            ($rep:literal, $law:expr) => {
+                match (terms.forcing.is_some(), terms.bonded.is_some()) {
+                    (false, false) => $f::<L, $rep, false, false, _, _>($($arg,)* $law),
+                    (true, false) => $f::<L, $rep, true, false, _, _>($($arg,)* $law),
+                    (false, true) => $f::<L, $rep, false, true, _, _>($($arg,)* $law),
+                    (true, true) => $f::<L, $rep, true, true, _, _>($($arg,)* $law),
+                }
+            };
+        }
+        match terms.repulsion.map(|r| r.1) {
+            None => with_flags!(false, Law { power: |_l: usize, _r: f64| 0.0, gamma: |_l: usize| 1.0 }),
+            Some(Gamma::Uniform(Power::Integer(1))) => {
+                with_flags!(true, Law { power: |_l: usize, r: f64| r, gamma: |_l: usize| 1.0 })
+            }
+            Some(Gamma::Uniform(Power::Integer(2))) => {
+                with_flags!(true, Law { power: |_l: usize, r: f64| r * r, gamma: |_l: usize| 2.0 })
+            }
+            Some(Gamma::Uniform(Power::Integer(3))) => with_flags!(
+                true,
+                Law { power: |_l: usize, r: f64| r * r * r, gamma: |_l: usize| 3.0 }
+            ),
+            Some(Gamma::Uniform(Power::Integer(4))) => with_flags!(
+                true,
+                Law {
+                    power: |_l: usize, r: f64| {
+                        let r2 = r * r;
+                        r2 * r2
+                    },
+                    gamma: |_l: usize| 4.0
+                }
+            ),
+            Some(Gamma::Uniform(p)) => {
+                let g = match p {
+                    Power::Integer(k) => k as f64,
+                    Power::Real(g) => g,
+                };
+                with_flags!(true, Law { power: move |_l: usize, r: f64| p.apply(r), gamma: move |_l: usize| g })
+            }
+            Some(Gamma::PerLane(gs)) => with_flags!(
+                true,
+                Law {
+                    power: move |l: usize, r: f64| Power::of(gs[l]).apply(r),
+                    gamma: move |l: usize| gs[l]
+                }
+            ),
+        }
+    }};
+}
+
+/// Discrete energy E = eps Σ u_i² + Σ Phi_i(d_i) of every lane's state (the same sums, in the
+/// same order, as a step's report, so that the energy check compares like with like).
 pub fn state_energy<const L: usize>(
     terms: &Terms<L>,
     n: usize,
     gaps: &[f64],
     vel: &[f64],
 ) -> [f64; L] {
+    specialised!(terms, state_energy_impl, (terms, n, gaps, vel))
+}
+
+fn state_energy_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+    terms: &Terms<L>,
+    n: usize,
+    gaps: &[f64],
+    vel: &[f64],
+    law: Law<P, Q>,
+) -> [f64; L]
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
     let mut kinetic = [0.0; L];
-    for i in (1..n).rev() {
-        for l in 0..L {
-            let u = vel[(i - 1) * L + l];
-            kinetic[l] += u * u;
-        }
-    }
     let mut energy = [0.0; L];
     for i in 0..n {
         for l in 0..L {
             let k = i * L + l;
-            if terms.bonded.is_none_or(|b| !b[k]) {
-                energy[l] += potential(terms, l, k, gaps[k].max(0.0));
+            let phi = potential_of::<L, REP, P, Q>(terms, law, l, k, gaps[k].max(0.0));
+            if !(CLU && terms.bonded.is_some_and(|b| b[k])) {
+                energy[l] += phi;
+            }
+            if i + 1 < n {
+                let u = vel[k];
+                kinetic[l] += u * u;
             }
         }
     }
@@ -281,7 +394,30 @@ pub fn euler_step<const L: usize>(
     vel_out: &mut [f64],
     scratch: &mut Scratch,
 ) -> [StepReport; L] {
-    let n = particles;
+    specialised!(
+        terms,
+        euler_impl,
+        (terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch)
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn euler_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+    terms: &Terms<L>,
+    n: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch,
+    law: Law<P, Q>,
+) -> [StepReport; L]
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
     let eps = terms.eps;
     debug_assert_eq!(gaps_in.len(), n * L);
     debug_assert_eq!(vel_in.len(), (n - 1) * L);
@@ -293,42 +429,37 @@ pub fn euler_step<const L: usize>(
     }
 
     // Forward sweep. The wall (row 0, u_0 = 0) has an infinite pivot: lambda_0 = 1, so
-    // ls_0 = 1/d_1 and ys_0 = 0.
+    // ls_0 = 1/d_1 and ys_0 = 0. Non-finite G or F are noted per lane (a hard failure) and
+    // looked up after the sweep, so the loop has no branches.
     let mut a_prev = [0.0; L];
     let mut g_prev = [0.0; L];
     let mut ls_prev = [0.0; L];
     let mut ys_prev = [0.0; L];
     let mut q = [0.0; L];
+    let mut finite = [true; L];
     for l in 0..L {
-        let (a, g, d) = gap_terms(terms, l, l, gaps_in[l], h[l]);
+        let (a, g, d) = gap_terms::<L, REP, CLU, P, Q>(terms, law, l, l, gaps_in[l], h[l]);
         a_prev[l] = a;
         g_prev[l] = g;
         ls_prev[l] = 1.0 / d;
-        if !g.is_finite() {
-            report[l].hard = Some(repulsion_failure(terms, 0, l, d));
-        }
+        finite[l] &= g.is_finite();
     }
     for i in 1..n {
         let row = (i - 1) * L;
         let next_gap = i * L;
         for l in 0..L {
             let stored_next = gaps_in[next_gap + l];
-            let (a_next, g_next, d_next) = gap_terms(terms, l, next_gap + l, stored_next, h[l]);
+            let (a_next, g_next, d_next) =
+                gap_terms::<L, REP, CLU, P, Q>(terms, law, l, next_gap + l, stored_next, h[l]);
             let mut f = 0.0;
-            if let Some(forcing) = terms.forcing {
-                q[l] += stored_gap::decode(gaps_in[row + l]) + mass;
-                f = particle_force(forcing, eps, t[l], q[l]);
-                scratch.force[row + l] = f;
-                if !f.is_finite() && report[l].hard.is_none() {
-                    report[l].hard = Some(HardFailure::Forcing {
-                        particle: i,
-                        x: q[l],
-                    });
+            if FRC {
+                if let Some(forcing) = terms.forcing {
+                    q[l] += stored_gap::decode(gaps_in[row + l]) + mass;
+                    f = particle_force(forcing, eps, t[l], q[l]);
+                    scratch.force[row + l] = f;
                 }
             }
-            if !g_next.is_finite() && report[l].hard.is_none() {
-                report[l].hard = Some(repulsion_failure(terms, i, next_gap + l, d_next));
-            }
+            finite[l] &= (g_next + f).is_finite();
             let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
             let excess = m_over_h[l] + a_prev[l] * ls_prev[l];
             let delta = rhs + a_prev[l] * ys_prev[l];
@@ -344,13 +475,20 @@ pub fn euler_step<const L: usize>(
             g_prev[l] = g_next;
         }
     }
+    for l in 0..L {
+        if !finite[l] {
+            report[l].hard = find_hard_failure(terms, law, n, l, t[l], h[l], gaps_in);
+        }
+    }
+
     // Back sweep from the right wall (u_N = 0): velocities, the rate of gap i+1 and its update
-    // ln d' = ln d + h r. Log-stored gaps and gaps that leave [GAP_FLOOR, inf) are redone by the
-    // fix-up below (rare), from the rate left in `ls`.
+    // ln d' = ln d + h r, and the sum of the new gaps (for the projection). Log-stored
+    // gaps and gaps that leave [GAP_FLOOR, inf) are redone by the fix-up below (rare), from the rate
+    // left in `ls`.
     let mut needs_fixup = [false; L];
     let mut opening = [0.0f64; L];
-    let mut kinetic = [0.0; L];
-    let mut work = [0.0; L];
+    let mut closing = [f64::NEG_INFINITY; L];
+    let mut sum = [0.0; L];
     let mut u_next = [0.0; L];
     for i in (1..n).rev() {
         let row = (i - 1) * L;
@@ -359,37 +497,37 @@ pub fn euler_step<const L: usize>(
             let old = gaps_in[gap + l];
             let d = old.max(GAP_FLOOR);
             let mut u = d * scratch.ys[row + l] + scratch.w[row + l] * u_next[l];
-            if terms.bonded.is_some_and(|b| b[gap + l]) {
+            if CLU && terms.bonded.is_some_and(|b| b[gap + l]) {
                 // Exactly the velocity of the body it is bonded to (the penalty gives it to
                 // ~1e-250).
                 u = u_next[l];
             }
             let rate = scratch.ls[row + l] * u_next[l] - scratch.ys[row + l];
             let x = h[l] * rate;
-            let grown = old * twin_math::exp(x);
-            if old > 0.0 {
-                opening[l] = opening[l].max(x);
-            }
+            let grown = old * gap_exp(x);
             vel_out[row + l] = u;
             gaps_out[gap + l] = grown;
             scratch.ls[row + l] = rate;
-            kinetic[l] += u * u;
-            if terms.forcing.is_some() {
-                work[l] += u * scratch.force[row + l];
+            sum[l] += grown.max(0.0);
+            if old > 0.0 {
+                opening[l] = opening[l].max(x);
             }
-            // NaN fails the comparison.
-            needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY);
+            closing[l] = closing[l].max(d * (-((law.gamma)(l) + 2.0) * x.min(0.0) - 1.0));
+            // NaN fails the comparisons.
+            needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX);
             u_next[l] = u;
         }
     }
-    if let Some(bonded) = terms.bonded {
-        // Bodies glued to the left wall do not move, exactly.
-        for l in 0..L {
-            for i in 0..n - 1 {
-                if !bonded[i * L + l] {
-                    break;
+    if CLU {
+        if let Some(bonded) = terms.bonded {
+            // Bodies glued to the left wall do not move, exactly.
+            for l in 0..L {
+                for i in 0..n - 1 {
+                    if !bonded[i * L + l] {
+                        break;
+                    }
+                    vel_out[i * L + l] = 0.0;
                 }
-                vel_out[i * L + l] = 0.0;
             }
         }
     }
@@ -398,13 +536,16 @@ pub fn euler_step<const L: usize>(
         let old = gaps_in[l];
         let rate = u_next[l] / old.max(GAP_FLOOR);
         let x = h[l] * rate;
-        let grown = old * twin_math::exp(x);
+        let grown = old * gap_exp(x);
+        gaps_out[l] = grown;
+        rate_first[l] = rate;
+        sum[l] += grown.max(0.0);
         if old > 0.0 {
             opening[l] = opening[l].max(x);
         }
-        gaps_out[l] = grown;
-        rate_first[l] = rate;
-        needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY);
+        let d = old.max(GAP_FLOOR);
+        closing[l] = closing[l].max(d * (-((law.gamma)(l) + 2.0) * x.min(0.0) - 1.0));
+        needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX);
     }
 
     for l in 0..L {
@@ -419,16 +560,106 @@ pub fn euler_step<const L: usize>(
                 &scratch.ls,
                 rate_first[l],
             );
+            sum[l] = lane_sum::<L>(n, l, gaps_out);
+        }
+        report[l].admissible &= opening[l] <= MAX_OPENING;
+        report[l].certified = !needs_fixup[l]
+            && energy_certified(
+                REP,
+                closing[l],
+                opening[l],
+                2.0 * eps,
+                terms.contact_repulsion[l],
+                terms.mu[l] / h[l],
+            );
+    }
+    let force = FRC.then_some(scratch.force.as_slice());
+    conclude_impl::<L, REP, FRC, CLU, P, Q>(
+        terms,
+        n,
+        h,
+        sum,
+        gaps_out,
+        vel_out,
+        force,
+        &mut report,
+        law,
+    );
+    report
+}
+
+/// Whether a linearly implicit Euler step (with the update e^{h r} and the projection) provably
+/// did not raise the energy beyond the forcing's work, from two numbers the back sweep keeps per
+/// lane. With x_i = h r_i, D_i = d_i x_i (the linear gap change), k_i = Phi_i''(d_i) and
+/// e_i = d_i (e^{x_i} - 1 - x_i) >= 0 (what the update adds beyond D_i; the projection removes
+/// their sum again):
+///   E' - E - W <= sum_i (R_i - k_i D_i^2/2) + (e^{max(x, 0)} G_max/2 - mu/h) sum_i d_i x_i^2,
+/// where R_i is the Taylor remainder of Phi_i beyond second order over D_i (the scheme's own
+/// balance gives -mu/h sum d x^2 - sum k D^2/2, the projection at most G_max sum e_i, and
+/// sum e_i <= e^{max x} sum d x^2/2). The third derivative of Phi is negative, so R_i <= 0 for
+/// an opening gap, and R_i <= k_i D_i^2/2 for a closing one when (gamma + 1)|D_i| <= d_i + D_i
+/// + 2eps, i.e. when `closing` = max_i d_i ((gamma + 2)(-x_i) - 1) <= 2eps; the second term is
+/// <= 0 when e^{max x} G_max/2 <= mu/h, with G_max bounded by the contact repulsion. A mild step
+/// is certified and skips the potential energy; any other is checked by computing E'.
+#[inline(always)]
+pub fn energy_certified(
+    repulsion: bool,
+    closing: f64,
+    opening: f64,
+    eps2: f64,
+    contact_repulsion: f64,
+    mu_over_h: f64,
+) -> bool {
+    if !repulsion {
+        // Phi = 0: the kinetic balance alone, E' - E - W <= -mu/h sum d x^2.
+        return true;
+    }
+    closing <= eps2 && 0.5 * twin_math::exp(opening.max(0.0)) * contact_repulsion <= mu_over_h
+}
+
+/// The hard failure of a lane whose forward sweep met a non-finite G or F (outside the hot loop).
+fn find_hard_failure<const L: usize, P, Q>(
+    terms: &Terms<L>,
+    law: Law<P, Q>,
+    n: usize,
+    l: usize,
+    t: f64,
+    h: f64,
+    gaps_in: &[f64],
+) -> Option<HardFailure>
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    let eps = terms.eps;
+    let mut q = 0.0;
+    for i in 0..n {
+        let k = i * L + l;
+        if i > 0 {
+            if let Some(forcing) = terms.forcing {
+                q += stored_gap::decode(gaps_in[(i - 1) * L + l]) + 2.0 * eps;
+                if !particle_force(forcing, eps, t, q).is_finite() {
+                    return Some(HardFailure::Forcing { particle: i, x: q });
+                }
+            }
+        }
+        if terms.repulsion.is_some() && terms.bonded.is_none_or(|b| !b[k]) {
+            let (_, g, d) = gap_terms::<L, true, false, P, Q>(terms, law, l, k, gaps_in[k], h);
+            if !g.is_finite() {
+                return Some(repulsion_failure(terms, i, k, d));
+            }
         }
     }
-    conclude::<L>(terms, n, gaps_out, &mut report);
-    for l in 0..L {
-        report[l].energy += eps * kinetic[l];
-        report[l].work = h[l] * work[l];
-        report[l].admissible &=
-            report[l].energy.is_finite() && kinetic[l].is_finite() && opening[l] <= MAX_OPENING;
+    None
+}
+
+/// The sum of lane l's gaps (in the back sweep's order: from the last gap down).
+fn lane_sum<const L: usize>(n: usize, l: usize, gaps: &[f64]) -> f64 {
+    let mut sum = 0.0;
+    for i in (0..n).rev() {
+        sum += gaps[i * L + l].max(0.0);
     }
-    report
+    sum
 }
 
 /// Redoes the update of one lane's gaps in log form where the fast form d·e^{hr} does not apply
@@ -450,67 +681,135 @@ fn fix_up_lane<const L: usize>(
             gaps_out[k] = 0.0;
             continue;
         }
-        let grown = gaps_out[k];
-        if grown >= GAP_FLOOR && grown < f64::INFINITY && gaps_in[k] > 0.0 {
-            continue;
-        }
         let rate = if i == 0 {
             rate_first
         } else {
             rates[(i - 1) * L + l]
         };
-        gaps_out[k] = encode_ln_gap(stored_ln(gaps_in[k]) + h * rate);
+        let x = h * rate;
+        let grown = gaps_out[k];
+        if grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX && gaps_in[k] > 0.0 {
+            continue;
+        }
+        gaps_out[k] = encode_ln_gap(stored_ln(gaps_in[k]) + x);
+    }
+}
+
+/// Shifts the log-stored gaps of the lanes that have some by ln(scale) (outside the hot loop:
+/// rare).
+fn shift_logged<const L: usize>(n: usize, scale: &[f64; L], logged: &[bool; L], gaps: &mut [f64]) {
+    for l in 0..L {
+        if logged[l] {
+            let shift = twin_math::ln(scale[l]);
+            for i in 0..n {
+                let k = i * L + l;
+                if gaps[k] < 0.0 {
+                    gaps[k] += shift;
+                }
+            }
+        }
     }
 }
 
 /// Ends a step: scales every lane's gaps so that their sum is the lane's total again (the
-/// projection; log-stored gaps are shifted by the log of the factor) and adds the potential
-/// energy of the result to `report.energy`. Non-finite gaps make the lane inadmissible.
+/// projection; log-stored gaps are shifted by the log of the factor) and reports the energy of
+/// the result and, given the forces F, the work h Σ u_i' F_i. Non-finite gaps make the lane
+/// inadmissible.
 pub fn conclude<const L: usize>(
     terms: &Terms<L>,
     n: usize,
+    h: &[f64; L],
     gaps: &mut [f64],
+    vel: &[f64],
     report: &mut [StepReport; L],
 ) {
-    // The sum compensated (Neumaier): the projection would otherwise inject its rounding
-    // (~N ulp, the dominant error of f32 runs) into every gap at every step.
-    let mut sum = [0.0; L];
-    let mut compensation = [0.0; L];
-    let mut logged = [false; L];
-    for i in 0..n {
-        for l in 0..L {
-            let v = gaps[i * L + l];
-            let x = v.max(0.0);
-            let t = sum[l] + x;
-            compensation[l] += if sum[l].abs() >= x {
-                (sum[l] - t) + x
-            } else {
-                (x - t) + sum[l]
-            };
-            sum[l] = t;
-            logged[l] |= v < 0.0;
-            report[l].admissible &= v.is_finite();
-        }
+    let mut total = [0.0; L];
+    for (l, t) in total.iter_mut().enumerate() {
+        *t = lane_sum::<L>(n, l, gaps);
     }
+    specialised!(
+        terms,
+        conclude_impl,
+        (terms, n, h, total, gaps, vel, None, report)
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+    terms: &Terms<L>,
+    n: usize,
+    h: &[f64; L],
+    sum: [f64; L],
+    gaps: &mut [f64],
+    vel: &[f64],
+    force: Option<&[f64]>,
+    report: &mut [StepReport; L],
+    law: Law<P, Q>,
+) where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
     let mut scale = [1.0; L];
-    let mut shift = [0.0; L];
     for l in 0..L {
-        scale[l] = terms.total_gap[l] / (sum[l] + compensation[l]);
-        if logged[l] {
-            shift[l] = twin_math::ln(scale[l]);
-        }
+        scale[l] = terms.total_gap[l] / sum[l];
     }
-    let bonded = terms.bonded;
+    let mut logged = [false; L];
+    if report.iter().all(|r| r.certified) {
+        // Only the projection (and the forcing's work, which a later energy check of a
+        // Richardson step adds up): no lane needs its energy.
+        let mut work = [0.0; L];
+        for i in 0..n {
+            for l in 0..L {
+                let k = i * L + l;
+                let v = gaps[k];
+                logged[l] |= v < 0.0;
+                report[l].admissible &= v.is_finite();
+                gaps[k] = if v > 0.0 { v * scale[l] } else { v };
+                if FRC && i + 1 < n {
+                    if let Some(f) = force {
+                        work[l] += vel[k] * f[k];
+                    }
+                }
+            }
+        }
+        shift_logged(n, &scale, &logged, gaps);
+        for l in 0..L {
+            report[l].energy = -1.0;
+            report[l].work = h[l] * work[l];
+        }
+        return;
+    }
+    let mut potential = [0.0; L];
+    let mut kinetic = [0.0; L];
+    let mut work = [0.0; L];
     for i in 0..n {
         for l in 0..L {
             let k = i * L + l;
             let v = gaps[k];
-            let scaled = if v > 0.0 { v * scale[l] } else { v + shift[l] };
-            let d = scaled.max(0.0);
-            gaps[k] = if v == 0.0 { 0.0 } else { scaled };
-            if bonded.is_none_or(|b| !b[k]) {
-                report[l].energy += potential(terms, l, k, d);
+            let scaled = v * scale[l];
+            logged[l] |= v < 0.0;
+            report[l].admissible &= v.is_finite();
+            gaps[k] = if v > 0.0 { scaled } else { v };
+            let phi = potential_of::<L, REP, P, Q>(terms, law, l, k, scaled.max(0.0));
+            if !(CLU && terms.bonded.is_some_and(|b| b[k])) {
+                potential[l] += phi;
+            }
+            if i + 1 < n {
+                let u = vel[k];
+                kinetic[l] += u * u;
+                if FRC {
+                    if let Some(f) = force {
+                        work[l] += u * f[k];
+                    }
+                }
             }
         }
+    }
+    shift_logged(n, &scale, &logged, gaps);
+    for l in 0..L {
+        report[l].energy = potential[l] + terms.eps * kinetic[l];
+        report[l].work = h[l] * work[l];
+        report[l].admissible &= report[l].energy.is_finite();
+        report[l].certified = false;
     }
 }

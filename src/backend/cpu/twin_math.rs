@@ -59,6 +59,34 @@ pub fn exp(x: f64) -> f64 {
     scale2(y, kf as i32)
 }
 
+/// floor(y) for |y| < 2^51 without a libm call or a branch (baseline x86-64 has no rounding
+/// instruction, and a call would keep the lane loops out of SIMD registers).
+#[inline(always)]
+fn floor_in_range(y: f64) -> f64 {
+    const ROUND: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52: adding it rounds to an integer
+    let r = (y + ROUND) - ROUND;
+    if r > y {
+        r - 1.0
+    } else {
+        r
+    }
+}
+
+/// [`exp`] for x in [-700, 700], bit for bit, without branches (the back sweep's gap update).
+/// 2^k is built from the bits of k + 1023 + 2^52, which holds k + 1023 in its low bits.
+#[inline(always)]
+pub fn exp_in_range(x: f64) -> f64 {
+    let kf = floor_in_range(x * INV_LN2 + 0.5);
+    let hi = x - kf * LN2_HI;
+    let lo = kf * LN2_LO - 0.0;
+    let r = hi - lo;
+    let t = r * r;
+    let c = r - t * (P1 + t * (P2 + t * (P3 + t * (P4 + t * P5))));
+    let y = 1.0 - ((lo - (r * c) / (2.0 - c)) - hi);
+    let biased = (kf + (1023.0 + 4_503_599_627_370_496.0)).to_bits();
+    y * f64::from_bits(biased << 52)
+}
+
 /// `two_sum_f64`.
 #[inline(always)]
 fn two_sum(a: f64, b: f64) -> (f64, f64) {
@@ -159,6 +187,29 @@ mod tests {
             );
         }
         assert_eq!(exp(0.0), 1.0);
+        let mut x = -700.0f64;
+        while x <= 700.0 {
+            assert_eq!(
+                exp_in_range(x).to_bits(),
+                exp(x).to_bits(),
+                "exp_in_range({x})"
+            );
+            x += 0.0731;
+        }
+        for x in [
+            -700.0,
+            -0.5 * std::f64::consts::LN_2,
+            0.0,
+            1e-300,
+            -1e-17,
+            700.0,
+        ] {
+            assert_eq!(
+                exp_in_range(x).to_bits(),
+                exp(x).to_bits(),
+                "exp_in_range({x})"
+            );
+        }
         assert_eq!(ln(1.0), 0.0);
     }
 }

@@ -32,7 +32,7 @@ fn is_lavapipe(ctx: &GpuContext) -> bool {
 /// the projection's two loops; the error norm (two loops); the extrapolation (two, and the projection's two); the
 /// smallest gap named by a failure (one).
 fn loops_per_attempt(scheme: SchemeSpec) -> u64 {
-    (if scheme.richardson() { 18 } else { 6 })
+    (if scheme.richardson() { 21 } else { 7 })
         + if scheme.adaptive { 2 } else { 0 }
         + if scheme.order2 { 4 } else { 0 }
         + 1
