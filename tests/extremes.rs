@@ -142,8 +142,8 @@ fn gaps_below_the_float_range_match_a_log_gap_reference() {
 /// completes, every gap stays positive (ln d finite, even below the float range), sum d is kept
 /// to 1e-12 and the energy never rises (relative 1e-12; f = 0). On the GPU (where an adapter
 /// exists): f64 equals the CPU to 1e-10 with the same accepted and rejected steps, and every
-/// member completes in f32 with
-/// finite ln d (its deviation from f64 is printed, not bounded: see issue 8's note).
+/// member completes in f32 with ln of the smallest gap within 1e-3·(1 + |ln d|) of f64 where
+/// mu >= 1e-2 (the largest deviation is printed).
 #[test]
 fn extremes_matrix_completes_conserves_and_never_gains_energy() {
     use roughlub::backend::gpu::solver::GpuSolver;
@@ -231,9 +231,18 @@ fn extremes_matrix_completes_conserves_and_never_gains_energy() {
                         if dev > worst_f32.0 {
                             worst_f32 = (dev, label.clone(), a.log_min_gap, b.log_min_gap);
                         }
-                        // Completion is asserted; the f32 deviation is measured, not bounded (at
-                        // mu = 1e-4 with hard repulsion it reaches ~10 % of ln d: issue 8 notes it).
                         assert!(a.log_min_gap.is_finite(), "{label}: f32 ln min gap");
+                        // Bounded where fixed dt = 1e-3 resolves the dynamics (measured: 4e-5 at
+                        // most); at mu = 1e-4 dt and dt/2 differ by hundreds in ln d themselves,
+                        // and f32 by up to 5 % (printed, not bounded).
+                        if c.mu >= 1e-2 {
+                            assert!(
+                                dev <= 1e-3,
+                                "{label}: f32 ln min gap {} vs f64 {}",
+                                a.log_min_gap,
+                                b.log_min_gap
+                            );
+                        }
                     }
                 }
             }
