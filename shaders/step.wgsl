@@ -137,7 +137,7 @@ const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
 // GAP_EXP_TAYLOR, EXP_FAST_MAX of src/backend/cpu/step.rs.
-const GAP_EXP_TAYLOR: real = 0.0009765625;
+const GAP_EXP_TAYLOR: real = 0.0625;
 const EXP_FAST_MAX: real = 700.0;
 
 // MAX_OPENING of src/backend/cpu/step.rs.
@@ -177,10 +177,12 @@ fn stored_decode(v: real) -> real {
     return 0.0;
 }
 
-// `gap_exp`: e^x for the gap update; the Taylor polynomial to x^4 below |x| = 2^-10, else exp.
+// `gap_exp`: e^x for the gap update; the Taylor polynomial to x^8 below |x| = 1/16, else exp.
 fn gap_exp(x: real) -> real {
     if abs(x) < GAP_EXP_TAYLOR {
-        return 1.0 + x * (1.0 + x * (0.5 + x * (0.16666666666666666 + x * 0.041666666666666664)));
+        return 1.0 + x * (1.0 + x * (0.5 + x * (0.16666666666666666 + x * (0.041666666666666664
+            + x * (0.008333333333333333 + x * (0.001388888888888889 + x * (0.0001984126984126984
+            + x * 0.000024801587301587302)))))));
     }
     return exp_real(clamp(x, -EXP_FAST_MAX, EXP_FAST_MAX));
 }

@@ -59,20 +59,28 @@ pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 /// the rejections).
 pub const MAX_OPENING: f64 = 5.0;
 
-/// e^x as the gap update computes it: for |x| < 2^-10 (every gap of a mild step) the Taylor
-/// polynomial to x^4, whose truncation error x^5/120 < 1e-17 is below rounding; else the
-/// kernel's exp. The GPU kernel computes the same (`gap_exp` in shaders/step.wgsl).
+/// e^x as the gap update computes it: for |x| < 1/16 (every gap of a mild step) the Taylor
+/// polynomial to x^8, whose truncation error x^9/9! < 2e-16 is at rounding; else the kernel's
+/// exp. The GPU kernel computes the same (`gap_exp` in shaders/step.wgsl).
 #[inline(always)]
 pub fn gap_exp(x: f64) -> f64 {
     if x.abs() < GAP_EXP_TAYLOR {
-        1.0 + x * (1.0 + x * (0.5 + x * (0.166_666_666_666_666_66 + x * 0.041_666_666_666_666_664)))
+        // Horner, 1/k! as the nearest f64 (the WGSL twin writes the same literals).
+        1.0 + x
+            * (1.0
+                + x * (0.5
+                    + x * (1.666_666_666_666_666_6e-1
+                        + x * (4.166_666_666_666_666_4e-2
+                            + x * (8.333_333_333_333_333e-3
+                                + x * (1.388_888_888_888_889e-3
+                                    + x * (1.984_126_984_126_984e-4 + x * 2.480_158_730_158_730_2e-5)))))))
     } else {
         twin_math::exp_in_range(x.clamp(-EXP_FAST_MAX, EXP_FAST_MAX))
     }
 }
 
 /// Below this |h r| the gap update uses the Taylor polynomial ([`gap_exp`]).
-pub const GAP_EXP_TAYLOR: f64 = 1.0 / 1024.0;
+pub const GAP_EXP_TAYLOR: f64 = 1.0 / 16.0;
 
 /// Range in which the back sweep's branch-free exp is used (`twin_math::exp_in_range`); a step
 /// whose h r leaves it is redone in log form (below) or is far beyond MAX_OPENING (above).
