@@ -341,3 +341,69 @@ fn failures_say_what_happened() {
     );
     assert!(reason.contains("(smallest gap: d_"), "{reason}");
 }
+
+/// The strong-compression scene in f32 on the GPU (gaps fall below f32's range: smallest ~e^-150
+/// at mu = 1e-3) against the log-gap reference: the member completes, ln of the smallest gap
+/// within 1e-3 relative of the reference and of the CPU's f64, sum d kept to 1e-6.
+#[test]
+fn f32_on_the_gpu_survives_gaps_below_its_range() {
+    use roughlub::backend::gpu::solver::GpuSolver;
+    use roughlub::backend::Precision;
+    let Some(ctx) = common::gpu::acquire_for_tests(false) else {
+        return;
+    };
+    let n = 24;
+    let c = chain(n, "0.99", "0.5*sin(2*pi*x)", "0.995");
+    let (mu, gamma, t_end) = (1e-3, 20.0, 0.05);
+    let dstar = c.dstar.clone().unwrap();
+    let log_gaps: Vec<f64> = c.gaps.iter().map(|d| d.ln()).collect();
+    let (ref_s, _) = log_gap_reference(
+        c.eps,
+        mu,
+        gamma,
+        &log_gaps,
+        &c.velocities,
+        &dstar,
+        t_end,
+        10_000,
+    );
+    let smallest = ref_s.iter().cloned().fold(f64::INFINITY, f64::min);
+    assert!(
+        smallest < -88.0,
+        "test data: below f32's range ({smallest})"
+    );
+    let plan = plan_for(
+        &c,
+        vec![MemberParams { mu, gamma }],
+        2,
+        Stepping::Fixed {
+            dt: 5e-5,
+            dt_min: 1e-12,
+        },
+        vec![0.0, t_end],
+        None,
+    );
+    let (cpu, _) = run_all(plan.clone(), vec![c.clone()]);
+    let mut gpu = GpuSolver::new(&ctx, plan, vec![c.clone()], Precision::F32).unwrap();
+    let mut out = Vec::new();
+    while let Some(s) = gpu.next_output(&|_| {}).unwrap() {
+        out.push(s);
+    }
+    assert_eq!(gpu.reports()[0].status, MemberStatus::Ok);
+    let got = out[1][0].log_min_gap;
+    eprintln!(
+        "f32: smallest ln d {got:.4}, f64 {:.4}, reference {smallest:.4}",
+        cpu[1][0].log_min_gap
+    );
+    assert!(
+        (got - smallest).abs() <= 1e-3 * smallest.abs(),
+        "{got} vs {smallest}"
+    );
+    assert!((got - cpu[1][0].log_min_gap).abs() <= 1e-3 * smallest.abs());
+    let sum: f64 = out[1][0].gaps.iter().sum();
+    let total: f64 = c.gaps.iter().sum();
+    assert!(
+        (sum - total).abs() <= 1e-6 * total,
+        "sum d {sum} vs {total}"
+    );
+}
