@@ -747,3 +747,32 @@ fn radii_file_refuses_radii_as_large_as_the_domain() {
     .unwrap();
     assert_eq!(radii, vec![0.001, 0.999, 0.003]);
 }
+
+/// File roughness gives every radius itself: a scene without rho_star and without
+/// ensemble.mean_radius is accepted with it (issue 9, item 10), and still refused with random
+/// roughness (which needs a mean profile to draw around).
+#[test]
+fn file_roughness_needs_no_mean_profile() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("radii.csv"), "r\n0.001\n0.002\n0.003\n").unwrap();
+    let scene = |roughness: &str| {
+        format!(
+            "name = \"fr\"\n[model]\nparticles = 2\nmu = 0.01\ngamma = 2.0\n[initial]\nrho = \"0.7\"\nvelocity = \"0\"\n[time]\nend = 0.01\noutputs = 2\ndt = 1e-3\n[ensemble]\nmembers = 2\nroughness = {roughness}\n"
+        )
+    };
+    let path = dir.path().join("scene.toml");
+    let file = roughlub::scene::Scene::from_toml(
+        &scene("{ kind = \"file\", path = \"radii.csv\" }"),
+        &path,
+    );
+    assert!(file.is_ok(), "{:?}", file.err());
+    let random =
+        roughlub::scene::Scene::from_toml(&scene("{ kind = \"uniform\", spread = 0.1 }"), &path)
+            .unwrap_err();
+    assert!(
+        random
+            .to_string()
+            .contains("random roughness needs a mean profile"),
+        "{random}"
+    );
+}

@@ -64,7 +64,11 @@ pub(super) fn validate_ensemble(
             "the mean roughness radius",
         )?;
     }
-    if roughness.is_some() && !has_rho_star && e.mean_radius.is_none() {
+    // A file gives every radius itself; only random roughness is drawn around a mean profile.
+    let drawn = roughness
+        .as_ref()
+        .is_some_and(|r| !matches!(r.kind, RoughnessKind::File(_)));
+    if drawn && !has_rho_star && e.mean_radius.is_none() {
         return Err(Error::missing(
             "ensemble.mean_radius",
             "random roughness needs a mean profile: give initial.rho_star or ensemble.mean_radius (>= 0)",

@@ -147,6 +147,23 @@ impl Scene {
                 chain_from_particle_file(path, *radius, self.particles)?
             }
         };
+        // Without roughness there is no repulsion, so every gamma of a sweep would give the same
+        // member: refused rather than run as identical copies.
+        let roughness_drawn = self
+            .ensemble
+            .as_ref()
+            .is_some_and(|e| e.roughness.is_some());
+        let mut distinct = self.gamma.clone();
+        distinct.sort_by(f64::total_cmp);
+        distinct.dedup();
+        if self.gamma_swept && distinct.len() > 1 && chain.dstar.is_none() && !roughness_drawn {
+            return Err(Error::invalid(
+                "batch.gamma",
+                format!("{:?}", self.gamma),
+                "a gamma sweep without roughness: gamma only enters through the repulsion (rho/rho*)^gamma, and without rho* there is none, so every gamma gives the same member",
+                "give initial.rho_star (or an r column in the particle file, or [ensemble] roughness), or drop the gamma sweep",
+            ));
+        }
         // An ensemble's members draw their own roughness or jitter their gaps: their repulsion at
         // t = 0 is theirs, and a member that overflows fails with its own reason.
         let members_start_here = self

@@ -161,6 +161,9 @@ fn chain_cases() -> Vec<(&'static str, String, Option<&'static str>, &'static st
         ("gamma 686 at ratio 2.812", edit(&dense, "gamma = 1.0", "gamma = 686.0"), None, "accepted"),
         ("repulsion overflows", edit(&dense, "gamma = 1.0", "gamma = 1000.0"), None, "model.gamma = 1000: the repulsion G = (rho/rho*)^gamma overflows f64 at t = 0: gap 1 (particles 0 and 1, x = 0.05) starts at rho/rho* = 2.812, so gamma ln(rho/rho*) = 1034 > ln(f64::MAX) = 709.8 (allowed: gamma <= 686 with these initial data, or rho/rho* <= 2.033 in every gap with gamma = 1000)"),
         ("repulsion overflows in a sweep", format!("{dense}\n[batch]\ngamma = [2.0, 1000.0]\n"), None, "batch.gamma[1] = 1000: the repulsion G = (rho/rho*)^gamma overflows f64 at t = 0: gap 1 (particles 0 and 1, x = 0.05) starts at rho/rho* = 2.812, so gamma ln(rho/rho*) = 1034 > ln(f64::MAX) = 709.8 (allowed: gamma <= 686 with these initial data, or rho/rho* <= 2.033 in every gap with gamma = 1000)"),
+        ("gamma sweep without roughness", format!("{}\n[batch]\ngamma = [1.0, 2.0]\n", edit(BASE, "rho_star = \"0.7\"\n", "")), None, "batch.gamma = [1.0, 2.0]: a gamma sweep without roughness: gamma only enters through the repulsion (rho/rho*)^gamma, and without rho* there is none, so every gamma gives the same member (allowed: give initial.rho_star (or an r column in the particle file, or [ensemble] roughness), or drop the gamma sweep)"),
+        ("gamma sweep with roughness", format!("{BASE}\n[batch]\ngamma = [1.0, 2.0]\n"), None, "accepted"),
+        ("gamma sweep of roughness drawn by the ensemble", with_ensemble(&format!("{}\n[batch]\ngamma = [1.0, 2.0]\n", edit(BASE, "rho_star = \"0.7\"\n", "")), "roughness = { kind = \"uniform\", spread = 0.1 }\nmean_radius = 0.001"), None, "accepted"),
         ("repulsion left to the members", with_ensemble(&edit(&dense, "gamma = 1.0", "gamma = 1000.0"), "roughness = { kind = \"lognormal\", spread = 0.2 }"), None, "accepted"),
     ]
 }
