@@ -97,3 +97,86 @@ fn out_naming_an_input_is_refused_and_the_input_is_untouched() {
         "the shard's own manifest was removed"
     );
 }
+
+/// Runs `scene_text` (written into `dir`'s parent as scene.toml) into `dir` with `extra` args.
+fn run_text(scene_path: &Path, dir: &Path, extra: &[&str]) -> Output {
+    let mut args: Vec<&std::ffi::OsStr> = vec![
+        "run".as_ref(),
+        scene_path.as_os_str(),
+        "--out".as_ref(),
+        dir.as_os_str(),
+        "--quiet".as_ref(),
+    ];
+    args.extend(extra.iter().map(|s| std::ffi::OsStr::new(*s)));
+    roughlub(&args)
+}
+
+const FILE_ROUGHNESS_SCENE: &str = "name = \"fr\"\n[model]\nparticles = 8\nmu = 0.01\ngamma = 2.0\n\
+[initial]\nrho = \"0.7\"\nvelocity = \"0.5*sin(2*pi*x)\"\n[time]\nend = 0.01\noutputs = 2\ndt = 1e-3\n\
+[solver]\nbackend = \"cpu\"\n[output]\ngrid = 10\nplots = false\n\
+[ensemble]\nmembers = 8\nchunk = 4\nseed = SEED\nroughness = { kind = \"file\", path = \"radii.csv\" }\n";
+
+/// A changed roughness file is a different study (issue 9, item 3): `--resume` refuses it and
+/// names the files; the header records every file read with its hash.
+#[test]
+fn resume_refuses_a_changed_roughness_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let radii = |r: f64| format!("r\n{}", format!("{r}\n").repeat(9));
+    std::fs::write(tmp.path().join("radii.csv"), radii(0.001)).unwrap();
+    let scene = tmp.path().join("scene.toml");
+    std::fs::write(&scene, FILE_ROUGHNESS_SCENE.replace("SEED", "7")).unwrap();
+    let dir = tmp.path().join("study");
+    let out = run_text(&scene, &dir, &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let header: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("study.json")).unwrap()).unwrap();
+    let files = header["input_files"].as_object().unwrap();
+    assert_eq!(files.len(), 1);
+    assert!(files.keys().next().unwrap().ends_with("radii.csv"));
+
+    // The same file: resume is accepted.
+    let out = run_text(&scene, &dir, &["--resume"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // Another radius: refused, naming what differs.
+    std::fs::write(tmp.path().join("radii.csv"), radii(0.002)).unwrap();
+    let out = run_text(&scene, &dir, &["--resume"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("files it reads differ"), "{err}");
+}
+
+/// A directory whose `partial.json` belongs to an earlier study than its `study.json` (a later
+/// run into it was killed) is refused by merge (issue 9, item 4).
+#[test]
+fn merge_refuses_a_stale_partial() {
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::write(
+        tmp.path().join("radii.csv"),
+        format!("r\n{}", "0.001\n".repeat(9)),
+    )
+    .unwrap();
+    let (s7, s8) = (tmp.path().join("seed7.toml"), tmp.path().join("seed8.toml"));
+    std::fs::write(&s7, FILE_ROUGHNESS_SCENE.replace("SEED", "7")).unwrap();
+    std::fs::write(&s8, FILE_ROUGHNESS_SCENE.replace("SEED", "8")).unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    assert!(run_text(&s7, &a, &[]).status.success());
+    assert!(run_text(&s8, &b, &[]).status.success());
+    // What a killed seed-8 run into `a` leaves: its study.json beside seed 7's statistics.
+    std::fs::copy(b.join("study.json"), a.join("study.json")).unwrap();
+    let out = merge(&[&a], &tmp.path().join("m"), &[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("partial.json") && err.contains("out of date"),
+        "{err}"
+    );
+    assert!(err.contains("scene text"), "{err}");
+}

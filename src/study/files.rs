@@ -37,6 +37,10 @@ pub struct StudyHeader {
     /// What computed the members: resume and merge refuse to mix backends or precisions.
     pub backend: RunsOn,
     pub precision: Precision,
+    /// Every file the members are built from (a particle file, a roughness file), path →
+    /// FNV-1a of its bytes: resume and merge refuse a study whose inputs changed.
+    #[serde(default)]
+    pub input_files: BTreeMap<String, String>,
 }
 
 /// One CSV row per member.
@@ -84,8 +88,34 @@ pub(super) struct ChunkFile {
 
 /// FNV-1a of the scene text: identifies the study for resume and merge.
 fn scene_hash(text: &str) -> String {
+    fnv1a(text.as_bytes())
+}
+
+/// The files the study's members are read from, each with the FNV-1a of its bytes.
+pub(super) fn input_file_hashes(
+    scene: &Scene,
+    spec: &EnsembleSpec,
+) -> Result<BTreeMap<String, String>> {
+    let mut paths: Vec<&Path> = Vec::new();
+    if let crate::scene::InitialSpec::Particles { path, .. } = &scene.initial {
+        paths.push(path);
+    }
+    if let Some(r) = &spec.roughness {
+        if let crate::ensemble::RoughnessKind::File(path) = &r.kind {
+            paths.push(path);
+        }
+    }
+    let mut out = BTreeMap::new();
+    for path in paths {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        out.insert(path.display().to_string(), fnv1a(&bytes));
+    }
+    Ok(out)
+}
+
+fn fnv1a(bytes: &[u8]) -> String {
     let mut h: u64 = 0xcbf29ce484222325;
-    for b in text.as_bytes() {
+    for b in bytes {
         h ^= *b as u64;
         h = h.wrapping_mul(0x100000001b3);
     }
@@ -184,7 +214,21 @@ pub(super) fn header_for(
         out_dir: out_dir.display().to_string(),
         backend: engine.backend,
         precision: engine.precision,
+        input_files: BTreeMap::new(),
     }
+}
+
+/// What differs between two headers of what should be the same study (for resume, merge and the
+/// partial statistics of a directory), by name.
+pub(super) fn study_differences(a: &StudyHeader, b: &StudyHeader) -> Vec<&'static str> {
+    let differs = [
+        ("scene text", a.scene_hash != b.scene_hash),
+        ("files it reads", a.input_files != b.input_files),
+        ("roughlub version", a.roughlub_version != b.roughlub_version),
+        ("backend", a.backend != b.backend),
+        ("precision", a.precision != b.precision),
+    ];
+    differs.iter().filter(|d| d.1).map(|d| d.0).collect()
 }
 
 /// `partial.json`: the mergeable statistics of all members of a run (or shard, or merge), with
@@ -196,16 +240,16 @@ pub(super) struct PartialFile {
 }
 
 /// `--resume`: refuses a directory that holds another study (`old` is its `study.json` at
-/// `path`): another scene text, shard, chunk size, backend or precision.
+/// `path`): another scene text, file it reads, roughlub version, shard, chunk size, backend or
+/// precision.
 pub(super) fn check_resume(old: &StudyHeader, new: &StudyHeader, path: &Path) -> Result<()> {
-    let differs = [
-        ("scene text", old.scene_hash != new.scene_hash),
-        ("shard", old.shard != new.shard),
-        ("chunk size", old.chunk != new.chunk),
-        ("backend", old.backend != new.backend),
-        ("precision", old.precision != new.precision),
-    ];
-    let what: Vec<&str> = differs.iter().filter(|d| d.1).map(|d| d.0).collect();
+    let mut what = study_differences(old, new);
+    if old.shard != new.shard {
+        what.push("shard");
+    }
+    if old.chunk != new.chunk {
+        what.push("chunk size");
+    }
     if !what.is_empty() {
         return Err(Error::Output {
             path: path.to_path_buf(),

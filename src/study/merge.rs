@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::files::{CsvOut, MemberRow, PartialFile, StudyHeader};
+use super::files::{study_differences, CsvOut, MemberRow, PartialFile, StudyHeader};
 use super::report::{finalize, quantile_method};
 use super::state::StudyState;
 use super::StudySummary;
@@ -42,21 +42,40 @@ pub fn merge_studies(
     // Shards in member order, so that members.csv streams out in order.
     let mut partials: Vec<(PathBuf, PartialFile)> = Vec::with_capacity(inputs.len());
     for dir in inputs {
-        partials.push((dir.clone(), read_json(&dir.join("partial.json"))?));
+        let partial: PartialFile = read_json(&dir.join("partial.json"))?;
+        // A run killed before it finished leaves the previous study's partial.json beside its
+        // own study.json: those statistics are not this directory's study.
+        let study_path = dir.join("study.json");
+        if study_path.exists() {
+            let study: StudyHeader = read_json(&study_path)?;
+            let mut what = study_differences(&study, &partial.header);
+            if study.member_range != partial.header.member_range {
+                what.push("member range");
+            }
+            if !what.is_empty() {
+                return Err(Error::Output {
+                    path: dir.join("partial.json"),
+                    message: format!(
+                        "out of date: it holds the statistics of an earlier study than study.json ({} differ; was a later run into this directory interrupted?); rerun that shard",
+                        what.join(", ")
+                    ),
+                });
+            }
+        }
+        partials.push((dir.clone(), partial));
     }
     partials.sort_by_key(|(_, p)| p.header.member_range.0);
     // Every shard must belong to the same study; checked before anything is written.
     let (_, first) = &partials[0];
     for (dir, p) in &partials[1..] {
         let h0 = &first.header;
-        let differs = [
-            ("scene text", h0.scene_hash != p.header.scene_hash),
-            ("times", h0.times != p.header.times),
-            ("grid", h0.x != p.header.x),
-            ("backend", h0.backend != p.header.backend),
-            ("precision", h0.precision != p.header.precision),
-        ];
-        let what: Vec<&str> = differs.iter().filter(|d| d.1).map(|d| d.0).collect();
+        let mut what = study_differences(h0, &p.header);
+        if h0.times != p.header.times {
+            what.push("times");
+        }
+        if h0.x != p.header.x {
+            what.push("grid");
+        }
         if !what.is_empty() {
             return Err(Error::Output {
                 path: dir.clone(),

@@ -136,7 +136,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let members = EnsembleMembers::new(scene, spec)?;
     let range = shard_range(members.total(spec), options.shard);
     let engine = select_for_study(scene, spec, &members, range, options)?;
-    let header = header_for(
+    let mut header = header_for(
         scene,
         spec,
         &members,
@@ -144,6 +144,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         &options.out_dir,
         &engine.record,
     );
+    header.input_files = files::input_file_hashes(scene, spec)?;
     if !options.quiet {
         eprintln!(
             "ensemble {}: members {}..{} of {} (shard {k}/{n}); {}",
