@@ -45,6 +45,9 @@ enum Command {
         /// Ensembles only: finish an interrupted run in the same directory, reusing its chunks.
         #[arg(long)]
         resume: bool,
+        /// Single runs: replace an --out directory that holds files that are not a roughlub run.
+        #[arg(long)]
+        force: bool,
     },
     /// Merge the partial statistics of ensemble shards into the statistics of the whole study.
     Merge {
@@ -112,6 +115,7 @@ fn main() -> ExitCode {
             quiet,
             shard,
             resume,
+            force,
         } => (|| {
             let scene = Scene::from_file(&scene)?;
             let out_dir = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
@@ -148,6 +152,7 @@ fn main() -> ExitCode {
                     backend,
                     precision,
                     quiet,
+                    force,
                 },
             )?;
             if !quiet {

@@ -11,7 +11,7 @@ use crate::model::observables::Snapshot;
 use crate::model::plan::Plan;
 use crate::output::manifest::{RunManifest, SceneRecord, VERSION};
 use crate::output::{
-    prepare_dir, write_json_atomic, write_npy, NpyStream, ProgressReporter, MANIFEST,
+    write_json_atomic, write_npy, NpyStream, ProgressReporter, StagedDir, MANIFEST,
 };
 use crate::plot::{plot_profiles, plot_series, ProfilePlot};
 use crate::scene::Scene;
@@ -22,6 +22,8 @@ pub struct RunOptions {
     pub backend: Option<Backend>,
     pub precision: Option<Precision>,
     pub quiet: bool,
+    /// Replace an `out_dir` that holds files that are not a roughlub run.
+    pub force: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -129,8 +131,10 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let members = plan.members.len();
     let mut solver = engine.solver(plan.clone(), vec![chain; members])?;
 
-    let dir = &options.out_dir;
-    prepare_dir(dir)?;
+    // Written into a staging directory beside `out_dir` and swapped in whole at the end: `out_dir`
+    // is always a complete earlier run or the complete new one, never a mixture.
+    let staged = StagedDir::begin(&options.out_dir, options.force)?;
+    let dir = &staged.staging.clone();
     let b = members as u64;
     let t_count = plan.output_times.len() as u64;
     let g = plan.grid as u64;
@@ -272,8 +276,9 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         ]),
     };
     write_json_atomic(&dir.join(MANIFEST), &manifest)?;
+    staged.commit()?;
     Ok(RunSummary {
-        out_dir: dir.clone(),
+        out_dir: options.out_dir.clone(),
         backend: match engine.record.backend {
             crate::backend::select::RunsOn::Cpu => "cpu".into(),
             crate::backend::select::RunsOn::Gpu => "gpu".into(),

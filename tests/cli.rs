@@ -802,28 +802,127 @@ fn rejected_scene_leaves_an_earlier_run_untouched() {
     assert_eq!(read_manifest(&out_dir)["scene"]["name"], "base");
 }
 
-/// A run that fails after it has started writing removes the earlier manifest, so the
-/// half-written directory does not look complete.
+/// A run killed while it writes (SIGKILL) leaves the earlier run complete and unchanged: the new
+/// one is written beside it and swapped in only when complete (issue 9, items 1 and 2).
 #[test]
-fn run_failing_while_writing_leaves_no_manifest() {
+fn a_killed_run_leaves_the_earlier_run_whole() {
     let tmp = tempfile::tempdir().unwrap();
     let out_dir = tmp.path().join("out");
     let good = tmp.path().join("good.toml");
     std::fs::write(&good, BASE).unwrap();
     assert_success(&run(&good, &out_dir, &["--quiet"]));
-    assert!(out_dir.join("manifest.json").is_file());
-    // gaps.npy becomes a directory: creating the file fails after prepare_dir.
-    std::fs::remove_file(out_dir.join("gaps.npy")).unwrap();
-    std::fs::create_dir(out_dir.join("gaps.npy")).unwrap();
-    let out = run(&good, &out_dir, &["--quiet"]);
+    let before: Vec<(String, Vec<u8>)> = files_of(&out_dir);
+
+    // A long run: many particles and outputs, killed while it writes.
+    let long = tmp.path().join("long.toml");
+    let text = edit(
+        &edit(BASE, "particles = 10", "particles = 20000"),
+        "end = 0.01",
+        "end = 100.0",
+    );
+    std::fs::write(&long, edit(&text, "outputs = 2", "outputs = 2000")).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_roughlub"))
+        .args([
+            "run".as_ref(),
+            long.as_os_str(),
+            "--out".as_ref(),
+            out_dir.as_os_str(),
+            "--quiet".as_ref(),
+        ])
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "test data: the long run was still going"
+    );
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert_eq!(files_of(&out_dir), before, "the earlier run changed");
+}
+
+/// A new run replaces the directory whole: nothing of the earlier run (other fields, another N)
+/// stays beside it (issue 9, item 1).
+#[test]
+fn a_new_run_leaves_nothing_of_the_earlier_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("out");
+    let full = tmp.path().join("full.toml");
+    std::fs::write(&full, BASE).unwrap();
+    assert_success(&run(&full, &out_dir, &["--quiet"]));
+    assert!(out_dir.join("velocities.npy").is_file());
+    let gaps_only = tmp.path().join("gaps.toml");
+    let text = edit(BASE, "particles = 10", "particles = 12");
+    std::fs::write(
+        &gaps_only,
+        edit(
+            &text,
+            "grid = 20",
+            "grid = 20\nfields = [\"gaps\"]\nplots = false",
+        ),
+    )
+    .unwrap();
+    assert_success(&run(&gaps_only, &out_dir, &["--quiet"]));
+    assert!(
+        !out_dir.join("velocities.npy").exists(),
+        "velocities.npy of the earlier run stayed"
+    );
+    assert!(
+        !out_dir.join("rho.npy").exists(),
+        "rho.npy of the earlier run stayed"
+    );
+    assert_eq!(read_npy(&out_dir.join("gaps.npy")).shape, vec![2, 1, 12]);
+    // No staging directory is left beside it.
+    let leftovers: Vec<_> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".out."))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+/// A directory that holds files but no roughlub run is not replaced without --force.
+#[test]
+fn a_foreign_directory_is_replaced_only_with_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("data");
+    std::fs::create_dir(&out_dir).unwrap();
+    std::fs::write(out_dir.join("thesis.tex"), "precious").unwrap();
+    let scene = tmp.path().join("scene.toml");
+    std::fs::write(&scene, BASE).unwrap();
+    let out = run(&scene, &out_dir, &["--quiet"]);
     let stderr = stderr_of(&out);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
-    assert!(stderr.starts_with("error:"), "{stderr}");
-    assert!(stderr.contains("gaps.npy"), "{stderr}");
     assert!(
-        !out_dir.join("manifest.json").exists(),
-        "the earlier manifest survived a failed run"
+        stderr.contains("holds files but no roughlub run") && stderr.contains("--force"),
+        "{stderr}"
     );
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("thesis.tex")).unwrap(),
+        "precious"
+    );
+    assert_success(&run(&scene, &out_dir, &["--quiet", "--force"]));
+    assert!(out_dir.join("manifest.json").is_file());
+    assert!(!out_dir.join("thesis.tex").exists());
+}
+
+/// Every file under `dir` (relative path, bytes), sorted.
+fn files_of(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(dir).unwrap().display().to_string();
+                out.push((rel, std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -9,6 +9,6 @@ pub mod npy;
 pub mod progress;
 pub mod serde_f64;
 
-pub use files::{prepare_dir, read_json, write_json_atomic, MANIFEST};
+pub use files::{prepare_dir, read_json, write_json_atomic, StagedDir, MANIFEST};
 pub use npy::{write_npy, NpyStream};
 pub use progress::ProgressReporter;
