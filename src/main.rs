@@ -48,6 +48,9 @@ enum Command {
         /// Single runs: replace an --out directory that holds files that are not a roughlub run.
         #[arg(long)]
         force: bool,
+        /// Single runs: write outputs larger than 21.5 GB (refused otherwise).
+        #[arg(long)]
+        allow_large: bool,
     },
     /// Merge the partial statistics of ensemble shards into the statistics of the whole study.
     Merge {
@@ -116,6 +119,7 @@ fn main() -> ExitCode {
             shard,
             resume,
             force,
+            allow_large,
         } => (|| {
             let scene = Scene::from_file(&scene)?;
             let out_dir = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
@@ -153,6 +157,7 @@ fn main() -> ExitCode {
                     precision,
                     quiet,
                     force,
+                    allow_large,
                 },
             )?;
             if !quiet {

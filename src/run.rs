@@ -24,6 +24,40 @@ pub struct RunOptions {
     pub quiet: bool,
     /// Replace an `out_dir` that holds files that are not a roughlub run.
     pub force: bool,
+    /// Write outputs larger than [`OUTPUT_SIZE_LIMIT`].
+    pub allow_large: bool,
+}
+
+/// Outputs larger than this are refused unless `--allow-large` (a mistyped `outputs` or `grid`
+/// must not fill the disk before anyone notices).
+pub const OUTPUT_SIZE_LIMIT: u64 = 20 << 30;
+
+/// Profile plots draw at most this many output times (evenly spaced, first and last included):
+/// more curves are unreadable and cost minutes of drawing.
+pub const MAX_PLOTTED_TIMES: usize = 41;
+
+/// Bytes of the .npy arrays a run writes: per output time and member, N gaps, N-1 velocities,
+/// G values of each grid field and the scalars.
+pub fn output_bytes(plan: &Plan) -> u64 {
+    let f = &plan.fields;
+    let (n, g) = (plan.particles as u64, plan.grid as u64);
+    let per_member = u64::from(f.gaps) * n
+        + u64::from(f.velocities) * (n - 1)
+        + (u64::from(f.rho) + u64::from(f.u) + u64::from(f.rho_star)) * g
+        + 5;
+    8 * plan.output_times.len() as u64 * plan.members.len() as u64 * per_member
+}
+
+/// The output indices whose profiles are plotted: all, or MAX_PLOTTED_TIMES evenly spaced.
+fn plotted_times(count: usize) -> Vec<usize> {
+    if count <= MAX_PLOTTED_TIMES {
+        return (0..count).collect();
+    }
+    let mut v: Vec<usize> = (0..MAX_PLOTTED_TIMES)
+        .map(|k| k * (count - 1) / (MAX_PLOTTED_TIMES - 1))
+        .collect();
+    v.dedup();
+    v
 }
 
 #[derive(Debug, Clone)]
@@ -129,6 +163,36 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         eprintln!("{}", engine.record.line());
     }
     let members = plan.members.len();
+    let bytes = output_bytes(&plan);
+    if bytes > OUTPUT_SIZE_LIMIT && !options.allow_large {
+        return Err(Error::invalid(
+            "time.outputs",
+            plan.output_times.len(),
+            format!(
+                "the outputs would take {:.1} GB ({} output times x {} members x N = {}, grid = {}, fields {}) before anything else is written",
+                bytes as f64 / 1e9,
+                plan.output_times.len(),
+                members,
+                plan.particles,
+                plan.grid,
+                {
+                    let f = &plan.fields;
+                    let on = [f.gaps, f.velocities, f.rho, f.u, f.rho_star, f.energy];
+                    crate::model::params::FIELD_NAMES
+                        .iter()
+                        .zip(on)
+                        .filter(|(_, on)| *on)
+                        .map(|(n, _)| *n)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                }
+            ),
+            format!(
+                "at most {:.1} GB: fewer outputs, a coarser [output] grid or fewer fields, or --allow-large",
+                OUTPUT_SIZE_LIMIT as f64 / 1e9
+            ),
+        ));
+    }
     let mut solver = engine.solver(plan.clone(), vec![chain; members])?;
 
     // Written into a staging directory beside `out_dir` and swapped in whole at the end: `out_dir`
@@ -151,8 +215,12 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     };
     let mut profiles: Vec<PlottedProfiles> = (0..plotted).map(|_| Default::default()).collect();
 
+    let drawn_times = plotted_times(plan.output_times.len());
+    let mut time_index = 0;
     let progress = ProgressReporter::new(b * t_count, "member-intervals", options.quiet);
     while let Some(snaps) = solver.next_output(&|n| progress.inc(n))? {
+        let drawn = drawn_times.binary_search(&time_index).is_ok();
+        time_index += 1;
         for (m, s) in snaps.iter().enumerate() {
             streams.push(s)?;
             energy.push(s.energy);
@@ -160,7 +228,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
             min_gap.push(s.min_gap);
             log_min_gap.push(s.log_min_gap);
             max_density.push(s.max_density);
-            if m < plotted {
+            if m < plotted && drawn {
                 profiles[m].record(s, plan.grid);
             }
         }
@@ -209,7 +277,10 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
                 &ProfilePlot {
                     title: &title,
                     x: solver.grid(),
-                    times: &plan.output_times,
+                    times: &drawn_times
+                        .iter()
+                        .map(|&k| plan.output_times[k])
+                        .collect::<Vec<f64>>(),
                     rho: &p.rho,
                     u: &p.u,
                     rho_star: plan.repulsion.then_some(p.rho_star.as_slice()),
@@ -288,4 +359,25 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         failed: failed_members.len(),
         wall_seconds: wall,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Plots draw every time up to MAX_PLOTTED_TIMES, then that many, evenly spaced, first and
+    /// last included (100000 outputs took 53 s to draw before).
+    #[test]
+    fn plotted_times_are_thinned_evenly() {
+        assert_eq!(plotted_times(5), vec![0, 1, 2, 3, 4]);
+        assert_eq!(plotted_times(41).len(), 41);
+        for count in [42usize, 100, 5001, 100_000] {
+            let t = plotted_times(count);
+            assert_eq!(t.len(), MAX_PLOTTED_TIMES, "{count}");
+            assert_eq!((t[0], t[t.len() - 1]), (0, count - 1));
+            let steps: Vec<usize> = t.windows(2).map(|w| w[1] - w[0]).collect();
+            let (lo, hi) = (steps.iter().min().unwrap(), steps.iter().max().unwrap());
+            assert!(hi - lo <= 1, "{count}: uneven {lo}..{hi}");
+        }
+    }
 }

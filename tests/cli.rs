@@ -970,3 +970,49 @@ fn quiet_prints_nothing_and_default_names_the_backend() {
         "stderr:\n{stderr}"
     );
 }
+
+/// A run whose outputs would not fit any sane disk is refused before anything is written, naming
+/// the size and what to change; `--allow-large` is the way past it (issue 9, item 8).
+#[test]
+fn outputs_beyond_the_size_limit_are_refused_before_writing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("big.toml");
+    let text = edit(
+        &edit(BASE, "outputs = 2", "outputs = 100000"),
+        "end = 0.01",
+        "end = 10.0",
+    );
+    std::fs::write(&scene, edit(&text, "grid = 20", "grid = 1000000")).unwrap();
+    let out_dir = tmp.path().join("out");
+    let out = run(&scene, &out_dir, &["--quiet"]);
+    let stderr = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    // 100000 times x 1 member x (10 + 9 + 3 x 1e6 + 5) x 8 bytes.
+    let gb = 100_000.0 * (10.0 + 9.0 + 3e6 + 5.0) * 8.0 / 1e9;
+    assert!(
+        stderr.contains(&format!(
+            "time.outputs = 100000: the outputs would take {gb:.1} GB"
+        )),
+        "{stderr}"
+    );
+    assert!(stderr.contains("--allow-large"), "{stderr}");
+    assert!(!out_dir.exists(), "a refused run created its directory");
+}
+
+/// With many output times the profile plots are thinned (see `run::tests`), the .npy outputs keep
+/// every time (issue 9, item 8).
+#[test]
+fn many_output_times_are_thinned_in_plots_only() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("many.toml");
+    let text = edit(
+        &edit(BASE, "outputs = 2", "outputs = 5001"),
+        "end = 0.01",
+        "end = 5.0",
+    );
+    std::fs::write(&scene, text).unwrap();
+    let out_dir = tmp.path().join("out");
+    assert_success(&run(&scene, &out_dir, &["--quiet"]));
+    assert_eq!(read_npy(&out_dir.join("times.npy")).shape, vec![5001]);
+    assert_png(&out_dir.join("plots").join("member_0000.png"));
+}
