@@ -54,6 +54,16 @@ pub mod stored_gap {
         }
     }
 
+    /// The stored value of a gap d >= 0 for a solver that keeps gaps below `floor` as ln d.
+    #[inline(always)]
+    pub fn encode(d: f64, floor: f64) -> f64 {
+        if d > 0.0 && d < floor {
+            d.ln()
+        } else {
+            d
+        }
+    }
+
     /// ln d of a stored free gap.
     #[inline(always)]
     pub fn ln(stored: f64) -> f64 {

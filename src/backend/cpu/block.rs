@@ -10,7 +10,7 @@ use super::step::{
 };
 use crate::backend::layout::interleave;
 use crate::backend::report::{Failure, FailureRecord, MemberReport, MemberStatus};
-use crate::model::chain::Chain;
+use crate::model::chain::{stored_gap, Chain};
 use crate::model::observables::{observe, Snapshot};
 use crate::model::params::{MemberParams, Stepping};
 use crate::model::plan::{Plan, Power};
@@ -21,8 +21,9 @@ pub(super) struct Lane {
     control: StepControl,
 }
 
-pub(super) struct Block<const L: usize> {
-    pub(super) lanes: [Lane; L],
+/// What the lanes' model is made of: the owned data behind a step's [`Terms`]. Kept apart from
+/// the state buffers so that the terms can be borrowed while the step writes those.
+struct LaneModel<const L: usize> {
     mu: [f64; L],
     gamma: Gamma<L>,
     dstar: Option<Vec<f64>>,
@@ -31,6 +32,25 @@ pub(super) struct Block<const L: usize> {
     total_gap: [f64; L],
     /// See `Terms::contact_repulsion`.
     contact_repulsion: [f64; L],
+}
+
+impl<const L: usize> LaneModel<L> {
+    fn terms<'a>(&'a self, plan: &'a Plan) -> Terms<'a, L> {
+        Terms::<L> {
+            eps: plan.eps,
+            mu: self.mu,
+            total_gap: self.total_gap,
+            contact_repulsion: self.contact_repulsion,
+            repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
+            bonded: self.bonded.as_deref(),
+            forcing: plan.forcing.as_ref(),
+        }
+    }
+}
+
+pub(super) struct Block<const L: usize> {
+    pub(super) lanes: [Lane; L],
+    model: LaneModel<L>,
     /// Gaps in the stored form (`stored_gap`): d, or ln d below GAP_FLOOR, or 0 when bonded.
     gaps: Vec<f64>,
     vel: Vec<f64>,
@@ -67,9 +87,7 @@ impl<const L: usize> Block<L> {
         });
         let mut gaps = interleave::<f64>(&chains.map(|c| c.gaps.as_slice()));
         for d in gaps.iter_mut() {
-            if *d > 0.0 && *d < GAP_FLOOR {
-                *d = d.ln();
-            }
+            *d = stored_gap::encode(*d, GAP_FLOOR);
         }
         let vel = interleave::<f64>(&chains.map(|c| c.velocities.as_slice()));
         let dstar = plan.repulsion.then(|| {
@@ -96,10 +114,14 @@ impl<const L: usize> Block<L> {
         let extra_v = if richardson { vel.len() } else { 0 };
         let mut block = Block {
             lanes: members.map(lane),
-            mu: params.map(|p| p.mu),
-            gamma,
-            dstar,
-            bonded,
+            model: LaneModel {
+                mu: params.map(|p| p.mu),
+                gamma,
+                dstar,
+                bonded,
+                total_gap,
+                contact_repulsion,
+            },
             cand_gaps: gaps.clone(),
             cand_vel: vel.clone(),
             full_gaps: vec![0.0; extra],
@@ -109,26 +131,12 @@ impl<const L: usize> Block<L> {
             gaps,
             vel,
             scratch: Scratch::new(n, L),
-            total_gap,
-            contact_repulsion,
         };
-        let energy = state_energy(&block.terms(plan), n, &block.gaps, &block.vel);
+        let energy = state_energy(&block.model.terms(plan), n, &block.gaps, &block.vel);
         for (lane, e) in block.lanes.iter_mut().zip(energy) {
             lane.control.energy = e;
         }
         block
-    }
-
-    fn terms<'a>(&'a self, plan: &'a Plan) -> Terms<'a, L> {
-        Terms::<L> {
-            eps: plan.eps,
-            mu: self.mu,
-            total_gap: self.total_gap,
-            contact_repulsion: self.contact_repulsion,
-            repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
-            bonded: self.bonded.as_deref(),
-            forcing: plan.forcing.as_ref(),
-        }
     }
 
     /// Advances every running lane to `t_end`.
@@ -185,7 +193,7 @@ impl<const L: usize> Block<L> {
                     keep_old[l] = true;
                     if control.failure != Failure::None {
                         let (index, ln_d) =
-                            smallest_gap::<L>(&self.gaps, self.bonded.as_deref(), l);
+                            smallest_gap::<L>(&self.gaps, self.model.bonded.as_deref(), l);
                         control.failure_index = index;
                         control.failure_detail = ln_d;
                     }
@@ -222,15 +230,7 @@ impl<const L: usize> Block<L> {
         richardson: bool,
     ) -> ([Outcome; L], [Option<HardFailure>; L], [f64; L]) {
         let n = plan.particles;
-        let terms = Terms::<L> {
-            eps: plan.eps,
-            mu: self.mu,
-            total_gap: self.total_gap,
-            contact_repulsion: self.contact_repulsion,
-            repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
-            bonded: self.bonded.as_deref(),
-            forcing: plan.forcing.as_ref(),
-        };
+        let terms = self.model.terms(plan);
         let mut err = [0.0; L];
         let (candidate, hard, work): ([StepReport; L], _, [f64; L]) = if !richardson {
             let r = euler_step(
@@ -340,7 +340,7 @@ impl<const L: usize> Block<L> {
         let mut err = [0.0f64; L];
         for (i, (&a, &b)) in self.cand_gaps.iter().zip(&self.full_gaps).enumerate() {
             let l = i % L;
-            if self.bonded.as_ref().is_some_and(|bd| bd[i]) {
+            if self.model.bonded.as_ref().is_some_and(|bd| bd[i]) {
                 continue;
             }
             let e = if a > 0.0 && b > 0.0 {
@@ -379,8 +379,9 @@ impl<const L: usize> Block<L> {
                 out.push((member, Snapshot::failed(plan)));
                 continue;
             }
-            let dstar = self.dstar.as_ref().map(|d| lane_values::<L>(d, l));
+            let dstar = self.model.dstar.as_ref().map(|d| lane_values::<L>(d, l));
             let bonded = self
+                .model
                 .bonded
                 .as_ref()
                 .map(|b| b.iter().skip(l).step_by(L).copied().collect::<Vec<bool>>());

@@ -10,7 +10,7 @@ use crate::backend::cpu::step::{GAP_FLOOR, GAP_FLOOR_F32};
 use crate::backend::error::GpuError;
 use crate::backend::layout::interleave;
 use crate::backend::Precision;
-use crate::model::chain::Chain;
+use crate::model::chain::{stored_gap, Chain};
 use crate::model::plan::Plan;
 
 /// Byte sizes of the per-element buffers of a batch of B members of N particles.
@@ -91,7 +91,7 @@ impl InitialData {
             .map(|c| {
                 c.gaps
                     .iter()
-                    .map(|&d| if d > 0.0 && d < floor { d.ln() } else { d })
+                    .map(|&d| stored_gap::encode(d, floor))
                     .collect()
             })
             .collect();
