@@ -108,6 +108,8 @@ fn report_study(summary: &StudySummary, quiet: bool) {
 }
 
 fn main() -> ExitCode {
+    // SAFETY: no other thread exists yet.
+    unsafe { roughlub::backend::gpu::context::quiet_mesa_device_select() };
     let cli = Cli::parse();
     let result: roughlub::Result<()> = match cli.command {
         Command::Run {

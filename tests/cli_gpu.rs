@@ -374,3 +374,39 @@ fn auto_without_adapter_falls_back_to_the_cpu_and_says_why() {
     );
     assert_rejected(&out, &dir32, &["solver.precision", "f32", "no GPU adapter"]);
 }
+
+// ---------------------------------------------------------------------------------------------
+// A GPU run on a headless machine prints nothing that looks like an error
+
+/// Mesa's Vulkan device-selection layer connects to a Wayland display and, with no
+/// XDG_RUNTIME_DIR, prints "error: XDG_RUNTIME_DIR is invalid or not set" (twice per run
+/// before roughlub turned the layer off). Expected: stderr has no line containing "error".
+#[test]
+fn a_headless_gpu_run_prints_no_error_lines() {
+    if !have_gpu(false, "a_headless_gpu_run_prints_no_error_lines") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("headless");
+    let mut cmd = Command::new(BIN);
+    cmd.arg("run")
+        .arg(small_scene())
+        .arg("--out")
+        .arg(&out_dir)
+        .args(["--backend", "gpu"])
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("WAYLAND_DISPLAY")
+        .env_remove("NODEVICE_SELECT")
+        .env_remove("MESA_VK_DEVICE_SELECT");
+    let out = cmd.output().expect("roughlub starts");
+    assert_success(&out);
+    let stderr = stderr_of(&out);
+    let noisy: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.to_lowercase().contains("error"))
+        .collect();
+    assert!(
+        noisy.is_empty(),
+        "a successful GPU run printed error-like lines: {noisy:?}"
+    );
+}

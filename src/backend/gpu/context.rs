@@ -67,6 +67,26 @@ impl std::fmt::Display for AdapterDescription {
     }
 }
 
+/// Environment variable that turns off Mesa's Vulkan device-selection layer.
+pub const NO_DEVICE_SELECT: &str = "NODEVICE_SELECT";
+
+/// Turns off Mesa's implicit Vulkan device-selection layer for this process, unless the user
+/// configured it (`NODEVICE_SELECT` or `MESA_VK_DEVICE_SELECT` set). That layer connects to a
+/// Wayland display to find the desktop's default GPU, which prints "error: XDG_RUNTIME_DIR is
+/// invalid or not set" on every headless machine; roughlub ranks adapters itself
+/// (`WGPU_ADAPTER_NAME` restricts the choice), so the layer adds nothing.
+///
+/// # Safety
+/// Changes the process environment: call it before any other thread starts (first thing in
+/// `main`), as [`std::env::set_var`] requires.
+pub unsafe fn quiet_mesa_device_select() {
+    if std::env::var_os(NO_DEVICE_SELECT).is_none()
+        && std::env::var_os("MESA_VK_DEVICE_SELECT").is_none()
+    {
+        std::env::set_var(NO_DEVICE_SELECT, "1");
+    }
+}
+
 /// New instance; backends, flags and options may be chosen through the usual wgpu environment
 /// variables (`WGPU_BACKEND`, `WGPU_VALIDATION`, ...). Without `WGPU_BACKEND`, only the primary
 /// backends (Vulkan, Metal, DX12) are used: GL has no f64 shaders, and probing it through EGL
