@@ -64,6 +64,7 @@ fn ensemble(c: &mut Criterion) {
             quiet: true,
             shard: (0, 1),
             resume: false,
+            force: false,
         };
         let mut shares = Vec::new();
         group.bench_function(label, |b| {

@@ -45,7 +45,7 @@ enum Command {
         /// Ensembles only: finish an interrupted run in the same directory, reusing its chunks.
         #[arg(long)]
         resume: bool,
-        /// Single runs: replace an --out directory that holds files that are not a roughlub run.
+        /// Replace an --out directory that holds files that are not a roughlub run.
         #[arg(long)]
         force: bool,
         /// Single runs: write outputs larger than 21.5 GB (refused otherwise).
@@ -66,6 +66,9 @@ enum Command {
         /// Merge even when shards are missing (stderr and the manifest name the missing members).
         #[arg(long)]
         allow_partial: bool,
+        /// Replace an --out directory that holds files that are not a roughlub run.
+        #[arg(long)]
+        force: bool,
     },
 }
 
@@ -140,6 +143,7 @@ fn main() -> ExitCode {
                         quiet,
                         shard,
                         resume,
+                        force,
                     },
                 )?;
                 report_study(&summary, quiet);
@@ -187,7 +191,9 @@ fn main() -> ExitCode {
             out,
             no_plots,
             allow_partial,
-        } => merge_studies(&dirs, &out, !no_plots, allow_partial).map(|s| report_study(&s, false)),
+            force,
+        } => merge_studies(&dirs, &out, !no_plots, allow_partial, force)
+            .map(|s| report_study(&s, false)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

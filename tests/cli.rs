@@ -836,9 +836,21 @@ fn a_killed_run_leaves_the_earlier_run_whole() {
         child.try_wait().unwrap().is_none(),
         "test data: the long run was still going"
     );
+    let leftover = tmp.path().join(format!(".out.partial-{}", child.id()));
     child.kill().unwrap();
     child.wait().unwrap();
     assert_eq!(files_of(&out_dir), before, "the earlier run changed");
+
+    // The killed run's staging directory is removed by the next run into the same --out.
+    assert!(leftover.is_dir(), "expected the killed run's {leftover:?}");
+    let again = run(&good, &out_dir, &["--quiet"]);
+    assert_success(&again);
+    assert!(!leftover.exists(), "the leftover staging directory stayed");
+    assert!(
+        String::from_utf8_lossy(&again.stderr).contains("left by an interrupted run"),
+        "the removal is not reported: {}",
+        String::from_utf8_lossy(&again.stderr)
+    );
 }
 
 /// A new run replaces the directory whole: nothing of the earlier run (other fields, another N)

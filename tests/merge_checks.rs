@@ -180,3 +180,45 @@ fn merge_refuses_a_stale_partial() {
     );
     assert!(err.contains("scene text"), "{err}");
 }
+
+/// A merge replaces its --out whole: a directory of someone's files is refused (and kept) unless
+/// --force; an earlier merge there is replaced, with nothing of it left beside the new one.
+#[test]
+fn merge_output_is_replaced_whole_and_foreign_files_need_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let shards: Vec<PathBuf> = (0..3).map(|k| tmp.path().join(format!("s{k}"))).collect();
+    for (k, dir) in shards.iter().enumerate() {
+        shard(dir, k as u64);
+    }
+    let inputs: Vec<&Path> = shards.iter().map(|p| p.as_path()).collect();
+    let merged = tmp.path().join("m");
+    std::fs::create_dir_all(&merged).unwrap();
+    std::fs::write(merged.join("notes.txt"), "mine").unwrap();
+
+    let out = merge(&inputs, &merged, &[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--force"), "{err}");
+    assert_eq!(std::fs::read_to_string(merged.join("notes.txt")).unwrap(), "mine");
+    assert!(!merged.join("manifest.json").exists());
+
+    let out = merge(&inputs, &merged, &["--force"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!merged.join("notes.txt").exists(), "a foreign file stayed beside the merge");
+    // A second merge (of two shards) replaces the first whole.
+    std::fs::write(merged.join("stats").join("extra.npy"), b"x").unwrap();
+    let out = merge(&inputs[..2], &merged, &["--allow-partial"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!merged.join("stats").join("extra.npy").exists());
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(merged.join("manifest.json")).unwrap())
+            .unwrap();
+    assert_eq!(m["members_covered"], 64, "{m}");
+    let leftovers: Vec<_> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(leftovers.is_empty(), "staging directories left: {leftovers:?}");
+}

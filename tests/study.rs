@@ -726,9 +726,11 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
+    // A fresh study is built beside --out and swapped in when complete.
+    let staging = tmp.path().join(format!(".killed.partial-{}", child.id()));
     let started = Instant::now();
     loop {
-        if chunk_files(&dir).len() >= 2 {
+        if chunk_files(&staging).len() >= 2 {
             break;
         }
         assert!(
@@ -743,18 +745,18 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
     }
     child.kill().unwrap();
     child.wait().unwrap();
-    let kept = chunk_files(&dir);
-    let kept_times = mtimes(&dir, &kept);
+    let kept = chunk_files(&staging);
+    let kept_times = mtimes(&staging, &kept);
     assert!(kept.len() >= 2);
     assert!(
         kept.len() < 20,
         "the run finished every chunk before it was killed; make the scene bigger"
     );
     assert!(
-        !dir.join("manifest.json").exists(),
-        "a killed run must not leave a manifest"
+        !dir.exists(),
+        "a killed fresh study must leave --out as it was (here: absent)"
     );
-    assert!(!dir.join("members.csv").exists());
+    assert!(!staging.join("manifest.json").exists());
     eprintln!("killed with {} of 20 chunk files written", kept.len());
 
     // The file times must be able to show a rewrite.
@@ -774,6 +776,7 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
         "reused chunks were rewritten"
     );
     assert_eq!(chunk_files(&dir).len(), 20);
+    assert!(!staging.exists(), "the adopted staging directory is left behind");
 
     let (header, rows) = members_csv(&dir);
     let c_member = column(&header, "member");
@@ -799,6 +802,55 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
         &stat(&dir, "max_density_quantiles").1,
         &stat(&whole, "max_density_quantiles").1,
     );
+}
+
+/// A fresh study into a directory that holds a single run: killed, it leaves the single run
+/// untouched; completed, nothing of the single run stays beside it (issue 9, item 1).
+#[test]
+fn a_study_replaces_an_earlier_run_whole() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("out");
+    assert_success(
+        &run(&data("small.toml"), &dir, &[]),
+        "single run",
+    );
+    let single_manifest = std::fs::read(dir.join("manifest.json")).unwrap();
+    assert!(dir.join("gaps.npy").is_file());
+
+    let scene = data("study_resume.toml");
+    let mut child = Command::new(BIN)
+        .arg("run")
+        .arg(&scene)
+        .arg("--out")
+        .arg(&dir)
+        .args(["--backend", "cpu", "--quiet"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let staging = tmp.path().join(format!(".out.partial-{}", child.id()));
+    let started = Instant::now();
+    while chunk_files(&staging).is_empty() {
+        assert!(child.try_wait().unwrap().is_none(), "the study ended early");
+        assert!(started.elapsed() < Duration::from_secs(60), "no chunk after 60 s");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert_eq!(
+        std::fs::read(dir.join("manifest.json")).unwrap(),
+        single_manifest,
+        "the killed study changed the earlier run's manifest"
+    );
+    assert!(!dir.join("study.json").exists(), "the killed study wrote into --out");
+
+    let small_study = data("study_basic.toml");
+    assert_success(&run(&small_study, &dir, &[]), "fresh study");
+    for stale in ["gaps.npy", "velocities.npy", "rho.npy", "energy.npy"] {
+        assert!(!dir.join(stale).exists(), "{stale} of the single run stayed");
+    }
+    assert_eq!(manifest(&dir)["kind"], "ensemble");
+    assert!(!staging.exists(), "the killed study's staging directory stayed");
 }
 
 #[test]

@@ -21,12 +21,81 @@ pub fn prepare_dir(dir: &Path) -> Result<()> {
 }
 
 /// A run's output directory built aside and swapped in whole: files go to `staging` (a hidden
-/// sibling of `target`), and [`StagedDir::commit`] replaces `target` by it, so `target` is always
-/// either the complete earlier run or the complete new one. A `target` that holds files but no
-/// roughlub manifest or study is refused unless `force` (it may be someone's data).
+/// sibling of `target`, `.NAME.partial-PID`), and [`StagedDir::commit`] replaces `target` by it,
+/// so `target` is always either the complete earlier run or the complete new one. A `target`
+/// that holds files but no roughlub manifest or study is refused unless `force` (it may be
+/// someone's data).
+///
+/// A staging directory dropped without a commit (an error) is removed, unless
+/// [`StagedDir::keep_on_failure`] was called: a study keeps its finished chunks for `--resume`.
+/// A run killed outright leaves its staging directory behind; the next run into the same target
+/// removes such leftovers of dead processes (saying so), and `--resume` of a study adopts its
+/// own ([`StagedDir::adopt_interrupted_study`]).
+#[derive(Debug)]
 pub struct StagedDir {
     pub target: PathBuf,
     pub staging: PathBuf,
+    keep_on_failure: bool,
+    committed: bool,
+}
+
+const STAGING_TAG: &str = ".partial-";
+const OLD_TAG: &str = ".old-";
+
+/// (parent, name) of a target directory; the staging directories live in `parent`.
+fn split_target(target: &Path) -> (PathBuf, String) {
+    let name = target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    let parent = target
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .to_path_buf();
+    (parent, name)
+}
+
+/// Whether process `pid` still runs: `Some` where the OS says (Linux: /proc), `None` elsewhere
+/// (then nothing is treated as stale).
+fn process_alive(pid: u32) -> Option<bool> {
+    let proc_root = Path::new("/proc");
+    if !proc_root.join("self").exists() {
+        return None;
+    }
+    Some(proc_root.join(pid.to_string()).exists())
+}
+
+/// Staging (`.NAME.partial-PID`) and swap (`.NAME.old-PID`) directories of `target` whose
+/// process is dead: what a killed run left behind.
+fn leftovers(target: &Path) -> Result<Vec<(PathBuf, bool)>> {
+    let (parent, name) = split_target(target);
+    let mut found = Vec::new();
+    let Ok(entries) = std::fs::read_dir(&parent) else {
+        return Ok(found);
+    };
+    for entry in entries.flatten() {
+        let file_name = entry.file_name().to_string_lossy().into_owned();
+        let Some(rest) = file_name.strip_prefix(&format!(".{name}")) else {
+            continue;
+        };
+        let (is_staging, pid) = if let Some(pid) = rest.strip_prefix(STAGING_TAG) {
+            (true, pid)
+        } else if let Some(pid) = rest.strip_prefix(OLD_TAG) {
+            (false, pid)
+        } else {
+            continue;
+        };
+        let Ok(pid) = pid.parse::<u32>() else {
+            continue;
+        };
+        if pid != std::process::id() && process_alive(pid) == Some(false) && entry.path().is_dir()
+        {
+            found.push((entry.path(), is_staging));
+        }
+    }
+    found.sort();
+    Ok(found)
 }
 
 impl StagedDir {
@@ -50,16 +119,15 @@ impl StagedDir {
                 });
             }
         }
-        let name = target
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "out".into());
-        let parent = target
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-        let staging = parent.join(format!(".{name}.partial-{}", std::process::id()));
+        for (dir, _) in leftovers(target)? {
+            eprintln!(
+                "note: removing {}, left by an interrupted run into {}",
+                dir.display(),
+                target.display()
+            );
+            std::fs::remove_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        }
+        let staging = Self::own_staging(target)?;
         if staging.exists() {
             std::fs::remove_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
         }
@@ -67,16 +135,55 @@ impl StagedDir {
         Ok(StagedDir {
             target: target.to_path_buf(),
             staging,
+            keep_on_failure: false,
+            committed: false,
         })
+    }
+
+    /// This process's staging directory for `target` (its parent is created).
+    fn own_staging(target: &Path) -> Result<PathBuf> {
+        let (parent, name) = split_target(target);
+        std::fs::create_dir_all(&parent).map_err(|e| Error::io(&parent, e))?;
+        Ok(parent.join(format!(".{name}{STAGING_TAG}{}", std::process::id())))
+    }
+
+    /// The staging directory of a study run into `target` that was killed (it holds a
+    /// `study.json`), renamed to this process's staging directory; `None` when there is none.
+    /// When several are left, the one with the most finished chunks is taken.
+    pub fn adopt_interrupted_study(target: &Path) -> Result<Option<StagedDir>> {
+        let chunk_count = |dir: &Path| {
+            std::fs::read_dir(dir.join("chunks")).map_or(0, |entries| entries.count())
+        };
+        let best = leftovers(target)?
+            .into_iter()
+            .filter(|(dir, is_staging)| *is_staging && dir.join("study.json").exists())
+            .max_by_key(|(dir, _)| chunk_count(dir));
+        let Some((found, _)) = best else {
+            return Ok(None);
+        };
+        let staging = Self::own_staging(target)?;
+        std::fs::rename(&found, &staging).map_err(|e| Error::io(&found, e))?;
+        Ok(Some(StagedDir {
+            target: target.to_path_buf(),
+            staging,
+            keep_on_failure: true,
+            committed: false,
+        }))
+    }
+
+    /// Keep the staging directory when the run fails (a study's finished chunks, for
+    /// `--resume`).
+    pub fn keep_on_failure(&mut self) {
+        self.keep_on_failure = true;
     }
 
     /// Replaces `target` by the finished staging directory (two renames; the earlier run is
     /// removed only after the new one is in place).
-    pub fn commit(self) -> Result<()> {
+    pub fn commit(mut self) -> Result<()> {
         let old = self.staging.with_file_name(
             self.staging
                 .file_name()
-                .map(|n| n.to_string_lossy().replace(".partial-", ".old-"))
+                .map(|n| n.to_string_lossy().replace(STAGING_TAG, OLD_TAG))
                 .unwrap_or_default(),
         );
         let had_old = self.target.exists();
@@ -84,10 +191,20 @@ impl StagedDir {
             std::fs::rename(&self.target, &old).map_err(|e| Error::io(&self.target, e))?;
         }
         std::fs::rename(&self.staging, &self.target).map_err(|e| Error::io(&self.target, e))?;
+        self.committed = true;
         if had_old {
             std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))?;
         }
         Ok(())
+    }
+}
+
+impl Drop for StagedDir {
+    fn drop(&mut self) {
+        if !self.committed && !self.keep_on_failure {
+            // Best effort: a leftover is removed by the next run into the same target anyway.
+            let _ = std::fs::remove_dir_all(&self.staging);
+        }
     }
 }
 

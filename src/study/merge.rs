@@ -9,18 +9,21 @@ use super::state::StudyState;
 use super::StudySummary;
 use crate::error::{Error, Result};
 use crate::output::manifest::{MergedManifest, StudySceneRecord, VERSION};
-use crate::output::{prepare_dir, read_json, write_json_atomic, MANIFEST};
+use crate::output::{read_json, write_json_atomic, StagedDir, MANIFEST};
 
 /// `roughlub merge`: the statistics of several shards (or runs) of one study.
 ///
 /// Refused, before anything is written: an `--out` that is one of the inputs (it would overwrite
 /// that shard's statistics), and shards that leave members uncovered unless `allow_partial`
-/// (then stderr and the manifest name the missing member ranges).
+/// (then stderr and the manifest name the missing member ranges). The merged study is written
+/// beside `out` and swapped in whole; an `out` holding files that are not a roughlub run is
+/// replaced only with `force`.
 pub fn merge_studies(
     inputs: &[PathBuf],
     out: &Path,
     plots: bool,
     allow_partial: bool,
+    force: bool,
 ) -> Result<StudySummary> {
     let started = Instant::now();
     if inputs.is_empty() {
@@ -94,7 +97,10 @@ pub fn merge_studies(
         }
         eprintln!("warning: merging a partial study: members {list} are missing");
     }
-    prepare_dir(out)?;
+    // Built aside and swapped in whole, like a run: `out` is never a mixture of two merges.
+    let staged = StagedDir::begin(out, force)?;
+    let target = out;
+    let out = staged.staging.as_path();
     let mut csv_out = CsvOut::create(out.join("members.csv"))?;
     let mut headers: Vec<StudyHeader> = Vec::new();
     let mut state: Option<StudyState> = None;
@@ -157,8 +163,9 @@ pub fn merge_studies(
             quantile_method: quantile_method(&merged_header),
         },
     )?;
+    staged.commit()?;
     Ok(StudySummary::of(
-        out,
+        target,
         &state,
         0,
         started.elapsed().as_secs_f64(),

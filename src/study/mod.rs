@@ -4,6 +4,11 @@
 //! (seed, m) ([`crate::ensemble::members`]), so its result does not depend on chunking, threads,
 //! backend or shard.
 //!
+//! A fresh study is written into a staging directory beside `--out` (`.NAME.partial-PID`) and
+//! swapped in whole when it completes, so `--out` is always a complete run (the earlier one until
+//! then). `--resume` continues in `--out` when it holds the study, or adopts the staging
+//! directory a killed fresh run left behind, reusing its finished chunks.
+//!
 //! Layout of a study directory:
 //! - `study.json`: what is being computed (scene text and hash, shard, member range, times, grid);
 //!   written first, checked by `--resume` and `merge`;
@@ -32,7 +37,9 @@ use crate::backend::{select, Backend, Engine, Precision};
 use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
 use crate::output::manifest::{StudyManifest, StudySceneRecord, VERSION};
-use crate::output::{prepare_dir, read_json, write_json_atomic, ProgressReporter, MANIFEST};
+use crate::output::{
+    prepare_dir, read_json, write_json_atomic, ProgressReporter, StagedDir, MANIFEST,
+};
 use crate::scene::{EnsembleSpec, Scene};
 
 use chunk::{chunk_plan, solve_chunk, StudyCosts};
@@ -69,6 +76,8 @@ pub struct StudyOptions {
     /// (k, n): this run solves shard k of n (0-based).
     pub shard: (u64, u64),
     pub resume: bool,
+    /// Replace an output directory that holds files but no roughlub run.
+    pub force: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -156,13 +165,39 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         );
     }
 
-    let dir = &options.out_dir;
+    // A fresh study is built in a staging directory and swapped in whole at the end (the target
+    // stays the earlier complete run until then); `--resume` continues in the target when it
+    // holds the study, or adopts the staging directory an interrupted fresh run left beside it.
+    let target = &options.out_dir;
+    let mut staged: Option<StagedDir> = None;
+    let dir: PathBuf = if options.resume {
+        if target.join("study.json").exists() {
+            target.clone()
+        } else if let Some(found) = StagedDir::adopt_interrupted_study(target)? {
+            if !options.quiet {
+                eprintln!("resuming the interrupted run into {}", target.display());
+            }
+            let dir = found.staging.clone();
+            staged = Some(found);
+            dir
+        } else {
+            return Err(Error::Output {
+                path: target.clone(),
+                message: "nothing to resume: no study.json there and no interrupted run beside it; run without --resume".into(),
+            });
+        }
+    } else {
+        let mut fresh = StagedDir::begin(target, options.force)?;
+        fresh.keep_on_failure();
+        let dir = fresh.staging.clone();
+        staged = Some(fresh);
+        dir
+    };
+    let dir = &dir;
     let chunks_dir = dir.join("chunks");
     let header_path = dir.join("study.json");
     if options.resume {
         check_resume(&read_json(&header_path)?, &header, &header_path)?;
-    } else if chunks_dir.exists() {
-        std::fs::remove_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
     }
     std::fs::create_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
     prepare_dir(dir)?;
@@ -244,8 +279,11 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             quantile_method: quantile_method(&header),
         },
     )?;
+    if let Some(staged) = staged {
+        staged.commit()?;
+    }
     Ok(StudySummary::of(
-        dir,
+        target,
         &state,
         reused,
         wall,
