@@ -14,6 +14,13 @@ struct ParticleRow {
     r: Option<f64>,
 }
 
+/// Gaps x_i − x_(i−1) − 2 eps with |gap| at most this count as contact (a cluster): the rounding
+/// of positions written in decimal (absolute 1e-12, plus 1e-9 of the radius). Smaller negative
+/// gaps are overlaps, refused. Documented in README (`[initial] particles`).
+pub fn contact_tolerance(eps: f64) -> f64 {
+    1e-12 + 1e-9 * eps
+}
+
 /// Reads a CSV with header `x,u,r` (r optional: without it, no roughness and no repulsion).
 /// `expected_n` is `model.particles` when the scene gives it.
 pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>) -> Result<Chain> {
@@ -122,8 +129,7 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
     let mut x: Vec<f64> = rows.iter().map(|r| r.x).collect();
     x[0] = 0.0;
     x[n] = 1.0;
-    // Gaps within rounding of the decimal positions count as contact (a cluster).
-    let contact_tolerance = 1e-12 + 1e-9 * eps;
+    let contact_tolerance = contact_tolerance(eps);
     let mut gaps = Vec::with_capacity(n);
     let mut bonded = vec![false; n];
     for i in 1..=n {
@@ -181,4 +187,39 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
         dstar,
         bonded: bonded.iter().any(|&b| b).then_some(bonded),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three particles between the fixed ends (N = 4), radius eps = 0.05; the first free gap is
+    /// `gap`. Returns whether it became a bonded (zero) gap, or the error text.
+    fn first_gap_bonded(gap: f64) -> std::result::Result<bool, String> {
+        let eps = 0.05;
+        let x1 = 2.0 * eps + gap;
+        let text = format!("x,u\n0,0\n{x1:.17e},0\n0.5,0\n0.75,0\n1,0\n");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.csv");
+        std::fs::write(&path, text).unwrap();
+        chain_from_particle_file(&path, eps, None)
+            .map(|c| c.bonded.is_some_and(|b| b[0]))
+            .map_err(|e| e.to_string())
+    }
+
+    /// The documented threshold (1e-12 + 1e-9 eps = 5.1e-11 here): gaps of 0.5 and 0.9 of it are
+    /// contact, 1.1 and 2 of it are free, and −1.1 of it is an overlap.
+    #[test]
+    fn contact_threshold_is_the_documented_one() {
+        let tol = contact_tolerance(0.05);
+        assert!((tol - 5.1e-11).abs() < 1e-24);
+        for f in [0.0, 0.5, 0.9, -0.9] {
+            assert_eq!(first_gap_bonded(f * tol), Ok(true), "gap {f} tolerance");
+        }
+        for f in [1.1, 2.0] {
+            assert_eq!(first_gap_bonded(f * tol), Ok(false), "gap {f} tolerance");
+        }
+        let overlap = first_gap_bonded(-1.1 * tol).unwrap_err();
+        assert!(overlap.contains("overlap"), "{overlap}");
+    }
 }
