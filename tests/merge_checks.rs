@@ -222,3 +222,32 @@ fn merge_output_is_replaced_whole_and_foreign_files_need_force() {
         .collect();
     assert!(leftovers.is_empty(), "staging directories left: {leftovers:?}");
 }
+
+/// Shards computed with two versions of the roughness file are two studies: merge refuses them
+/// and names the files (issue 9, item 3); the same two shards from one file merge.
+#[test]
+fn merge_refuses_shards_from_two_roughness_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let radii = |r: f64| format!("r\n{}", format!("{r}\n").repeat(9));
+    let scene = tmp.path().join("scene.toml");
+    std::fs::write(&scene, FILE_ROUGHNESS_SCENE.replace("SEED", "7")).unwrap();
+    let shard_with = |k: u64, r: f64, name: &str| {
+        std::fs::write(tmp.path().join("radii.csv"), radii(r)).unwrap();
+        let dir = tmp.path().join(name);
+        let out = run_text(&scene, &dir, &["--shard", &format!("{k}/2")]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        dir
+    };
+    let a = shard_with(0, 0.001, "a0");
+    let b_same = shard_with(1, 0.001, "a1");
+    let b_other = shard_with(1, 0.002, "b1");
+
+    let out = merge(&[&a, &b_other], &tmp.path().join("mixed"), &[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("files it reads"), "{err}");
+    assert!(!tmp.path().join("mixed").exists());
+
+    let out = merge(&[&a, &b_same], &tmp.path().join("same"), &[]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
