@@ -10,9 +10,18 @@ const MAX_DEPTH: usize = 256;
 /// Listed in the message for an unknown identifier.
 const KNOWN_NAMES: &str = "x, t, pi, e, sin, cos, tan, exp, log, sqrt, abs, tanh, min, max";
 
-/// Parses `src` into a constant-folded tree; the errors are those listed on
-/// [`Expr::parse`](super::Expr::parse).
-pub(super) fn parse_tree(src: &str) -> Result<Node, ExprError> {
+/// Names an expression may not use for a parameter: its variables, constants and functions.
+pub(super) const RESERVED_NAMES: [&str; 14] = [
+    "x", "t", "pi", "e", "sin", "cos", "tan", "exp", "log", "sqrt", "abs", "tanh", "min", "max",
+];
+
+/// Parses `src` into a constant-folded tree, with each named parameter replaced by its value
+/// (so it folds exactly as the literal would); the errors are those listed on
+/// [`Expr::parse`](super::Expr::parse). Returns the tree and the parameters it uses.
+pub(super) fn parse_tree(
+    src: &str,
+    params: &[(String, f64)],
+) -> Result<(Node, Vec<String>), ExprError> {
     let tokens = lex(src)?;
     if tokens.len() == 1 {
         return Err(err(0, "empty expression".to_string()));
@@ -21,6 +30,8 @@ pub(super) fn parse_tree(src: &str) -> Result<Node, ExprError> {
         tokens,
         pos: 0,
         nesting: 0,
+        params,
+        used: Vec::new(),
     };
     let root = p.expr()?;
     let tok = p.peek();
@@ -35,7 +46,7 @@ pub(super) fn parse_tree(src: &str) -> Result<Node, ExprError> {
         };
         return Err(err(tok.pos, message));
     }
-    Ok(root.node)
+    Ok((root.node, p.used))
 }
 
 fn err(position: usize, message: String) -> ExprError {
@@ -215,14 +226,18 @@ impl Sub {
     }
 }
 
-struct Parser {
+struct Parser<'a> {
     tokens: Vec<Token>,
     pos: usize,
     /// Current recursion depth through `unary` (parentheses, calls, unary operators, '^').
     nesting: usize,
+    /// Named parameters and their values.
+    params: &'a [(String, f64)],
+    /// The parameters used, in order of first use.
+    used: Vec<String>,
 }
 
-impl Parser {
+impl Parser<'_> {
     fn peek(&self) -> &Token {
         &self.tokens[self.pos]
     }
@@ -346,10 +361,26 @@ impl Parser {
                 "e" => Ok(Sub::leaf(Node::Num(std::f64::consts::E))),
                 _ => match Func::from_name(&name) {
                     Some(f) => self.call(f, tok.pos),
-                    None => Err(err(
-                        tok.pos,
-                        format!("unknown identifier '{name}' (known names: {KNOWN_NAMES})"),
-                    )),
+                    None => match self.params.iter().find(|(p, _)| *p == name) {
+                        Some(&(_, value)) => {
+                            if !self.used.contains(&name) {
+                                self.used.push(name);
+                            }
+                            Ok(Sub::leaf(Node::Num(value)))
+                        }
+                        None => {
+                            let mut known = KNOWN_NAMES.to_string();
+                            if !self.params.is_empty() {
+                                let names: Vec<&str> =
+                                    self.params.iter().map(|(p, _)| p.as_str()).collect();
+                                known.push_str(&format!("; parameters: {}", names.join(", ")));
+                            }
+                            Err(err(
+                                tok.pos,
+                                format!("unknown identifier '{name}' (known names: {known})"),
+                            ))
+                        }
+                    },
                 },
             },
             Tok::End => Err(err(
