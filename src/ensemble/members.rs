@@ -8,36 +8,35 @@ use crate::ensemble::{
 use crate::error::{Error, Result};
 use crate::model::chain::{positions_from_gaps, Chain};
 use crate::model::params::MemberParams;
-use crate::scene::{EnsembleSpec, InitialSpec, Scene};
+use crate::scene::{EnsembleSpec, InitialSpec, Scene, SweepTarget};
 
-/// What all members of an ensemble share (the scene's initial chain, the roughness sampler, the
-/// parameter sweep), from which [`member`](Self::member) builds member m's inputs.
-pub struct EnsembleMembers {
-    /// The scene's initial chain, before any per-member draw.
+use std::sync::{Arc, Mutex};
+
+/// What the members of one sweep point share: the point's scene (swept settings set, expressions
+/// bound to its parameters), its initial chain and roughness sampler.
+pub struct PointSetup {
+    /// Index of the point.
+    pub point: u64,
+    /// The scene of this point ([`Scene::at_point`]).
+    pub scene: Scene,
+    /// Its `[ensemble]` section.
+    pub spec: EnsembleSpec,
+    /// The point's initial chain, before any per-member draw.
     pub chain: Chain,
     /// Its particle positions (where the roughness is sampled).
     pub positions: Vec<f64>,
     /// Draws each member's roughness radii; `None` without `ensemble.roughness`.
     pub sampler: Option<RoughnessSampler>,
-    /// The swept parameter points; member m uses point `m % sweep.len()`.
-    pub sweep: Vec<MemberParams>,
-}
-
-/// Member m's inputs: the chain and parameters it is solved with, and its velocity draw (for
-/// `members.csv`).
-#[derive(Debug, Clone)]
-pub struct MemberInputs {
-    pub chain: Chain,
+    /// The point's mu and gamma.
     pub params: MemberParams,
-    /// Amplitude factor of the initial velocity.
-    pub velocity_factor: f64,
-    /// Phase shift of the initial velocity profile.
-    pub velocity_phase: f64,
 }
 
-impl EnsembleMembers {
-    /// The shared part of the ensemble `spec` of `scene`.
-    pub fn new(scene: &Scene, spec: &EnsembleSpec) -> Result<EnsembleMembers> {
+impl PointSetup {
+    fn new(point: u64, scene: Scene) -> Result<PointSetup> {
+        let spec = scene
+            .ensemble
+            .clone()
+            .ok_or_else(|| Error::missing("ensemble", "this scene has no [ensemble] section"))?;
         let chain = scene.initial_chain()?;
         let positions = chain.positions();
         let sampler = match &spec.roughness {
@@ -59,28 +58,147 @@ impl EnsembleMembers {
                 )
             }
         };
-        Ok(EnsembleMembers {
+        let params = MemberParams {
+            mu: scene.mu[0],
+            gamma: scene.gamma[0],
+        };
+        Ok(PointSetup {
+            point,
+            scene,
+            spec,
             chain,
             positions,
             sampler,
-            sweep: scene.member_parameters(),
+            params,
+        })
+    }
+}
+
+/// The members of an ensemble study: `spec.members` per sweep point, point-major (member m is
+/// member j = m mod M of point p = m div M), from which [`member`](Self::member) builds member
+/// m's inputs.
+///
+/// Member j of every point draws the same random inputs (its streams are keyed by j: common
+/// random numbers, so that differences between points are not hidden by sampling noise, and a
+/// point's members are exactly those of a study of that point's scene alone), unless
+/// `[sweep] independent_draws = true`, where every member m draws its own.
+pub struct EnsembleMembers {
+    /// Sweep points P.
+    pub points: u64,
+    /// Members per point M.
+    pub per_point: u64,
+    independent_draws: bool,
+    /// The sweep varies only mu and gamma: every point shares point 0's chain and sampler.
+    shared: bool,
+    base_scene: Scene,
+    /// The setup of point 0.
+    pub first: Arc<PointSetup>,
+    /// The setups built last (members of a chunk are mostly of one or two points).
+    recent: Mutex<Vec<Arc<PointSetup>>>,
+}
+
+/// Member m's inputs: the chain and parameters it is solved with, and its velocity draw (for
+/// `members.csv`).
+#[derive(Debug, Clone)]
+pub struct MemberInputs {
+    pub chain: Chain,
+    pub params: MemberParams,
+    /// The member's sweep point.
+    pub point: u64,
+    /// Amplitude factor of the initial velocity.
+    pub velocity_factor: f64,
+    /// Phase shift of the initial velocity profile.
+    pub velocity_phase: f64,
+}
+
+impl EnsembleMembers {
+    /// The members of the ensemble of `scene` (its `[ensemble]` is `spec`).
+    pub fn new(scene: &Scene, spec: &EnsembleSpec) -> Result<EnsembleMembers> {
+        let points = scene.sweep_points();
+        let shared = scene.sweep.as_ref().is_none_or(|s| {
+            s.targets
+                .iter()
+                .all(|t| matches!(t, SweepTarget::Mu | SweepTarget::Gamma))
+        });
+        let mut base_scene = scene.clone();
+        base_scene.ensemble = Some(spec.clone());
+        let first = Arc::new(PointSetup::new(0, base_scene.at_point(0)?)?);
+        if shared {
+            // The chain checks of the unswept scene cover every point's (e.g. a gamma sweep
+            // without roughness is refused there).
+            base_scene.initial_chain()?;
+        }
+        Ok(EnsembleMembers {
+            points,
+            per_point: spec.members,
+            independent_draws: scene.sweep.as_ref().is_some_and(|s| s.independent_draws),
+            shared,
+            base_scene,
+            first,
+            recent: Mutex::new(Vec::new()),
         })
     }
 
     /// Number of members: `spec.members` per sweep point.
-    pub fn total(&self, spec: &EnsembleSpec) -> u64 {
-        spec.members * self.sweep.len() as u64
+    pub fn total(&self) -> u64 {
+        self.per_point * self.points
     }
 
     /// The sweep point of member m.
-    pub fn sweep_point(&self, m: u64) -> usize {
-        (m % self.sweep.len() as u64) as usize
+    pub fn sweep_point(&self, m: u64) -> u64 {
+        m / self.per_point
+    }
+
+    /// The setup of sweep point p (built once and kept while its members are being built).
+    pub fn setup(&self, p: u64) -> Result<Arc<PointSetup>> {
+        if p == 0 {
+            return Ok(self.first.clone());
+        }
+        let mut recent = self.recent.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(s) = recent.iter().find(|s| s.point == p) {
+            return Ok(s.clone());
+        }
+        let scene = self.base_scene.at_point(p)?;
+        let setup = if self.shared {
+            let params = MemberParams {
+                mu: scene.mu[0],
+                gamma: scene.gamma[0],
+            };
+            Arc::new(PointSetup {
+                point: p,
+                scene,
+                spec: self.first.spec.clone(),
+                chain: self.first.chain.clone(),
+                positions: self.first.positions.clone(),
+                sampler: self.first.sampler.clone(),
+                params,
+            })
+        } else {
+            Arc::new(PointSetup::new(p, scene)?)
+        };
+        if recent.len() >= 8 {
+            recent.remove(0);
+        }
+        recent.push(setup.clone());
+        Ok(setup)
     }
 
     /// Member m's inputs: a pure function of (scene, seed, m).
-    pub fn member(&self, scene: &Scene, spec: &EnsembleSpec, m: u64) -> Result<MemberInputs> {
-        let mut chain = self.chain.clone();
-        if let Some(sampler) = &self.sampler {
+    pub fn member(&self, m: u64) -> Result<MemberInputs> {
+        let p = self.sweep_point(m);
+        let setup = self.setup(p)?;
+        let draw = if self.independent_draws {
+            m
+        } else {
+            m % self.per_point
+        };
+        self.member_of(&setup, p, draw)
+    }
+
+    fn member_of(&self, setup: &PointSetup, p: u64, m: u64) -> Result<MemberInputs> {
+        let (scene, spec) = (&setup.scene, &setup.spec);
+        let mut chain = setup.chain.clone();
+        if let Some(sampler) = &setup.sampler {
             let radii = sampler.sample(m);
             chain.dstar = Some(dstar_from_radii(&radii));
         }
@@ -134,10 +252,10 @@ impl EnsembleMembers {
                 }
             }
         }
-        let params = self.sweep[self.sweep_point(m)];
         Ok(MemberInputs {
             chain,
-            params,
+            params: setup.params,
+            point: p,
             velocity_factor: factor,
             velocity_phase: phase,
         })

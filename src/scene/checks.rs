@@ -313,8 +313,8 @@ pub(super) fn check_gamma(field: &str, gamma: f64) -> Result<f64> {
     )
 }
 
-pub(super) fn parse_expr(field: &str, text: &str) -> Result<Expr> {
-    Expr::parse(text).map_err(|source| Error::Expression {
+pub(super) fn parse_expr(field: &str, text: &str, parameters: &[(String, f64)]) -> Result<Expr> {
+    Expr::parse_with(text, parameters).map_err(|source| Error::Expression {
         field: field.to_string(),
         source_text: text.to_string(),
         source,

@@ -17,6 +17,10 @@ pub(super) struct SceneFile {
     #[serde(default)]
     pub output: OutputSection,
     pub ensemble: Option<EnsembleSection>,
+    /// Named numbers usable in expressions (checked in `sweep`).
+    pub parameters: Option<toml::Table>,
+    /// The parameter study of an ensemble (checked in `sweep`).
+    pub sweep: Option<toml::Table>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -11,6 +11,7 @@ mod ensemble;
 mod file;
 pub mod initial;
 mod particle_file;
+pub mod sweep;
 #[cfg(test)]
 mod tests;
 mod time;
@@ -18,6 +19,7 @@ mod time;
 use std::path::{Path, PathBuf};
 
 pub use ensemble::EnsembleSpec;
+pub use sweep::{SweepSpec, SweepTarget, MAX_SWEEP_POINTS};
 
 use crate::backend::{Backend, Precision};
 use crate::error::{Error, Result};
@@ -70,6 +72,10 @@ pub struct Scene {
     pub plots: bool,
     pub plot_members: usize,
     pub ensemble: Option<EnsembleSpec>,
+    /// `[parameters]`: names usable in every expression, with their values (file order).
+    pub parameters: Vec<(String, f64)>,
+    /// `[sweep]` of an ensemble (or its `[batch]` lists as a grid); `None`: one point.
+    pub sweep: Option<SweepSpec>,
 }
 
 pub const MAX_PARTICLES: i64 = 100_000_000;
@@ -98,8 +104,10 @@ impl Scene {
             message: e.to_string(),
         })?;
         let name = validate_name(&file.name)?;
-        let model = validate_model(&file.model)?;
-        let initial = validate_initial(&file.initial, &file.model, model.particles, path)?;
+        let parameters = sweep::validate_parameters(file.parameters.as_ref())?;
+        let model = validate_model(&file.model, &parameters)?;
+        let initial =
+            validate_initial(&file.initial, &file.model, model.particles, path, &parameters)?;
         let time = time::validate_time(&file.time)?;
         let (order, backend, precision) = validate_solver(&file.solver)?;
         let (mu, gamma) = validate_batch(file.batch.as_ref(), file.model.mu, model.gamma)?;
@@ -109,6 +117,12 @@ impl Scene {
             .as_ref()
             .map(|e| ensemble::validate_ensemble(e, &initial, path))
             .transpose()?;
+        let sweep = sweep::validate_sweep(
+            file.sweep.as_ref(),
+            file.batch.as_ref(),
+            &parameters,
+            ensemble.as_ref(),
+        )?;
 
         Ok(Scene {
             name,
@@ -133,6 +147,8 @@ impl Scene {
             plots: output.plots,
             plot_members: output.plot_members,
             ensemble,
+            parameters,
+            sweep,
         })
     }
 
@@ -175,7 +191,7 @@ struct Model {
     quadrature_points: usize,
 }
 
-fn validate_model(m: &ModelSection) -> Result<Model> {
+fn validate_model(m: &ModelSection, parameters: &[(String, f64)]) -> Result<Model> {
     let particles = m
         .particles
         .map(|n| {
@@ -192,7 +208,7 @@ fn validate_model(m: &ModelSection) -> Result<Model> {
     let forcing = m
         .forcing
         .as_deref()
-        .map(|s| parse_expr("model.forcing", s))
+        .map(|s| parse_expr("model.forcing", s, parameters))
         .transpose()?;
     let quadrature = check_range(
         "model.quadrature",
@@ -215,6 +231,7 @@ fn validate_initial(
     m: &ModelSection,
     particles: Option<usize>,
     path: &Path,
+    parameters: &[(String, f64)],
 ) -> Result<InitialSpec> {
     if ini.particles.is_some()
         && (ini.rho.is_some() || ini.velocity.is_some() || ini.rho_star.is_some())
@@ -257,19 +274,18 @@ fn validate_initial(
                     "the number N of particle intervals is required with profile initial data (2 <= particles)",
                 ));
             }
-            let rho = parse_expr("initial.rho", rho)?;
-            check_profile("initial.rho", &rho, "(0, 1)", |v| v > 0.0 && v < 1.0)?;
-            let velocity = parse_expr("initial.velocity", ini.velocity.as_deref().unwrap_or("0"))?;
-            check_profile("initial.velocity", &velocity, "finite values", f64::is_finite)?;
-            check_velocity_magnitude(&velocity)?;
+            let rho = parse_expr("initial.rho", rho, parameters)?;
+            let velocity = parse_expr(
+                "initial.velocity",
+                ini.velocity.as_deref().unwrap_or("0"),
+                parameters,
+            )?;
             let rho_star = ini
                 .rho_star
                 .as_deref()
-                .map(|s| parse_expr("initial.rho_star", s))
+                .map(|s| parse_expr("initial.rho_star", s, parameters))
                 .transpose()?;
-            if let Some(rs) = &rho_star {
-                check_profile("initial.rho_star", rs, "(0, 1]", |v| v > 0.0 && v <= 1.0)?;
-            }
+            check_profiles(&rho, &velocity, rho_star.as_ref())?;
             Ok(InitialSpec::Profiles {
                 rho,
                 velocity,
@@ -281,6 +297,17 @@ fn validate_initial(
             "give the profiles (initial.rho, initial.velocity, optional initial.rho_star) or initial.particles = \"file.csv\"",
         )),
     }
+}
+
+/// The range checks of the initial profiles (run again at each sweep point).
+fn check_profiles(rho: &Expr, velocity: &Expr, rho_star: Option<&Expr>) -> Result<()> {
+    check_profile("initial.rho", rho, "(0, 1)", |v| v > 0.0 && v < 1.0)?;
+    check_profile("initial.velocity", velocity, "finite values", f64::is_finite)?;
+    check_velocity_magnitude(velocity)?;
+    if let Some(rs) = rho_star {
+        check_profile("initial.rho_star", rs, "(0, 1]", |v| v > 0.0 && v <= 1.0)?;
+    }
+    Ok(())
 }
 
 /// An initial velocity profile whose values are finite but beyond [`MAX_VELOCITY`] somewhere.

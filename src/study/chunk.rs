@@ -9,8 +9,8 @@ use super::files::{ChunkFile, MemberRow, StudyHeader};
 use super::state::StudyState;
 use super::{FIELDS, SCALARS};
 use crate::backend::gpu::solver::GpuStats;
-use crate::backend::{Engine, MemberStatus};
-use crate::ensemble::members::EnsembleMembers;
+use crate::backend::{Engine, MemberReport, MemberStatus};
+use crate::ensemble::members::{EnsembleMembers, MemberInputs};
 use crate::error::{Error, Result};
 use crate::model::chain::Chain;
 use crate::model::observables::Snapshot;
@@ -18,6 +18,7 @@ use crate::model::params::MemberParams;
 use crate::model::plan::Plan;
 use crate::output::{write_npy, ProgressReporter};
 use crate::scene::{EnsembleSpec, Scene};
+
 
 /// The plan of a chunk: the scene's, with these members, and the fields the statistics need.
 pub(super) fn chunk_plan(scene: &Scene, first_chain: &Chain, members: Vec<MemberParams>) -> Plan {
@@ -40,9 +41,6 @@ struct RecordedObservables {
     fields: [Vec<f64>; FIELDS.len()],
 }
 
-/// Solves members [first, end) with a solver from `engine` (the study's backend, through the
-/// `BatchSolver` seam) and returns the chunk's statistics and `members.csv` rows.
-#[allow(clippy::too_many_arguments)]
 /// What the solved chunks of one invocation cost beyond the solve itself.
 #[derive(Debug, Default)]
 pub(super) struct StudyCosts {
@@ -52,8 +50,38 @@ pub(super) struct StudyCosts {
     pub gpu: Option<GpuStats>,
 }
 
+/// Consecutive members [a, b) of a chunk that one batch can hold: the same N, eps, terms
+/// (roughness, clusters) and forcing. Members of one sweep point always can; points that differ
+/// only in mu, gamma or the random draws share a batch too.
+fn batch_groups(inputs: &[MemberInputs], members: &EnsembleMembers) -> Result<Vec<(usize, usize)>> {
+    let mut groups: Vec<(usize, usize)> = Vec::new();
+    for i in 0..inputs.len() {
+        let joins = match groups.last() {
+            Some(&(a, _)) => {
+                let (x, y) = (&inputs[a], &inputs[i]);
+                x.point == y.point
+                    || (x.chain.particles() == y.chain.particles()
+                        && x.chain.eps.to_bits() == y.chain.eps.to_bits()
+                        && x.chain.dstar.is_some() == y.chain.dstar.is_some()
+                        && x.chain.bonded.is_some() == y.chain.bonded.is_some()
+                        && members.setup(x.point)?.scene.forcing
+                            == members.setup(y.point)?.scene.forcing)
+            }
+            None => false,
+        };
+        match groups.last_mut() {
+            Some(g) if joins => g.1 = i + 1,
+            _ => groups.push((i, i + 1)),
+        }
+    }
+    Ok(groups)
+}
+
+/// Solves members [first, end) with solvers from `engine` (the study's backend, through the
+/// `BatchSolver` seam; one batch per group of compatible members) and returns the chunk's
+/// statistics, per sweep point, and `members.csv` rows.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn solve_chunk(
-    scene: &Scene,
     spec: &EnsembleSpec,
     members: &EnsembleMembers,
     header: &StudyHeader,
@@ -63,29 +91,23 @@ pub(super) fn solve_chunk(
     costs: &mut StudyCosts,
     progress: &ProgressReporter,
 ) -> Result<ChunkFile> {
-    let mut chains = Vec::with_capacity((end - first) as usize);
-    let mut params = Vec::with_capacity(chains.capacity());
-    let mut velocity = Vec::with_capacity(chains.capacity());
-    for m in first..end {
-        let inputs = members.member(scene, spec, m)?;
-        chains.push(inputs.chain);
-        params.push(inputs.params);
-        velocity.push((inputs.velocity_factor, inputs.velocity_phase));
-    }
-    let plan = chunk_plan(scene, &chains[0], params.clone());
+    let inputs: Vec<MemberInputs> = (first..end)
+        .map(|m| members.member(m))
+        .collect::<Result<_>>()?;
     let t_count = header.times.len();
     let grid = header.x.len();
-    let mut state = StudyState::for_header(header)?;
+    let mut state = StudyState::new();
     state.ranges.push((first, end));
     let count = (end - first) as usize;
     let mut peak = vec![(f64::NEG_INFINITY, f64::NAN); count];
     let mut min_gap = vec![f64::INFINITY; count];
     let mut final_energy = vec![f64::NAN; count];
     let mut first_hit = vec![f64::NAN; count];
-    let dstar_summary: Vec<(f64, f64)> = chains
+    let dstar_summary: Vec<(f64, f64)> = inputs
         .iter()
-        .map(|c| match &c.dstar {
+        .map(|inp| match &inp.chain.dstar {
             Some(d) => {
+                let c = &inp.chain;
                 let mean = d.iter().sum::<f64>() / d.len() as f64;
                 let max_d = d.iter().fold(0.0f64, |a, &b| a.max(b));
                 (mean, 2.0 * c.eps / (max_d + 2.0 * c.eps))
@@ -96,100 +118,138 @@ pub(super) fn solve_chunk(
 
     // Full per-member arrays, only when asked for: [member, time, ...] per chunk.
     let keep = spec.store_members;
-    let mut kept_gaps: Vec<f64> = Vec::new();
-    let mut kept_vel: Vec<f64> = Vec::new();
-    let mut kept_rho: Vec<f64> = Vec::new();
-    let mut per_time: Vec<Vec<Snapshot>> = Vec::new();
-    // Per output time, per member (None once failed).
-    let mut recorded: Vec<Vec<Option<RecordedObservables>>> = Vec::with_capacity(t_count);
-    let mut consume = |k: usize, snaps: &[Snapshot], failed_now: &[bool]| {
-        if keep {
-            per_time.push(snaps.to_vec());
+    // Per member, per output time (None once failed), in member order.
+    let mut recorded: Vec<Vec<Option<RecordedObservables>>> = Vec::with_capacity(count);
+    let mut kept_snapshots: Vec<Vec<Snapshot>> = Vec::new();
+    let mut reports: Vec<MemberReport> = Vec::with_capacity(count);
+    for (a, b) in batch_groups(&inputs, members)? {
+        let setup = members.setup(inputs[a].point)?;
+        let params: Vec<MemberParams> = inputs[a..b].iter().map(|i| i.params).collect();
+        let chains: Vec<Chain> = inputs[a..b].iter().map(|i| i.chain.clone()).collect();
+        let plan = chunk_plan(&setup.scene, &chains[0], params);
+        let mut group_recorded: Vec<Vec<Option<RecordedObservables>>> =
+            (a..b).map(|_| Vec::with_capacity(t_count)).collect();
+        let mut group_kept: Vec<Vec<Snapshot>> = (a..b).map(|_| Vec::new()).collect();
+        let mut solver = engine.solver(plan, chains)?;
+        let mut k = 0;
+        while let Some(snaps) = solver.next_output(&|_| {})? {
+            let started = Instant::now();
+            let reports_now = solver.reports();
+            let t = header.times[k];
+            for (g, s) in snaps.iter().enumerate() {
+                let i = a + g;
+                if keep {
+                    group_kept[g].push(s.clone());
+                }
+                if reports_now[g].status != MemberStatus::Ok {
+                    group_recorded[g].push(None);
+                    continue;
+                }
+                let centre = peak_centre(&header.x, &s.rho);
+                if s.max_density > peak[i].0 {
+                    peak[i] = (s.max_density, t);
+                }
+                min_gap[i] = min_gap[i].min(s.min_gap);
+                final_energy[i] = s.energy;
+                if first_hit[i].is_nan() && s.max_density >= spec.threshold {
+                    first_hit[i] = t;
+                }
+                group_recorded[g].push(Some(RecordedObservables {
+                    scalars: [s.max_density, s.min_gap, s.energy, s.dissipation, centre],
+                    fields: [s.rho.clone(), s.u.clone(), s.rho_star.clone()],
+                }));
+            }
+            costs.statistics_seconds += started.elapsed().as_secs_f64();
+            k += 1;
         }
-        let started = Instant::now();
-        let t = header.times[k];
-        let mut row = Vec::with_capacity(snaps.len());
-        for (i, s) in snaps.iter().enumerate() {
-            if failed_now[i] {
-                row.push(None);
-                continue;
-            }
-            let centre = peak_centre(&header.x, &s.rho);
-            if s.max_density > peak[i].0 {
-                peak[i] = (s.max_density, t);
-            }
-            min_gap[i] = min_gap[i].min(s.min_gap);
-            final_energy[i] = s.energy;
-            if first_hit[i].is_nan() && s.max_density >= spec.threshold {
-                first_hit[i] = t;
-            }
-            row.push(Some(RecordedObservables {
-                scalars: [s.max_density, s.min_gap, s.energy, s.dissipation, centre],
-                fields: [s.rho.clone(), s.u.clone(), s.rho_star.clone()],
-            }));
+        reports.extend(solver.reports());
+        if let Some(work) = solver.gpu_stats() {
+            costs
+                .gpu
+                .get_or_insert_with(Default::default)
+                .accumulate(&work);
         }
-        recorded.push(row);
-        costs.statistics_seconds += started.elapsed().as_secs_f64();
-    };
-
-    let mut solver = engine.solver(plan, chains)?;
-    let mut k = 0;
-    while let Some(snaps) = solver.next_output(&|_| {})? {
-        let failed_now: Vec<bool> = solver
-            .reports()
-            .iter()
-            .map(|r| r.status != MemberStatus::Ok)
-            .collect();
-        consume(k, &snaps, &failed_now);
-        k += 1;
-    }
-    let reports = solver.reports();
-    if let Some(work) = solver.gpu_stats() {
-        costs
-            .gpu
-            .get_or_insert_with(Default::default)
-            .accumulate(&work);
+        recorded.extend(group_recorded);
+        kept_snapshots.extend(group_kept);
     }
     progress.inc(count as u64);
+
+    // Statistics of the members that completed (a member that failed at any time enters none),
+    // per sweep point.
     let started = Instant::now();
     let ok_member: Vec<bool> = reports
         .iter()
         .map(|r| r.status == MemberStatus::Ok)
         .collect();
-    for (k, row) in recorded.iter().enumerate() {
-        for (i, observed) in row.iter().enumerate() {
-            if let (true, Some(o)) = (ok_member[i], observed) {
-                for (name, &v) in SCALARS.iter().zip(&o.scalars) {
-                    state.scalars.get_mut(*name).expect("known observable")[k].push(v);
+    let mut i = 0;
+    while i < count {
+        let p = inputs[i].point;
+        let mut j = i;
+        while j < count && inputs[j].point == p {
+            j += 1;
+        }
+        let stats = state.point_mut(p, header)?;
+        for k in 0..t_count {
+            for (m, observed) in recorded[i..j].iter().enumerate() {
+                if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(k)) {
+                    for (name, &v) in SCALARS.iter().zip(&o.scalars) {
+                        stats.scalars.get_mut(*name).expect("known observable")[k].push(v);
+                    }
                 }
             }
+            for (f, name) in FIELDS.iter().enumerate() {
+                let rows: Vec<&[f64]> = recorded[i..j]
+                    .iter()
+                    .zip(&ok_member[i..j])
+                    .filter_map(|(observed, &ok)| {
+                        if ok {
+                            observed.get(k).and_then(Option::as_ref)
+                        } else {
+                            None
+                        }
+                    })
+                    .map(|o| o.fields[f].as_slice())
+                    .filter(|r| r.len() == grid)
+                    .collect();
+                stats.fields.get_mut(*name).expect("known field")[k]
+                    .push_rows(&rows)
+                    .expect("rows have the grid's length");
+            }
         }
-        for (f, name) in FIELDS.iter().enumerate() {
-            let rows: Vec<&[f64]> = row
-                .iter()
-                .zip(&ok_member)
-                .filter_map(|(observed, &ok)| if ok { observed.as_ref() } else { None })
-                .map(|o| o.fields[f].as_slice())
-                .filter(|r| r.len() == grid)
-                .collect();
-            state.fields.get_mut(*name).expect("known field")[k]
-                .push_rows(&rows)
-                .expect("rows have the grid's length");
+        for m in i..j {
+            if !ok_member[m] {
+                stats.failed += 1;
+                continue;
+            }
+            stats.completed += 1;
+            if first_hit[m].is_nan() {
+                stats.never_hit += 1;
+            } else {
+                stats.first_hit.push(first_hit[m]);
+            }
         }
+        i = j;
     }
     costs.statistics_seconds += started.elapsed().as_secs_f64();
     if keep {
-        let n = header_particles(&per_time);
-        for i in 0..count {
-            for snaps in &per_time {
-                let s = &snaps[i];
-                let pad = |v: &[f64], len: usize| {
-                    if v.len() == len {
-                        v.to_vec()
-                    } else {
-                        vec![f64::NAN; len]
-                    }
-                };
+        let n = kept_snapshots
+            .iter()
+            .flat_map(|s| s.iter())
+            .map(|s| s.gaps.len())
+            .max()
+            .unwrap_or(0);
+        let mut kept_gaps: Vec<f64> = Vec::new();
+        let mut kept_vel: Vec<f64> = Vec::new();
+        let mut kept_rho: Vec<f64> = Vec::new();
+        let pad = |v: &[f64], len: usize| {
+            if v.len() == len {
+                v.to_vec()
+            } else {
+                vec![f64::NAN; len]
+            }
+        };
+        for snaps in &kept_snapshots {
+            for s in snaps {
                 kept_gaps.extend(pad(&s.gaps, n));
                 kept_vel.extend(pad(&s.velocities, n.saturating_sub(1)));
                 kept_rho.extend(pad(&s.rho, grid));
@@ -216,21 +276,19 @@ pub(super) fn solve_chunk(
             state.failed.push(m);
         } else {
             state.completed += 1;
-            if first_hit[i].is_nan() {
-                state.never_hit += 1;
-            } else {
-                state.first_hit.push(first_hit[i]);
-            }
         }
+        let point = inputs[i].point;
         rows.push(MemberRow {
             member: m,
-            sweep_point: members.sweep_point(m),
+            sweep_point: point,
+            parameters: header.point_values(point),
             mu: r.mu,
             gamma: r.gamma,
+            particles: inputs[i].chain.particles(),
             status,
             failure_time,
-            velocity_factor: velocity[i].0,
-            velocity_phase: velocity[i].1,
+            velocity_factor: inputs[i].velocity_factor,
+            velocity_phase: inputs[i].velocity_phase,
             mean_dstar: dstar_summary[i].0,
             min_rho_star: dstar_summary[i].1,
             peak_density: if failed { f64::NAN } else { peak[i].0 },
@@ -247,16 +305,6 @@ pub(super) fn solve_chunk(
         state,
         rows,
     })
-}
-
-/// N of the stored chunk (from any member's gaps; failed members have none after failing).
-fn header_particles(per_time: &[Vec<Snapshot>]) -> usize {
-    per_time
-        .iter()
-        .flat_map(|s| s.iter())
-        .map(|s| s.gaps.len())
-        .max()
-        .unwrap_or(0)
 }
 
 fn header_dir(header: &StudyHeader) -> PathBuf {

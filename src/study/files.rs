@@ -12,7 +12,6 @@ use crate::backend::select::{BackendRecord, RunsOn};
 use crate::backend::Precision;
 use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
-use crate::model::params::MemberParams;
 use crate::scene::{EnsembleSpec, Scene};
 
 /// What a study computes; written to `study.json` first and checked on resume and merge.
@@ -29,7 +28,12 @@ pub struct StudyHeader {
     pub times: Vec<f64>,
     pub x: Vec<f64>,
     pub quantiles: Vec<f64>,
-    pub sweep: Vec<MemberParams>,
+    /// The swept keys (settings and parameters), in design order; empty without a sweep.
+    pub sweep_names: Vec<String>,
+    /// Each sweep point's values of `sweep_names` (one empty point without a sweep).
+    pub points: Vec<Vec<f64>>,
+    /// Members per point (member m belongs to point m div members_per_point).
+    pub members_per_point: u64,
     pub field_ranges: BTreeMap<String, (f64, f64)>,
     pub bins: usize,
     /// Where this run writes (per-member arrays go to `<out_dir>/members/`).
@@ -43,11 +47,22 @@ pub struct StudyHeader {
     pub input_files: BTreeMap<String, String>,
 }
 
-/// One CSV row per member.
+impl StudyHeader {
+    /// The values of the swept keys at point `p`.
+    pub fn point_values(&self, p: u64) -> Vec<f64> {
+        self.points.get(p as usize).cloned().unwrap_or_default()
+    }
+}
+
+/// One CSV row per member (the swept keys' values are columns named after them, after
+/// `sweep_point`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MemberRow {
     pub member: u64,
-    pub sweep_point: usize,
+    pub sweep_point: u64,
+    /// The values of the study's swept keys at this member's point.
+    pub parameters: Vec<f64>,
+    pub particles: usize,
     #[serde(with = "crate::output::serde_f64")]
     pub mu: f64,
     #[serde(with = "crate::output::serde_f64")]
@@ -131,25 +146,101 @@ pub(super) struct CsvOut {
     writer: csv::Writer<std::fs::File>,
 }
 
+/// Columns of members.csv after `member, sweep_point` and the swept keys.
+const MEMBER_COLUMNS: [&str; 17] = [
+    "mu",
+    "gamma",
+    "particles",
+    "status",
+    "failure_time",
+    "velocity_factor",
+    "velocity_phase",
+    "mean_dstar",
+    "min_rho_star",
+    "peak_density",
+    "peak_time",
+    "min_gap",
+    "final_energy",
+    "first_hit_time",
+    "steps_accepted",
+    "steps_rejected",
+    "",
+];
+
+/// A number as members.csv writes it: the shortest text that reads back to the same f64; NaN
+/// and infinities as "NaN", "inf", "-inf".
+fn number_text(x: f64) -> String {
+    if x.is_nan() {
+        "NaN".into()
+    } else if x.is_infinite() {
+        if x > 0.0 { "inf" } else { "-inf" }.into()
+    } else {
+        format!("{x:?}")
+    }
+}
+
+impl MemberRow {
+    fn record(&self) -> Vec<String> {
+        let mut r = vec![self.member.to_string(), self.sweep_point.to_string()];
+        r.extend(self.parameters.iter().map(|&v| number_text(v)));
+        r.extend([
+            number_text(self.mu),
+            number_text(self.gamma),
+            self.particles.to_string(),
+            self.status.clone(),
+            number_text(self.failure_time),
+            number_text(self.velocity_factor),
+            number_text(self.velocity_phase),
+            number_text(self.mean_dstar),
+            number_text(self.min_rho_star),
+            number_text(self.peak_density),
+            number_text(self.peak_time),
+            number_text(self.min_gap),
+            number_text(self.final_energy),
+            number_text(self.first_hit_time),
+            self.steps_accepted.to_string(),
+            self.steps_rejected.to_string(),
+        ]);
+        r
+    }
+}
+
 impl CsvOut {
-    pub fn create(path: PathBuf) -> Result<CsvOut> {
+    /// Starts members.csv with its header; `sweep_names` are the swept keys' columns.
+    pub fn create(path: PathBuf, sweep_names: &[String]) -> Result<CsvOut> {
         let partial = path.with_extension("csv.partial");
         let writer = csv::Writer::from_path(&partial).map_err(|e| Error::Output {
             path: partial.clone(),
             message: e.to_string(),
         })?;
-        Ok(CsvOut {
+        let mut out = CsvOut {
             path,
             partial,
             writer,
-        })
+        };
+        let mut header: Vec<&str> = vec!["member", "sweep_point"];
+        header.extend(sweep_names.iter().map(String::as_str));
+        header.extend(MEMBER_COLUMNS.iter().filter(|c| !c.is_empty()));
+        out.write(&header)?;
+        Ok(out)
     }
-    pub fn push(&mut self, row: &MemberRow) -> Result<()> {
-        self.writer.serialize(row).map_err(|e| Error::Output {
+
+    fn write<I: IntoIterator<Item = T>, T: AsRef<[u8]>>(&mut self, record: I) -> Result<()> {
+        self.writer.write_record(record).map_err(|e| Error::Output {
             path: self.path.clone(),
             message: e.to_string(),
         })
     }
+
+    pub fn push(&mut self, row: &MemberRow) -> Result<()> {
+        self.write(row.record())
+    }
+
+    /// A row read from another members.csv (merge), copied as it is.
+    pub fn push_record(&mut self, record: &csv::StringRecord) -> Result<()> {
+        self.write(record)
+    }
+
     pub fn finish(mut self) -> Result<()> {
         self.writer
             .flush()
@@ -178,9 +269,10 @@ pub(super) fn header_for(
     out_dir: &Path,
     engine: &BackendRecord,
 ) -> StudyHeader {
-    let total = members.total(spec);
+    let total = members.total();
     let range = shard_range(total, shard);
     let u_max = members
+        .first
         .chain
         .velocities
         .iter()
@@ -208,7 +300,15 @@ pub(super) fn header_for(
         times: scene.output_times.clone(),
         x: crate::model::observables::grid_points(scene.grid),
         quantiles: spec.quantiles.clone(),
-        sweep: members.sweep.clone(),
+        sweep_names: scene
+            .sweep
+            .as_ref()
+            .map(|s| s.design.names().to_vec())
+            .unwrap_or_default(),
+        points: (0..members.points)
+            .map(|p| scene.point_values(p).into_iter().map(|(_, v)| v).collect())
+            .collect(),
+        members_per_point: members.per_point,
         field_ranges,
         bins: spec.bins,
         out_dir: out_dir.display().to_string(),

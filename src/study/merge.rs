@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::files::{study_differences, CsvOut, MemberRow, PartialFile, StudyHeader};
+use super::files::{study_differences, CsvOut, PartialFile, StudyHeader};
 use super::report::{finalize, quantile_method};
 use super::state::StudyState;
 use super::StudySummary;
@@ -101,7 +101,7 @@ pub fn merge_studies(
     let staged = StagedDir::begin(out, force)?;
     let target = out;
     let out = staged.staging.as_path();
-    let mut csv_out = CsvOut::create(out.join("members.csv"))?;
+    let mut csv_out = CsvOut::create(out.join("members.csv"), &partials[0].1.header.sweep_names)?;
     let mut headers: Vec<StudyHeader> = Vec::new();
     let mut state: Option<StudyState> = None;
     for (dir, p) in partials {
@@ -114,8 +114,8 @@ pub fn merge_studies(
             path: csv_in.clone(),
             message: e.to_string(),
         })?;
-        for r in reader.deserialize::<MemberRow>() {
-            csv_out.push(&r.map_err(|e| Error::Output {
+        for r in reader.records() {
+            csv_out.push_record(&r.map_err(|e| Error::Output {
                 path: csv_in.clone(),
                 message: e.to_string(),
             })?)?;

@@ -114,9 +114,10 @@ fn select_for_study(
     let (first, end) = member_range;
     // Member `first` is built up front so that bad ensemble settings fail before anything is
     // written.
-    let inputs = members.member(scene, spec, first)?;
+    let inputs = members.member(first)?;
     let largest_chunk = (spec.chunk as u64).min(end.saturating_sub(first)).max(1) as usize;
-    let plan = chunk_plan(scene, &inputs.chain, vec![inputs.params; largest_chunk]);
+    let setup = members.setup(inputs.point)?;
+    let plan = chunk_plan(&setup.scene, &inputs.chain, vec![inputs.params; largest_chunk]);
     select(
         options.backend.unwrap_or(scene.backend),
         options.precision.unwrap_or(scene.precision),
@@ -143,7 +144,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         ));
     }
     let members = EnsembleMembers::new(scene, spec)?;
-    let range = shard_range(members.total(spec), options.shard);
+    let range = shard_range(members.total(), options.shard);
     let engine = select_for_study(scene, spec, &members, range, options)?;
     let mut header = header_for(
         scene,
@@ -212,7 +213,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let mut costs = StudyCosts::default();
     let mut reused = 0;
     let mut total: Option<StudyState> = None;
-    let mut csv_out = CsvOut::create(dir.join("members.csv"))?;
+    let mut csv_out = CsvOut::create(dir.join("members.csv"), &header.sweep_names)?;
     for &(a, b) in &bounds {
         let path = chunk_path(dir, a, b);
         let chunk: ChunkFile = if path.exists() {
@@ -221,7 +222,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             read_json(&path)?
         } else {
             let c = solve_chunk(
-                scene, spec, &members, &header, &engine, a, b, &mut costs, &progress,
+                spec, &members, &header, &engine, a, b, &mut costs, &progress,
             )?;
             write_json_atomic(&path, &c)?;
             c
@@ -240,7 +241,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     csv_out.finish()?;
     let state = match total {
         Some(state) => state,
-        None => StudyState::for_header(&header)?,
+        None => StudyState::new(),
     };
     write_json_atomic(
         &dir.join("partial.json"),

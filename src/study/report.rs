@@ -4,8 +4,8 @@
 use std::path::Path;
 
 use super::files::StudyHeader;
-use super::state::StudyState;
-use super::{SCALAR_ALPHA, SCALAR_BINS};
+use super::state::{PointStats, StudyState};
+use super::{FIELDS, SCALARS, SCALAR_ALPHA, SCALAR_BINS};
 use crate::error::{Error, Result};
 use crate::output::manifest::QuantileMethod;
 use crate::output::write_npy;
@@ -22,7 +22,8 @@ pub(super) fn quantile_method(header: &StudyHeader) -> QuantileMethod {
     }
 }
 
-/// Writes `stats/*.npy` and the plots (`members.csv` is streamed by the caller).
+/// Writes `stats/*.npy` (every statistic with a leading sweep-point axis P), `points.csv` and
+/// the plots (`members.csv` is streamed by the caller).
 pub(super) fn finalize(
     dir: &Path,
     headers: &[StudyHeader],
@@ -32,108 +33,134 @@ pub(super) fn finalize(
     let header = &headers[0];
     let stats = dir.join("stats");
     std::fs::create_dir_all(&stats).map_err(|e| Error::io(&stats, e))?;
-    let t = header.times.len();
-    let g = header.x.len();
+    let t = header.times.len() as u64;
+    let g = header.x.len() as u64;
     let qs = &header.quantiles;
     let nq = qs.len() as u64;
-    write_npy(stats.join("times.npy"), &[t as u64], &header.times)?;
-    write_npy(stats.join("x.npy"), &[g as u64], &header.x)?;
+    let p_count = header.points.len().max(1) as u64;
+    write_npy(stats.join("times.npy"), &[t], &header.times)?;
+    write_npy(stats.join("x.npy"), &[g], &header.x)?;
     write_npy(stats.join("quantile_levels.npy"), &[nq], qs)?;
-    for (name, per_time) in &state.scalars {
-        let col = |f: &dyn Fn(&ScalarSummary) -> f64| per_time.iter().map(f).collect::<Vec<f64>>();
-        write_npy(
-            stats.join(format!("{name}_count.npy")),
-            &[t as u64],
-            &col(&|s| s.stats().count() as f64),
-        )?;
-        write_npy(
-            stats.join(format!("{name}_mean.npy")),
-            &[t as u64],
-            &col(&|s| s.stats().mean()),
-        )?;
-        write_npy(
-            stats.join(format!("{name}_var.npy")),
-            &[t as u64],
-            &col(&|s| s.stats().variance()),
-        )?;
-        write_npy(
-            stats.join(format!("{name}_min.npy")),
-            &[t as u64],
-            &col(&|s| s.stats().min()),
-        )?;
-        write_npy(
-            stats.join(format!("{name}_max.npy")),
-            &[t as u64],
-            &col(&|s| s.stats().max()),
-        )?;
-        let quant: Vec<f64> = per_time
+    write_points_csv(&dir.join("points.csv"), header, state)?;
+    // A point without members (a partial merge) reports the statistics of no member.
+    let empty = PointStats::for_header(header)?;
+    let point = |p: u64| state.points.get(&p).unwrap_or(&empty);
+    let points: Vec<u64> = (0..p_count).collect();
+
+    for name in SCALARS {
+        let per_point = |f: &dyn Fn(&ScalarSummary) -> f64| -> Vec<f64> {
+            points
+                .iter()
+                .flat_map(|&p| point(p).scalars[name].iter().map(f).collect::<Vec<_>>())
+                .collect()
+        };
+        let shape = [p_count, t];
+        write_npy(stats.join(format!("{name}_count.npy")), &shape, &per_point(&|s| s.stats().count() as f64))?;
+        write_npy(stats.join(format!("{name}_mean.npy")), &shape, &per_point(&|s| s.stats().mean()))?;
+        write_npy(stats.join(format!("{name}_var.npy")), &shape, &per_point(&|s| s.stats().variance()))?;
+        write_npy(stats.join(format!("{name}_min.npy")), &shape, &per_point(&|s| s.stats().min()))?;
+        write_npy(stats.join(format!("{name}_max.npy")), &shape, &per_point(&|s| s.stats().max()))?;
+        let quant: Vec<f64> = points
             .iter()
+            .flat_map(|&p| point(p).scalars[name].iter())
             .flat_map(|s| qs.iter().map(|&q| s.quantile(q).unwrap_or(f64::NAN)))
             .collect();
-        write_npy(
-            stats.join(format!("{name}_quantiles.npy")),
-            &[t as u64, nq],
-            &quant,
-        )?;
-        let (edges, counts) = scalar_histograms(per_time, &stats)?;
+        write_npy(stats.join(format!("{name}_quantiles.npy")), &[p_count, t, nq], &quant)?;
+        let (mut edges, mut counts) = (Vec::new(), Vec::new());
+        for &p in &points {
+            let (e, c) = scalar_histograms(&point(p).scalars[name], &stats)?;
+            edges.extend(e);
+            counts.extend(c);
+        }
         write_npy(
             stats.join(format!("{name}_hist_edges.npy")),
-            &[t as u64, SCALAR_BINS as u64 + 1],
+            &[p_count, t, SCALAR_BINS as u64 + 1],
             &edges,
         )?;
         write_npy(
             stats.join(format!("{name}_hist_counts.npy")),
-            &[t as u64, SCALAR_BINS as u64],
+            &[p_count, t, SCALAR_BINS as u64],
             &counts,
         )?;
     }
-    let fh = &state.first_hit;
-    write_npy(
-        stats.join("first_hit.npy"),
-        &[6],
-        &[
+    let mut first_hit = Vec::with_capacity(points.len() * 6);
+    let mut first_hit_q = Vec::with_capacity(points.len() * qs.len());
+    for &p in &points {
+        let ps = point(p);
+        let fh = &ps.first_hit;
+        first_hit.extend([
             fh.stats().count() as f64,
-            state.never_hit as f64,
+            ps.never_hit as f64,
             fh.stats().mean(),
             fh.stats().variance(),
             fh.stats().min(),
             fh.stats().max(),
-        ],
-    )?;
-    let fq: Vec<f64> = qs
-        .iter()
-        .map(|&q| fh.quantile(q).unwrap_or(f64::NAN))
-        .collect();
-    write_npy(stats.join("first_hit_quantiles.npy"), &[nq], &fq)?;
-    for (name, per_time) in &state.fields {
-        let mean: Vec<f64> = per_time.iter().flat_map(|b| b.mean_row()).collect();
-        let var: Vec<f64> = per_time.iter().flat_map(|b| b.variance_row()).collect();
-        let mut quant: Vec<f64> = Vec::with_capacity(t * qs.len() * g);
-        for band in per_time {
-            for &q in qs {
-                quant.extend(band.quantile_row(q).map_err(|e| stats_error(&stats, e))?);
+        ]);
+        first_hit_q.extend(qs.iter().map(|&q| fh.quantile(q).unwrap_or(f64::NAN)));
+    }
+    write_npy(stats.join("first_hit.npy"), &[p_count, 6], &first_hit)?;
+    write_npy(stats.join("first_hit_quantiles.npy"), &[p_count, nq], &first_hit_q)?;
+    for name in FIELDS {
+        let mut mean: Vec<f64> = Vec::new();
+        let mut var: Vec<f64> = Vec::new();
+        let mut quant: Vec<f64> = Vec::new();
+        for &p in &points {
+            for band in &point(p).fields[name] {
+                mean.extend(band.mean_row());
+                var.extend(band.variance_row());
+                for &q in qs {
+                    quant.extend(band.quantile_row(q).map_err(|e| stats_error(&stats, e))?);
+                }
             }
         }
-        write_npy(
-            stats.join(format!("{name}_mean.npy")),
-            &[t as u64, g as u64],
-            &mean,
-        )?;
-        write_npy(
-            stats.join(format!("{name}_var.npy")),
-            &[t as u64, g as u64],
-            &var,
-        )?;
+        write_npy(stats.join(format!("{name}_mean.npy")), &[p_count, t, g], &mean)?;
+        write_npy(stats.join(format!("{name}_var.npy")), &[p_count, t, g], &var)?;
         write_npy(
             stats.join(format!("{name}_quantiles.npy")),
-            &[t as u64, nq, g as u64],
+            &[p_count, t, nq, g],
             &quant,
         )?;
     }
     if plots {
-        write_plots(dir, header, state)?;
+        let plots_dir = dir.join("plots");
+        std::fs::create_dir_all(&plots_dir).map_err(|e| Error::io(&plots_dir, e))?;
+        if p_count == 1 {
+            write_point_plots(&plots_dir, "", header, point(0))?;
+        } else {
+            for &p in points.iter().take(MAX_POINT_PLOTS) {
+                if state.points.contains_key(&p) {
+                    write_point_plots(&plots_dir, &format!("point{p}_"), header, point(p))?;
+                }
+            }
+        }
     }
     Ok(())
+}
+
+/// Sweep points whose own band and histogram plots are drawn (the first ones).
+const MAX_POINT_PLOTS: usize = 4;
+
+/// `points.csv`: per sweep point its index, the swept keys' values, and how many of its members
+/// completed and failed.
+fn write_points_csv(path: &Path, header: &StudyHeader, state: &StudyState) -> Result<()> {
+    let err = |e: csv::Error| Error::Output {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let mut w = csv::Writer::from_path(path).map_err(err)?;
+    let mut head = vec!["point".to_string()];
+    head.extend(header.sweep_names.iter().cloned());
+    head.extend(["completed".to_string(), "failed".to_string()]);
+    w.write_record(&head).map_err(err)?;
+    for (p, values) in header.points.iter().enumerate() {
+        let stats = state.points.get(&(p as u64));
+        let mut row = vec![p.to_string()];
+        row.extend(values.iter().map(|v| format!("{v:?}")));
+        row.push(stats.map_or(0, |s| s.completed).to_string());
+        row.push(stats.map_or(0, |s| s.failed).to_string());
+        w.write_record(&row).map_err(err)?;
+    }
+    w.flush().map_err(|e| Error::io(path, e))
 }
 
 fn stats_error(path: &Path, e: StatsError) -> Error {
@@ -158,9 +185,13 @@ fn scalar_histograms(per_time: &[ScalarSummary], path: &Path) -> Result<(Vec<f64
     Ok((edges, counts))
 }
 
-fn write_plots(dir: &Path, header: &StudyHeader, state: &StudyState) -> Result<()> {
-    let plots = dir.join("plots");
-    std::fs::create_dir_all(&plots).map_err(|e| Error::io(&plots, e))?;
+/// The band plots of rho and u and the histograms of one point's members, named with `prefix`.
+fn write_point_plots(
+    plots: &Path,
+    prefix: &str,
+    header: &StudyHeader,
+    state: &PointStats,
+) -> Result<()> {
     let t = header.times.len();
     // Up to four times, evenly spread, for the band plot.
     let shown: Vec<usize> = if t <= 4 {
@@ -200,7 +231,7 @@ fn write_plots(dir: &Path, header: &StudyHeader, state: &StudyState) -> Result<(
         );
         let label = format!("{:.0}%-{:.0}% of members", 100.0 * q_lo, 100.0 * q_hi);
         crate::plot::plot_band(
-            &plots.join(format!("{field}_band.png")),
+            &plots.join(format!("{prefix}{field}_band.png")),
             &crate::plot::BandPlot {
                 title: &title,
                 y_label: field,
@@ -223,7 +254,7 @@ fn write_plots(dir: &Path, header: &StudyHeader, state: &StudyState) -> Result<(
         .range_histogram(SCALAR_BINS)
         .map_err(|e| stats_error(&plots, e))?;
     crate::plot::plot_histogram(
-        &plots.join("max_density_hist.png"),
+        &plots.join(format!("{prefix}max_density_hist.png")),
         &format!(
             "{}: max density at t = {}",
             header.scene_name, header.times[last]
@@ -240,7 +271,7 @@ fn write_plots(dir: &Path, header: &StudyHeader, state: &StudyState) -> Result<(
             .map_err(|e| stats_error(&plots, e))?;
         let note = format!("{} members never reached the threshold", state.never_hit);
         crate::plot::plot_histogram(
-            &plots.join("first_hit_hist.png"),
+            &plots.join(format!("{prefix}first_hit_hist.png")),
             &format!(
                 "{}: first time max density reaches the threshold",
                 header.scene_name

@@ -12,13 +12,23 @@ use super::{FIELDS, SCALARS, SCALAR_ALPHA};
 use crate::error::{Error, Result};
 use crate::stats::{FieldBand, ScalarSummary};
 
-/// Everything mergeable of a set of members (a chunk, a run, a shard, merged shards).
+/// Everything mergeable of a set of members (a chunk, a run, a shard, merged shards): the member
+/// ranges and failures, and the statistics of each sweep point that has members in it.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StudyState {
     /// Member ranges [first, end) included, sorted and disjoint.
     pub ranges: Vec<(u64, u64)>,
     pub completed: u64,
     pub failed: Vec<u64>,
+    /// Per sweep point with members here, its statistics.
+    pub points: BTreeMap<u64, PointStats>,
+}
+
+/// The statistics of the members of one sweep point.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PointStats {
+    pub completed: u64,
+    pub failed: u64,
     /// Per scalar observable, one summary per output time.
     pub scalars: BTreeMap<String, Vec<ScalarSummary>>,
     /// First output time at which max density reaches the threshold.
@@ -28,9 +38,10 @@ pub struct StudyState {
     pub fields: BTreeMap<String, Vec<FieldBand>>,
 }
 
-impl StudyState {
-    /// The empty state of the study `header` describes (its times, grid, field ranges and bins).
-    pub fn for_header(header: &StudyHeader) -> Result<StudyState> {
+impl PointStats {
+    /// The empty statistics of one point of the study `header` describes (its times, grid,
+    /// field ranges and bins).
+    pub fn for_header(header: &StudyHeader) -> Result<PointStats> {
         let times = header.times.len();
         let summary =
             || ScalarSummary::new(SCALAR_ALPHA).expect("SCALAR_ALPHA is a valid accuracy");
@@ -47,10 +58,9 @@ impl StudyState {
             })?;
             fields.insert(f.to_string(), vec![band; times]);
         }
-        Ok(StudyState {
-            ranges: Vec::new(),
+        Ok(PointStats {
             completed: 0,
-            failed: Vec::new(),
+            failed: 0,
             scalars: SCALARS
                 .iter()
                 .map(|s| (s.to_string(), (0..times).map(|_| summary()).collect()))
@@ -59,6 +69,57 @@ impl StudyState {
             never_hit: 0,
             fields,
         })
+    }
+
+    fn merge(&mut self, other: &PointStats) -> std::result::Result<(), String> {
+        self.completed += other.completed;
+        self.failed += other.failed;
+        for (name, per_time) in &other.scalars {
+            let mine = self
+                .scalars
+                .get_mut(name)
+                .ok_or_else(|| format!("unknown observable {name}"))?;
+            for (a, b) in mine.iter_mut().zip(per_time) {
+                a.merge(b).map_err(|e| e.to_string())?;
+            }
+        }
+        self.first_hit
+            .merge(&other.first_hit)
+            .map_err(|e| e.to_string())?;
+        self.never_hit += other.never_hit;
+        for (name, per_time) in &other.fields {
+            let mine = self
+                .fields
+                .get_mut(name)
+                .ok_or_else(|| format!("unknown field {name}"))?;
+            if mine.len() != per_time.len() {
+                return Err("different numbers of output times".into());
+            }
+            for (a, b) in mine.iter_mut().zip(per_time) {
+                a.merge(b).map_err(|e| format!("field {name}: {e}"))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl StudyState {
+    /// The empty state (no members, no points).
+    pub fn new() -> StudyState {
+        StudyState {
+            ranges: Vec::new(),
+            completed: 0,
+            failed: Vec::new(),
+            points: BTreeMap::new(),
+        }
+    }
+
+    /// The statistics of point `p`, created empty for `header` on first use.
+    pub fn point_mut(&mut self, p: u64, header: &StudyHeader) -> Result<&mut PointStats> {
+        if !self.points.contains_key(&p) {
+            self.points.insert(p, PointStats::for_header(header)?);
+        }
+        Ok(self.points.get_mut(&p).expect("inserted"))
     }
 
     pub fn merge(&mut self, other: &StudyState) -> Result<()> {
@@ -79,31 +140,22 @@ impl StudyState {
         self.completed += other.completed;
         self.failed.extend_from_slice(&other.failed);
         self.failed.sort_unstable();
-        for (name, per_time) in &other.scalars {
-            let mine = self
-                .scalars
-                .get_mut(name)
-                .ok_or_else(|| bad(format!("unknown observable {name}")))?;
-            for (a, b) in mine.iter_mut().zip(per_time) {
-                a.merge(b).map_err(|e| bad(e.to_string()))?;
-            }
-        }
-        self.first_hit
-            .merge(&other.first_hit)
-            .map_err(|e| bad(e.to_string()))?;
-        self.never_hit += other.never_hit;
-        for (name, per_time) in &other.fields {
-            let mine = self
-                .fields
-                .get_mut(name)
-                .ok_or_else(|| bad(format!("unknown field {name}")))?;
-            if mine.len() != per_time.len() {
-                return Err(bad("different numbers of output times".into()));
-            }
-            for (a, b) in mine.iter_mut().zip(per_time) {
-                a.merge(b).map_err(|e| bad(format!("field {name}: {e}")))?;
+        for (p, stats) in &other.points {
+            match self.points.get_mut(p) {
+                Some(mine) => mine
+                    .merge(stats)
+                    .map_err(|e| bad(format!("sweep point {p}: {e}")))?,
+                None => {
+                    self.points.insert(*p, stats.clone());
+                }
             }
         }
         Ok(())
+    }
+}
+
+impl Default for StudyState {
+    fn default() -> Self {
+        StudyState::new()
     }
 }
