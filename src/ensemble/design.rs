@@ -26,8 +26,8 @@
 //!   in every dimension (one point in each interval [i 2^-k, (i+1) 2^-k)); their projection on
 //!   the first two dimensions is a (0, k, 2)-net (one point in every elementary interval
 //!   2^-a × 2^-(k-a)), and on other pairs a (t, k, 2)-net with the small t of the Joe–Kuo
-//!   direction numbers (t <= 2 among the first 4 dimensions for k <= 8; no base-2 design can
-//!   have t = 0 in every pair of 3 or more dimensions), so put the two most important
+//!   direction numbers (t <= 2 among the first 4 dimensions for k <= 8: only the first two
+//!   dimensions of the Sobol sequence form a (0, 2)-sequence), so put the two most important
 //!   parameters first. The sequence has at most [`SOBOL_MAX_POINTS`] = 2^16 points and
 //!   [`SOBOL_MAX_DIMENSIONS`] = 256 dimensions. Unlike a Latin hypercube, a Sobol design of
 //!   P points is the first P points of every longer one with the same seed.
@@ -791,8 +791,8 @@ mod tests {
         // stratified (one point in each interval of length 2^-k), the projection on dimensions
         // (0, 1) is a (0, k, 2)-net (one point in every elementary interval 2^-a × 2^-(k-a)),
         // and every other 2-D projection is a (t, k, 2)-net with the t of the unscrambled
-        // Joe–Kuo generator matrices (scrambling preserves t; no base-2 sequence has t = 0 in
-        // all pairs of more than 2 dimensions, so t reaches 1 or 2 in the other pairs).
+        // Joe–Kuo generator matrices (scrambling preserves t; only dimensions 0 and 1 form a
+        // (0, 2)-sequence, and t reaches 2 in other pairs).
         let mut worst = 0;
         for seed in [0u64, 7, 99] {
             for k in 1..=8u32 {
