@@ -225,10 +225,7 @@ impl Design {
                     )
                 })?;
                 if n == 0 {
-                    return Err(spec(
-                        &points_key,
-                        "0 points (allowed: an integer >= 1)",
-                    ));
+                    return Err(spec(&points_key, "0 points (allowed: an integer >= 1)"));
                 }
                 n
             }
@@ -567,12 +564,7 @@ mod tests {
         Design::new("sweep", kind, keys, axes, Some(points), seed).unwrap()
     }
 
-    fn err(
-        kind: DesignKind,
-        keys: &[&str],
-        axes: Vec<Axis>,
-        points: Option<u64>,
-    ) -> String {
+    fn err(kind: DesignKind, keys: &[&str], axes: Vec<Axis>, points: Option<u64>) -> String {
         Design::new("sweep", kind, names(keys), axes, points, 1)
             .unwrap_err()
             .to_string()
@@ -650,7 +642,10 @@ mod tests {
         assert_eq!(g.len(), 120);
         assert_eq!(g.values(119), vec![1.0, 2.0, 3.0, 4.0]);
         // p = ((a·3 + b)·4 + c)·5 + d.
-        assert_eq!(g.values(((3 + 2) * 4 + 1) * 5 + 3), vec![1.0, 2.0, 1.0, 3.0]);
+        assert_eq!(
+            g.values(((3 + 2) * 4 + 1) * 5 + 3),
+            vec![1.0, 2.0, 1.0, 3.0]
+        );
         assert_eq!(sampled(DesignKind::Random, 1, 3, 0).grid_indices(0), None);
     }
 
@@ -839,7 +834,10 @@ mod tests {
     #[test]
     fn sampled_points_follow_the_documented_streams() {
         // Random: draw d of member_rng(seed, Design, p), mapped linearly.
-        let axes = vec![range(2.0, 6.0, Scale::Linear), range(1.0, 100.0, Scale::Log)];
+        let axes = vec![
+            range(2.0, 6.0, Scale::Linear),
+            range(1.0, 100.0, Scale::Log),
+        ];
         let design = Design::new(
             "sweep",
             DesignKind::Random,
@@ -978,7 +976,10 @@ mod tests {
             assert!((mean_lin - 1.0).abs() < 5.0 * 6.0 / (12.0 * nf).sqrt());
             // One decade of five: a fifth of the points, binomial tolerance.
             let frac = below_decade as f64 / nf;
-            assert!((frac - 0.2).abs() < 5.0 * (0.16 / nf).sqrt(), "{kind:?}: {frac}");
+            assert!(
+                (frac - 0.2).abs() < 5.0 * (0.16 / nf).sqrt(),
+                "{kind:?}: {frac}"
+            );
         }
     }
 
@@ -1034,7 +1035,12 @@ mod tests {
             "sweep.gamma: the list of values is empty (allowed: at least one finite value)"
         );
         assert_eq!(
-            err(Grid, &["gamma"], vec![Axis::Values(vec![1.0, f64::INFINITY])], None),
+            err(
+                Grid,
+                &["gamma"],
+                vec![Axis::Values(vec![1.0, f64::INFINITY])],
+                None
+            ),
             "sweep.gamma[1] = inf: not finite (allowed: finite values)"
         );
         assert_eq!(
@@ -1085,8 +1091,13 @@ mod tests {
             err(Sobol, &keys, vec![lin(0.0, 1.0); 257], Some(2)),
             "sweep: 257 parameters, more than a sobol design supports (allowed: at most 256)"
         );
-        assert!(err(LatinHypercube, &["a", "b"], vec![lin(0.0, 1.0); 2], Some(1 << 26))
-            .starts_with("sweep.points: 67108864 points × 2 parameters, more than"));
+        assert!(err(
+            LatinHypercube,
+            &["a", "b"],
+            vec![lin(0.0, 1.0); 2],
+            Some(1 << 26)
+        )
+        .starts_with("sweep.points: 67108864 points × 2 parameters, more than"));
         let big = Axis::Values(vec![0.0; 1 << 16]);
         assert!(err(Grid, &["a", "b", "c", "d"], vec![big; 4], None)
             .starts_with("sweep: the grid has more than 2^64 points"));
