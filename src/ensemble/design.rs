@@ -28,7 +28,8 @@
 //!   2^-a × 2^-(k-a)), and on other pairs a (t, k, 2)-net with the small t of the Joe–Kuo
 //!   direction numbers (t <= 2 among the first 4 dimensions for k <= 8: only the first two
 //!   dimensions of the Sobol sequence form a (0, 2)-sequence), so put the two most important
-//!   parameters first. The sequence has at most [`SOBOL_MAX_POINTS`] = 2^16 points and
+//!   parameters first; choose P a power of two for these properties to hold for the whole
+//!   design. The sequence has at most [`SOBOL_MAX_POINTS`] = 2^16 points and
 //!   [`SOBOL_MAX_DIMENSIONS`] = 256 dimensions. Unlike a Latin hypercube, a Sobol design of
 //!   P points is the first P points of every longer one with the same seed.
 //!
@@ -867,6 +868,38 @@ mod tests {
             }
         }
         assert_eq!(sobol_burley::NUM_DIMENSIONS as usize, SOBOL_MAX_DIMENSIONS);
+        // The new purposes' tags are the documented ASCII words, distinct from the others.
+        assert_eq!(Purpose::Design.tag().to_le_bytes(), *b"designpt");
+        assert_eq!(Purpose::DesignPermutation.tag().to_le_bytes(), *b"designpm");
+        let tags = [
+            Purpose::Roughness,
+            Purpose::Velocity,
+            Purpose::Jitter,
+            Purpose::Design,
+            Purpose::DesignPermutation,
+        ]
+        .map(Purpose::tag);
+        for (i, t) in tags.iter().enumerate() {
+            assert!(!tags[..i].contains(t));
+        }
+        // Latin hypercube permutation of dimension d: Fisher–Yates from its own stream.
+        let lhs = sampled(DesignKind::LatinHypercube, 2, 9, 42);
+        for d in 0..2 {
+            let mut rng = member_rng(42, Purpose::DesignPermutation, d);
+            let mut perm: Vec<u32> = (0..9).collect();
+            for i in (1..9u32).rev() {
+                perm.swap(i as usize, rng.random_range(0..=i) as usize);
+            }
+            for p in 0..9u64 {
+                let mut point = member_rng(42, Purpose::Design, p);
+                let v: Vec<f64> = (0..2).map(|_| point.random::<f64>()).collect();
+                let want = (f64::from(perm[p as usize]) + v[d as usize]) / 9.0;
+                assert!(
+                    (lhs.unit(p)[d as usize] - want).abs() <= 1e-15,
+                    "dim {d}, point {p}"
+                );
+            }
+        }
         // A Sobol design of P points is the start of a longer one.
         let long = sampled(DesignKind::Sobol, 3, 500, 42);
         for p in 0..50 {
