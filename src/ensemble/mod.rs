@@ -26,13 +26,15 @@
 //!
 //! # Layout
 //!
-//! `streams` (the per-member random streams), `roughness` (the roughness specification and its
+//! `design` (parameter designs: grids, random, Latin hypercube and Sobol points), `streams` (the
+//! per-member random streams), `roughness` (the roughness specification and its
 //! validation), `sampler` (drawing radii), `radii` (the radii file and the radii ↔ critical
 //! distance conversions) and `perturb` (velocity perturbation and gap jitter); every public item
 //! is re-exported here.
 
 use std::path::PathBuf;
 
+pub mod design;
 pub mod members;
 mod perturb;
 mod radii;
@@ -40,6 +42,7 @@ mod roughness;
 mod sampler;
 mod streams;
 
+pub use design::{Axis, Design, DesignKind, Scale};
 pub use perturb::{jitter_gaps, perturbed_velocity, validate_velocity_perturbation};
 pub use radii::{dstar_from_radii, mean_radii_from_rho_star, read_radii_file};
 pub use roughness::{RoughnessKind, RoughnessSpec, UNIFORM_MAX_SPREAD};

@@ -20,6 +20,12 @@ pub enum Purpose {
     /// Gap jitter ([`jitter_gaps`](super::jitter_gaps)): draw i belongs to gap i (bonded gaps
     /// consume theirs too).
     Jitter,
+    /// Points of a random or Latin hypercube parameter design
+    /// ([`Design`](super::design::Design)): the stream of point p, draw d belongs to dimension d.
+    Design,
+    /// The per-dimension permutations of a Latin hypercube design: the stream of dimension d
+    /// drives the Fisher–Yates shuffle of that dimension's strata.
+    DesignPermutation,
 }
 
 impl Purpose {
@@ -29,6 +35,8 @@ impl Purpose {
             Purpose::Roughness => u64::from_le_bytes(*b"roughnes"),
             Purpose::Velocity => u64::from_le_bytes(*b"velocity"),
             Purpose::Jitter => u64::from_le_bytes(*b"jittergp"),
+            Purpose::Design => u64::from_le_bytes(*b"designpt"),
+            Purpose::DesignPermutation => u64::from_le_bytes(*b"designpm"),
         }
     }
 }

@@ -1,6 +1,7 @@
 //! PNG plots of the macroscopic profiles of one ensemble member, of scalar observables over
-//! time, of an ensemble's mean profile with a quantile band, and histograms (plotters, bitmap
-//! backend).
+//! time, of an ensemble's mean profile with a quantile band, histograms, and the response of a
+//! parameter sweep (a mean with its quantile band against one parameter, a heat map over two,
+//! a scatter of sampled members) (plotters, bitmap backend).
 //!
 //! Text is rendered with plotters' `ab_glyph` feature, which does not look for system fonts: the
 //! DejaVu Sans font shipped in `assets/` is embedded in the binary and registered on first use
@@ -12,7 +13,7 @@
 //! line where they occur.
 //!
 //! Layout: this file holds the public API and its input checks. Each figure is drawn in its own
-//! file (`profiles`, `series`, `bands`, `histograms`) from the shared parts: `style` (font,
+//! file (`profiles`, `series`, `bands`, `histograms`, `response`) from the shared parts: `style` (font,
 //! colours, number formatting), `ranges` (axis ranges), `chart` (canvas, axes, lines, bands) and
 //! `legend` (legend column, note box).
 
@@ -24,6 +25,7 @@ mod histograms;
 mod legend;
 mod profiles;
 mod ranges;
+mod response;
 mod series;
 mod style;
 
@@ -32,7 +34,8 @@ pub use style::register_fonts;
 /// Width and height, in pixels, of every PNG written by this module.
 pub const PLOT_SIZE: (u32, u32) = (1000, 800);
 
-/// Error from [`plot_profiles`], [`plot_series`], [`plot_band`] or [`plot_histogram`].
+/// Error from [`plot_profiles`], [`plot_series`], [`plot_band`], [`plot_histogram`],
+/// [`plot_response`], [`plot_heatmap`] or [`plot_scatter`].
 #[derive(Debug, thiserror::Error)]
 #[error("cannot draw plot {path}: {message}")]
 pub struct PlotError {
@@ -130,6 +133,107 @@ pub fn plot_histogram(
         path,
         || check_histogram(edges, counts),
         || histograms::draw(path, title, x_label, edges, counts, note),
+    )
+}
+
+/// The response of a one-parameter sweep: a statistic of each of P points against the swept
+/// value.
+pub struct ResponsePlot<'a> {
+    /// Title at the top of the figure.
+    pub title: &'a str,
+    /// Name of the swept parameter (x axis label), e.g. "mu".
+    pub x_label: &'a str,
+    /// Name of the response (y axis label), e.g. "time to reach rho = 0.9".
+    pub y_label: &'a str,
+    /// The swept values, length P, in any order (the points are drawn sorted by x). Points with
+    /// a non-finite x are skipped; with `log_x`, finite values must be > 0.
+    pub x: &'a [f64],
+    /// The response at each point (e.g. the ensemble mean), length P; non-finite values are
+    /// skipped.
+    pub mean: &'a [f64],
+    /// Lower edge of the band (e.g. the 5 % quantile), length P; the band is left out where a
+    /// bound is not finite.
+    pub lower: &'a [f64],
+    /// Upper edge of the band (e.g. the 95 % quantile), length P.
+    pub upper: &'a [f64],
+    /// Legend label of the band, e.g. "5%-95% of members".
+    pub band_label: &'a str,
+    /// Logarithmic x axis.
+    pub log_x: bool,
+}
+
+/// A response over a two-parameter grid, one value per (x, y) cell.
+pub struct HeatmapPlot<'a> {
+    /// Title at the top of the figure.
+    pub title: &'a str,
+    /// Name of the parameter along x.
+    pub x_label: &'a str,
+    /// Name of the parameter along y.
+    pub y_label: &'a str,
+    /// Name of the value (the colour bar's label).
+    pub value_label: &'a str,
+    /// The x values of the columns, finite and distinct, in any order (> 0 with `log_x`).
+    pub xs: &'a [f64],
+    /// The y values of the rows, finite and distinct, in any order (> 0 with `log_y`).
+    pub ys: &'a [f64],
+    /// `ys.len()` rows of `xs.len()` values: `values[j][i]` belongs to (xs[i], ys[j]).
+    /// Non-finite values leave their cell blank.
+    pub values: &'a [Vec<f64>],
+    /// Logarithmic x axis.
+    pub log_x: bool,
+    /// Logarithmic y axis.
+    pub log_y: bool,
+}
+
+/// One dot per member of a sampled design: a response against one parameter.
+pub struct ScatterPlot<'a> {
+    /// Title at the top of the figure.
+    pub title: &'a str,
+    /// Name of the parameter (x axis label).
+    pub x_label: &'a str,
+    /// Name of the response (y axis label).
+    pub y_label: &'a str,
+    /// Parameter values, one per member (> 0 where finite with `log_x`).
+    pub x: &'a [f64],
+    /// Responses, one per member; members with a non-finite x or y are skipped (and counted in
+    /// a note).
+    pub y: &'a [f64],
+    /// Logarithmic x axis.
+    pub log_x: bool,
+}
+
+/// Draws the response of a one-parameter sweep: the points sorted by x, the band
+/// `[lower, upper]` as a translucent area, the mean as a line with a marker at each point, with
+/// a legend ("mean" and the band label). On a log x axis the ticks are values (powers of ten
+/// where the range spans two decades or more).
+pub fn plot_response(path: &Path, plot: &ResponsePlot) -> Result<(), PlotError> {
+    checked_draw(
+        path,
+        || check_response(plot),
+        || response::draw_response(path, plot),
+    )
+}
+
+/// Draws a heat map: one cell per (x, y) pair, centred on its values (the cell edges halfway
+/// between neighbouring values, in log space on a log axis), coloured by value along the
+/// viridis-like colormap of the other figures, with a colour bar giving the scale (the range of
+/// the finite values). Cells with a non-finite value are left blank; when the cells are large
+/// enough their values are written in them.
+pub fn plot_heatmap(path: &Path, plot: &HeatmapPlot) -> Result<(), PlotError> {
+    checked_draw(
+        path,
+        || check_heatmap(plot),
+        || response::draw_heatmap(path, plot),
+    )
+}
+
+/// Draws one dot per member at (x, y), translucent so that overlaps show; the members that
+/// were skipped (non-finite x or y) are counted in a note.
+pub fn plot_scatter(path: &Path, plot: &ScatterPlot) -> Result<(), PlotError> {
+    checked_draw(
+        path,
+        || check_scatter(plot),
+        || response::draw_scatter(path, plot),
     )
 }
 
@@ -246,4 +350,91 @@ fn check_histogram(edges: &[f64], counts: &[u64]) -> Result<(), String> {
         ));
     }
     Ok(())
+}
+
+fn check_length(name: &str, values: &[f64], n: usize, of: &str) -> Result<(), String> {
+    if values.len() != n {
+        return Err(format!(
+            "{name} has {} values but {of} has {n}",
+            values.len()
+        ));
+    }
+    Ok(())
+}
+
+/// With a log axis, the finite values must be positive.
+fn check_log_axis(name: &str, values: &[f64], log: bool) -> Result<(), String> {
+    if !log {
+        return Ok(());
+    }
+    match values.iter().position(|&v| v.is_finite() && v <= 0.0) {
+        Some(i) => Err(format!(
+            "{name}[{i}] = {} cannot be drawn on a log axis (allowed: values > 0)",
+            values[i]
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Finite and distinct values (the positions of heat map cells).
+fn check_cell_positions(name: &str, values: &[f64], log: bool) -> Result<(), String> {
+    if values.is_empty() {
+        return Err(format!("{name} is empty"));
+    }
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(format!("{name}[{i}] is not finite ({})", values[i]));
+    }
+    check_log_axis(name, values, log)?;
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    if let Some(w) = sorted.windows(2).find(|w| w[0] == w[1]) {
+        return Err(format!(
+            "{name} holds {} twice (allowed: distinct values)",
+            w[0]
+        ));
+    }
+    Ok(())
+}
+
+fn check_response(plot: &ResponsePlot) -> Result<(), String> {
+    let n = plot.x.len();
+    if n == 0 {
+        return Err("there are no points (x is empty)".to_string());
+    }
+    check_length("mean", plot.mean, n, "x")?;
+    check_length("lower", plot.lower, n, "x")?;
+    check_length("upper", plot.upper, n, "x")?;
+    check_log_axis("x", plot.x, plot.log_x)
+}
+
+fn check_heatmap(plot: &HeatmapPlot) -> Result<(), String> {
+    check_cell_positions("xs", plot.xs, plot.log_x)?;
+    check_cell_positions("ys", plot.ys, plot.log_y)?;
+    if plot.values.len() != plot.ys.len() {
+        return Err(format!(
+            "values has {} rows but ys has {} values (one row per y)",
+            plot.values.len(),
+            plot.ys.len()
+        ));
+    }
+    match plot
+        .values
+        .iter()
+        .position(|row| row.len() != plot.xs.len())
+    {
+        Some(j) => Err(format!(
+            "values row {j} has {} values but xs has {}",
+            plot.values[j].len(),
+            plot.xs.len()
+        )),
+        None => Ok(()),
+    }
+}
+
+fn check_scatter(plot: &ScatterPlot) -> Result<(), String> {
+    if plot.x.is_empty() {
+        return Err("there are no points (x is empty)".to_string());
+    }
+    check_length("y", plot.y, plot.x.len(), "x")?;
+    check_log_axis("x", plot.x, plot.log_x)
 }
