@@ -62,6 +62,10 @@ pub enum Error {
     #[error(transparent)]
     Plot(#[from] PlotError),
 
+    /// An ensemble or design setting out of range (the message names the key).
+    #[error(transparent)]
+    Ensemble(#[from] crate::ensemble::EnsembleError),
+
     #[error(transparent)]
     Gpu(#[from] GpuError),
 

@@ -215,8 +215,7 @@ pub(super) fn validate_sweep(
         if targets.is_empty() {
             return Ok(None);
         }
-        let design = Design::new(DesignKind::Grid, names, axes, None, ensemble.seed)
-            .map_err(|e| Error::invalid("batch", "[batch]", e.to_string(), "see the scene reference"))?;
+        let design = Design::new("batch", DesignKind::Grid, names, axes, None, ensemble.seed)?;
         return Ok(Some(SweepSpec {
             design,
             targets,
@@ -362,9 +361,13 @@ pub(super) fn validate_sweep(
             ));
         }
     }
-    let design = Design::new(kind, names, axes, points, seed).map_err(|e| {
-        Error::invalid("sweep", "[sweep]", e.to_string(), "see the scene reference")
-    })?;
+    if ensemble.store_members && targets.contains(&SweepTarget::Particles) {
+        return Err(Error::missing(
+            "ensemble.store_members",
+            "per-member arrays of a chunk share one N; with particles swept, use members.csv and the statistics instead",
+        ));
+    }
+    let design = Design::new("sweep", kind, names, axes, points, seed)?;
     Ok(Some(SweepSpec {
         design,
         targets,
