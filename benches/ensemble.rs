@@ -65,6 +65,7 @@ fn ensemble(c: &mut Criterion) {
             shard: (0, 1),
             resume: false,
             force: false,
+            allow_large: false,
         };
         let mut shares = Vec::new();
         group.bench_function(label, |b| {

@@ -48,7 +48,7 @@ enum Command {
         /// Replace an --out directory that holds files that are not a roughlub run.
         #[arg(long)]
         force: bool,
-        /// Single runs: write outputs larger than 21.5 GB (refused otherwise).
+        /// Write outputs larger than 21.5 GB, or sweep more than 100000 points (refused otherwise).
         #[arg(long)]
         allow_large: bool,
     },
@@ -144,6 +144,7 @@ fn main() -> ExitCode {
                         shard,
                         resume,
                         force,
+                        allow_large,
                     },
                 )?;
                 report_study(&summary, quiet);

@@ -188,7 +188,9 @@ pub(super) fn solve_chunk(
         while j < count && inputs[j].point == p {
             j += 1;
         }
-        let stats = state.point_mut(p, header)?;
+        let setup = members.setup(p)?;
+        let u_range = super::files::band_u_range(&setup.spec, &setup.chain);
+        let stats = state.point_mut(p, header, u_range)?;
         for k in 0..t_count {
             for (m, observed) in recorded[i..j].iter().enumerate() {
                 if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(k)) {
@@ -222,6 +224,7 @@ pub(super) fn solve_chunk(
                 continue;
             }
             stats.completed += 1;
+            stats.peak_density.push(peak[m].0);
             if first_hit[m].is_nan() {
                 stats.never_hit += 1;
             } else {

@@ -34,6 +34,11 @@ pub struct StudyHeader {
     pub points: Vec<Vec<f64>>,
     /// Members per point (member m belongs to point m div members_per_point).
     pub members_per_point: u64,
+    /// "grid", "random", "latin_hypercube" or "sobol" ("grid" without a sweep).
+    pub sweep_design: String,
+    /// Per swept key, whether its values are spread on a log scale (a range with scale = "log",
+    /// or a list of positive values spanning more than a decade).
+    pub sweep_log_scale: Vec<bool>,
     pub field_ranges: BTreeMap<String, (f64, f64)>,
     pub bins: usize,
     /// Where this run writes (per-member arrays go to `<out_dir>/members/`).
@@ -271,16 +276,7 @@ pub(super) fn header_for(
 ) -> StudyHeader {
     let total = members.total();
     let range = shard_range(total, shard);
-    let u_max = members
-        .first
-        .chain
-        .velocities
-        .iter()
-        .fold(0.0f64, |m, u| m.max(u.abs()));
-    let u_range = spec.u_range.map(|[a, b]| (a, b)).unwrap_or_else(|| {
-        let u = (2.0 * u_max * (1.0 + spec.velocity_amplitude_spread * 4.0)).max(1e-3);
-        (-u, u)
-    });
+    let u_range = band_u_range(&members.first.spec, &members.first.chain);
     let field_ranges: BTreeMap<String, (f64, f64)> = [
         ("rho".to_string(), (0.0, 1.0)),
         ("rho_star".to_string(), (0.0, 1.0)),
@@ -309,12 +305,45 @@ pub(super) fn header_for(
             .map(|p| scene.point_values(p).into_iter().map(|(_, v)| v).collect())
             .collect(),
         members_per_point: members.per_point,
+        sweep_design: scene
+            .sweep
+            .as_ref()
+            .map_or("grid", |s| s.design.kind().name())
+            .to_string(),
+        sweep_log_scale: scene
+            .sweep
+            .as_ref()
+            .map(|s| s.design.axes().iter().map(log_scaled).collect())
+            .unwrap_or_default(),
         field_ranges,
         bins: spec.bins,
         out_dir: out_dir.display().to_string(),
         backend: engine.backend,
         precision: engine.precision,
         input_files: BTreeMap::new(),
+    }
+}
+
+/// The velocity range of the u band of a sweep point (`ensemble.u_range`, or twice the largest
+/// initial speed of the point's chain, widened by the amplitude spread): each point has its own,
+/// so that a point's statistics equal those of a study of that point alone.
+pub(super) fn band_u_range(spec: &EnsembleSpec, chain: &crate::model::chain::Chain) -> (f64, f64) {
+    let u_max = chain.velocities.iter().fold(0.0f64, |m, u| m.max(u.abs()));
+    spec.u_range.map(|[a, b]| (a, b)).unwrap_or_else(|| {
+        let u = (2.0 * u_max * (1.0 + spec.velocity_amplitude_spread * 4.0)).max(1e-3);
+        (-u, u)
+    })
+}
+
+/// Whether an axis is best drawn on a log scale.
+fn log_scaled(axis: &crate::ensemble::Axis) -> bool {
+    match axis {
+        crate::ensemble::Axis::Range { scale, .. } => *scale == crate::ensemble::Scale::Log,
+        crate::ensemble::Axis::Values(v) => {
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            lo > 0.0 && hi / lo > 10.0
+        }
     }
 }
 

@@ -78,6 +78,8 @@ pub struct StudyOptions {
     pub resume: bool,
     /// Replace an output directory that holds files but no roughlub run.
     pub force: bool,
+    /// Accept more sweep points than [`MAX_SWEEP_POINTS`](crate::scene::MAX_SWEEP_POINTS).
+    pub allow_large: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -141,6 +143,18 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             format!("{k}/{n}"),
             "shard K of N, K counted from 0",
             "0 <= K < N",
+        ));
+    }
+    let points = scene.sweep_points();
+    if points > crate::scene::MAX_SWEEP_POINTS && !options.allow_large {
+        return Err(Error::invalid(
+            "sweep.points",
+            points,
+            "every sweep point keeps its own statistics (in memory, partial.json and stats/)",
+            format!(
+                "at most {} points, or --allow-large",
+                crate::scene::MAX_SWEEP_POINTS
+            ),
         ));
     }
     let members = EnsembleMembers::new(scene, spec)?;

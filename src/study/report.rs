@@ -99,6 +99,21 @@ pub(super) fn finalize(
         first_hit_q.extend(qs.iter().map(|&q| fh.quantile(q).unwrap_or(f64::NAN)));
     }
     write_npy(stats.join("first_hit.npy"), &[p_count, 6], &first_hit)?;
+    let mut peak = Vec::with_capacity(points.len() * 5);
+    let mut peak_q = Vec::with_capacity(points.len() * qs.len());
+    for &p in &points {
+        let s = &point(p).peak_density;
+        peak.extend([
+            s.stats().count() as f64,
+            s.stats().mean(),
+            s.stats().variance(),
+            s.stats().min(),
+            s.stats().max(),
+        ]);
+        peak_q.extend(qs.iter().map(|&q| s.quantile(q).unwrap_or(f64::NAN)));
+    }
+    write_npy(stats.join("peak_density.npy"), &[p_count, 5], &peak)?;
+    write_npy(stats.join("peak_density_quantiles.npy"), &[p_count, nq], &peak_q)?;
     write_npy(stats.join("first_hit_quantiles.npy"), &[p_count, nq], &first_hit_q)?;
     for name in FIELDS {
         let mut mean: Vec<f64> = Vec::new();
@@ -127,12 +142,151 @@ pub(super) fn finalize(
         if p_count == 1 {
             write_point_plots(&plots_dir, "", header, point(0))?;
         } else {
+            write_response_plots(dir, &plots_dir, header, state)?;
             for &p in points.iter().take(MAX_POINT_PLOTS) {
                 if state.points.contains_key(&p) {
                     write_point_plots(&plots_dir, &format!("point{p}_"), header, point(p))?;
                 }
             }
         }
+    }
+    Ok(())
+}
+
+/// The per-member responses drawn against the swept keys: (file stem, axis label, members.csv
+/// column, the point's summary of it).
+type Response = (&'static str, &'static str, &'static str, fn(&PointStats) -> &ScalarSummary);
+const RESPONSES: [Response; 2] = [
+    (
+        "peak_density",
+        "peak density (largest max density over the outputs)",
+        "peak_density",
+        |s| &s.peak_density,
+    ),
+    (
+        "first_hit",
+        "first time the max density reaches the threshold",
+        "first_hit_time",
+        |s| &s.first_hit,
+    ),
+];
+
+/// How the flow responds to the swept keys: for a grid over one key, each response's mean and
+/// quantile band against it (`{response}_vs_{key}.png`); over two keys, a heat map of the mean
+/// (`{response}_map.png`); for sampled designs, every member's response against each key
+/// (`{response}_vs_{key}.png`, read back from members.csv). Grids over three or more keys get
+/// no response plot (the statistics and points.csv hold them).
+fn write_response_plots(
+    dir: &Path,
+    plots: &Path,
+    header: &StudyHeader,
+    state: &StudyState,
+) -> Result<()> {
+    let names = &header.sweep_names;
+    let (q_lo, q_hi) = (
+        *header.quantiles.first().unwrap_or(&0.05),
+        *header.quantiles.last().unwrap_or(&0.95),
+    );
+    let band_label = format!("{:.0}%-{:.0}% of members", 100.0 * q_lo, 100.0 * q_hi);
+    let log = |d: usize| header.sweep_log_scale.get(d).copied().unwrap_or(false);
+    if header.sweep_design != "grid" {
+        let csv_path = dir.join("members.csv");
+        let mut reader = csv::Reader::from_path(&csv_path).map_err(|e| Error::Output {
+            path: csv_path.clone(),
+            message: e.to_string(),
+        })?;
+        let head = reader.headers().cloned().unwrap_or_default();
+        let rows: Vec<csv::StringRecord> = reader.records().filter_map(|r| r.ok()).collect();
+        let column = |name: &str| -> Vec<f64> {
+            match head.iter().position(|h| h == name) {
+                Some(c) => rows
+                    .iter()
+                    .map(|r| r.get(c).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN))
+                    .collect(),
+                None => Vec::new(),
+            }
+        };
+        for (d, name) in names.iter().enumerate() {
+            let x = column(name);
+            for (stem, label, col, _) in RESPONSES {
+                let y = column(col);
+                crate::plot::plot_scatter(
+                    &plots.join(format!("{stem}_vs_{name}.png")),
+                    &crate::plot::ScatterPlot {
+                        title: &format!("{}: {label} against {name}", header.scene_name),
+                        x_label: name,
+                        y_label: label,
+                        x: &x,
+                        y: &y,
+                        log_x: log(d),
+                    },
+                )?;
+            }
+        }
+        return Ok(());
+    }
+    let empty = PointStats::for_header(header)?;
+    let point = |p: usize| state.points.get(&(p as u64)).unwrap_or(&empty);
+    match names.len() {
+        1 => {
+            let x: Vec<f64> = header.points.iter().map(|v| v[0]).collect();
+            for (stem, label, _, summary) in RESPONSES {
+                let of = |f: &dyn Fn(&ScalarSummary) -> f64| -> Vec<f64> {
+                    (0..x.len()).map(|p| f(summary(point(p)))).collect()
+                };
+                crate::plot::plot_response(
+                    &plots.join(format!("{stem}_vs_{}.png", names[0])),
+                    &crate::plot::ResponsePlot {
+                        title: &format!("{}: {label}", header.scene_name),
+                        x_label: &names[0],
+                        y_label: label,
+                        x: &x,
+                        mean: &of(&|s| s.stats().mean()),
+                        lower: &of(&|s| s.quantile(q_lo).unwrap_or(f64::NAN)),
+                        upper: &of(&|s| s.quantile(q_hi).unwrap_or(f64::NAN)),
+                        band_label: &band_label,
+                        log_x: log(0),
+                    },
+                )?;
+            }
+        }
+        2 => {
+            // The first key varies slowest: point p = i0 * n1 + i1.
+            let distinct = |d: usize| {
+                let mut v: Vec<f64> = Vec::new();
+                for p in &header.points {
+                    if !v.contains(&p[d]) {
+                        v.push(p[d]);
+                    }
+                }
+                v
+            };
+            let (ys, xs) = (distinct(0), distinct(1));
+            for (stem, label, _, summary) in RESPONSES {
+                let values: Vec<Vec<f64>> = (0..ys.len())
+                    .map(|j| {
+                        (0..xs.len())
+                            .map(|i| summary(point(j * xs.len() + i)).stats().mean())
+                            .collect()
+                    })
+                    .collect();
+                crate::plot::plot_heatmap(
+                    &plots.join(format!("{stem}_map.png")),
+                    &crate::plot::HeatmapPlot {
+                        title: &format!("{}: mean {label}", header.scene_name),
+                        x_label: &names[1],
+                        y_label: &names[0],
+                        value_label: label,
+                        xs: &xs,
+                        ys: &ys,
+                        values: &values,
+                        log_x: log(1),
+                        log_y: log(0),
+                    },
+                )?;
+            }
+        }
+        _ => {}
     }
     Ok(())
 }

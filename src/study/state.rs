@@ -34,6 +34,8 @@ pub struct PointStats {
     /// First output time at which max density reaches the threshold.
     pub first_hit: ScalarSummary,
     pub never_hit: u64,
+    /// Each member's peak density (its largest max density over the output times).
+    pub peak_density: ScalarSummary,
     /// Per field, one band per output time.
     pub fields: BTreeMap<String, Vec<FieldBand>>,
 }
@@ -42,12 +44,21 @@ impl PointStats {
     /// The empty statistics of one point of the study `header` describes (its times, grid,
     /// field ranges and bins).
     pub fn for_header(header: &StudyHeader) -> Result<PointStats> {
+        PointStats::with_u_range(header, header.field_ranges["u"])
+    }
+
+    /// As [`for_header`](Self::for_header), with the point's own velocity range of the u band.
+    pub fn with_u_range(header: &StudyHeader, u_range: (f64, f64)) -> Result<PointStats> {
         let times = header.times.len();
         let summary =
             || ScalarSummary::new(SCALAR_ALPHA).expect("SCALAR_ALPHA is a valid accuracy");
         let mut fields = BTreeMap::new();
         for f in FIELDS {
-            let (lo, hi) = header.field_ranges[f];
+            let (lo, hi) = if f == "u" {
+                u_range
+            } else {
+                header.field_ranges[f]
+            };
             let band = FieldBand::new(header.x.len(), lo, hi, header.bins).map_err(|e| {
                 Error::invalid(
                     format!("range of the {f} band"),
@@ -67,6 +78,7 @@ impl PointStats {
                 .collect(),
             first_hit: summary(),
             never_hit: 0,
+            peak_density: summary(),
             fields,
         })
     }
@@ -87,6 +99,9 @@ impl PointStats {
             .merge(&other.first_hit)
             .map_err(|e| e.to_string())?;
         self.never_hit += other.never_hit;
+        self.peak_density
+            .merge(&other.peak_density)
+            .map_err(|e| e.to_string())?;
         for (name, per_time) in &other.fields {
             let mine = self
                 .fields
@@ -114,10 +129,16 @@ impl StudyState {
         }
     }
 
-    /// The statistics of point `p`, created empty for `header` on first use.
-    pub fn point_mut(&mut self, p: u64, header: &StudyHeader) -> Result<&mut PointStats> {
+    /// The statistics of point `p`, created empty for `header` (and the point's velocity range
+    /// of the u band) on first use.
+    pub fn point_mut(
+        &mut self,
+        p: u64,
+        header: &StudyHeader,
+        u_range: (f64, f64),
+    ) -> Result<&mut PointStats> {
         if !self.points.contains_key(&p) {
-            self.points.insert(p, PointStats::for_header(header)?);
+            self.points.insert(p, PointStats::with_u_range(header, u_range)?);
         }
         Ok(self.points.get_mut(&p).expect("inserted"))
     }
