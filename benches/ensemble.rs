@@ -1,7 +1,9 @@
 //! Members per second of an ensemble study: 10^4 members at N = 200 to t = 0.2 (lognormal
-//! roughness, spread 0.3, case-1 data, order 1, dt = 1e-3, 3 output times, grid 100), on the CPU
-//! and on the GPU path where an adapter exists, with the statistics' share of the wall time
-//! (printed; it must stay under 10 %).
+//! roughness, spread 0.3, case-1 data, order 1, dt = 1e-3, 3 output times, grid 100), and of a
+//! parameter study of 10^4 members over 16 sweep points (a 4 x 4 grid of mu and the velocity
+//! amplitude parameter A, 625 members each, otherwise the same scene), on the CPU and on the GPU
+//! path where an adapter exists, with the statistics' share of the wall time (printed; it must
+//! stay under 10 %).
 
 use std::time::Duration;
 
@@ -11,17 +13,25 @@ use {roughlub::backend::Backend, roughlub::scene::Scene};
 
 const MEMBERS: u64 = 10_000;
 
-fn scene() -> Scene {
+const SWEEP: &str = r#"
+[sweep]
+mu = [0.005, 0.01, 0.02, 0.04]
+A = [0.3, 0.4, 0.5, 0.6]
+"#;
+
+fn scene(members: u64, sweep: &str) -> Scene {
     let text = format!(
         r#"
 name = "bench_ensemble"
+[parameters]
+A = 0.5
 [model]
 particles = 200
 mu = 0.01
 gamma = 1.0
 [initial]
 rho = "0.7"
-velocity = "0.5*sin(2*pi*x)"
+velocity = "A*sin(2*pi*x)"
 rho_star = "0.7"
 [time]
 end = 0.2
@@ -31,19 +41,27 @@ dt = 1e-3
 grid = 100
 plots = false
 [ensemble]
-members = {MEMBERS}
+members = {members}
 seed = 1
 chunk = 1000
 roughness = {{ kind = "lognormal", spread = 0.3 }}
-"#
+{sweep}"#
     );
     Scene::from_toml(&text, std::path::Path::new("bench_ensemble.toml"))
         .expect("bench scene is valid")
 }
 
 fn ensemble(c: &mut Criterion) {
-    let scene = scene();
-    let mut group = c.benchmark_group("ensemble_1e4_members_N200_t0.2");
+    study(c, "ensemble_1e4_members_N200_t0.2", &scene(MEMBERS, ""));
+    study(
+        c,
+        "sweep_1e4_members_16_points_N200_t0.2",
+        &scene(MEMBERS / 16, SWEEP),
+    );
+}
+
+fn study(c: &mut Criterion, name: &str, scene: &Scene) {
+    let mut group = c.benchmark_group(name);
     group
         .sample_size(10)
         .measurement_time(Duration::from_secs(30))
@@ -70,7 +88,7 @@ fn ensemble(c: &mut Criterion) {
         let mut shares = Vec::new();
         group.bench_function(label, |b| {
             b.iter(|| {
-                let s = run_study(&scene, &options).expect("study runs");
+                let s = run_study(scene, &options).expect("study runs");
                 shares.push(s.statistics_seconds / s.wall_seconds);
             })
         });
