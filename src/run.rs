@@ -123,9 +123,17 @@ impl FieldStreams {
 }
 
 /// Per-member profiles over time, kept for the plots of the first members (the plots need the
-/// fields even when they are not written).
+/// fields even when they are not written): at the profile plot's times, and at the x–t map's.
 #[derive(Default)]
 struct PlottedProfiles {
+    rho: Vec<Vec<f64>>,
+    u: Vec<Vec<f64>>,
+    rho_star: Vec<Vec<f64>>,
+    map: PlottedMaps,
+}
+
+#[derive(Default)]
+struct PlottedMaps {
     rho: Vec<Vec<f64>>,
     u: Vec<Vec<f64>>,
     rho_star: Vec<Vec<f64>>,
@@ -143,6 +151,19 @@ impl PlottedProfiles {
         self.rho.push(or_nan(&s.rho));
         self.u.push(or_nan(&s.u));
         self.rho_star.push(or_nan(&s.rho_star));
+    }
+
+    fn record_map(&mut self, s: &Snapshot, grid: usize) {
+        let or_nan = |v: &Vec<f64>| {
+            if v.is_empty() {
+                vec![f64::NAN; grid]
+            } else {
+                v.clone()
+            }
+        };
+        self.map.rho.push(or_nan(&s.rho));
+        self.map.u.push(or_nan(&s.u));
+        self.map.rho_star.push(or_nan(&s.rho_star));
     }
 }
 
@@ -216,10 +237,15 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let mut profiles: Vec<PlottedProfiles> = (0..plotted).map(|_| Default::default()).collect();
 
     let drawn_times = plotted_times(plan.output_times.len());
+    let map_times = crate::plot::thinned_indices(
+        plan.output_times.len(),
+        crate::plot::MAX_XT_CELLS.0,
+    );
     let mut time_index = 0;
     let progress = ProgressReporter::new(b * t_count, "member-intervals", options.quiet);
     while let Some(snaps) = solver.next_output(&|n| progress.inc(n))? {
         let drawn = drawn_times.binary_search(&time_index).is_ok();
+        let mapped = map_times.binary_search(&time_index).is_ok();
         time_index += 1;
         for (m, s) in snaps.iter().enumerate() {
             streams.push(s)?;
@@ -230,6 +256,9 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
             max_density.push(s.max_density);
             if m < plotted && drawn {
                 profiles[m].record(s, plan.grid);
+            }
+            if m < plotted && mapped {
+                profiles[m].record_map(s, plan.grid);
             }
         }
     }
@@ -287,6 +316,23 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
                 },
             )?;
             files.push(path);
+            let map_t: Vec<f64> = map_times.iter().map(|&k| plan.output_times[k]).collect();
+            let mut maps = vec![("rho", &p.map.rho), ("u", &p.map.u)];
+            if plan.repulsion {
+                maps.push(("rho_star", &p.map.rho_star));
+            }
+            for (field, rows) in maps {
+                let path = plot_dir.join(format!("member_{m:04}_{field}_xt.png"));
+                crate::plot::plot_xt(
+                    &path,
+                    &format!("{title}: {field}(x, t)"),
+                    field,
+                    solver.grid(),
+                    &map_t,
+                    rows,
+                )?;
+                files.push(path);
+            }
         }
         let series: Vec<(String, Vec<f64>)> = (0..members.min(16))
             .map(|m| {

@@ -541,3 +541,60 @@ fn histogram_errors() {
     assert!(e.message.contains("too close"), "{e}");
     assert!(!path.exists());
 }
+
+/// The PNG's RGB pixels (8-bit) and width.
+fn png_pixels(path: &Path) -> (Vec<u8>, usize) {
+    let decoder = png::Decoder::new(std::fs::File::open(path).unwrap());
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgb, "{path:?}");
+    buf.truncate(info.buffer_size());
+    (buf, info.width as usize)
+}
+
+/// Green channel at a fraction (fx, fy) of the picture (fy from the top).
+fn green_at(pixels: &[u8], width: usize, fx: f64, fy: f64) -> u8 {
+    let height = pixels.len() / (3 * width);
+    let (x, y) = (
+        (fx * width as f64) as usize,
+        (fy * height as f64) as usize,
+    );
+    pixels[3 * (y * width + x) + 1]
+}
+
+/// x–t maps: x across, t upwards, colours along the viridis-like map whose green channel grows
+/// with the value (dark purple (68, 1, 84) at the minimum, yellow-green at the maximum). A field
+/// growing in x is brighter on the right; one growing in t is brighter at the top; the thinned
+/// picture of a long run keeps the first and last times.
+#[test]
+fn xt_maps_put_x_across_and_t_upwards() {
+    let dir = tempfile::tempdir().unwrap();
+    let x: Vec<f64> = (0..101).map(|i| i as f64 / 100.0).collect();
+    let times: Vec<f64> = (0..1001).map(|k| k as f64 * 1e-3).collect();
+    let in_x: Vec<Vec<f64>> = times.iter().map(|_| x.clone()).collect();
+    let in_t: Vec<Vec<f64>> = times.iter().map(|&t| vec![t; x.len()]).collect();
+    let px = dir.path().join("xt_x.png");
+    let pt = dir.path().join("xt_t.png");
+    roughlub::plot::plot_xt(&px, "rises in x", "rho", &x, &times, &in_x).unwrap();
+    roughlub::plot::plot_xt(&pt, "rises in t", "rho", &x, &times, &in_t).unwrap();
+    assert_eq!(png_size(&px), (1000, 800));
+    keep(&px, "xt_x.png");
+    keep(&pt, "xt_t.png");
+    let (img, w) = png_pixels(&px);
+    let (left, right) = (green_at(&img, w, 0.15, 0.5), green_at(&img, w, 0.75, 0.5));
+    assert!(
+        right as i32 - left as i32 > 80,
+        "a field rising in x: green {left} on the left, {right} on the right"
+    );
+    let (img, w) = png_pixels(&pt);
+    let (bottom, top) = (green_at(&img, w, 0.45, 0.85), green_at(&img, w, 0.45, 0.15));
+    assert!(
+        top as i32 - bottom as i32 > 80,
+        "a field rising in t: green {bottom} at the bottom, {top} at the top"
+    );
+    let thinned = roughlub::plot::thinned_indices(1001, roughlub::plot::MAX_XT_CELLS.0);
+    assert_eq!(thinned.len(), 400);
+    assert_eq!((thinned[0], *thinned.last().unwrap()), (0, 1000));
+    assert!(thinned.windows(2).all(|w| w[1] > w[0]));
+}

@@ -227,6 +227,59 @@ pub fn plot_heatmap(path: &Path, plot: &HeatmapPlot) -> Result<(), PlotError> {
     )
 }
 
+/// Largest number of rows (times) and columns (grid points) of an x–t map: more cells than the
+/// picture has pixels only cost drawing time.
+pub const MAX_XT_CELLS: (usize, usize) = (400, 250);
+
+/// Evenly spaced indices into 0..count, at most `max`, first and last included.
+pub fn thinned_indices(count: usize, max: usize) -> Vec<usize> {
+    if count <= max || max < 2 {
+        return (0..count).collect();
+    }
+    let mut v: Vec<usize> = (0..max).map(|k| k * (count - 1) / (max - 1)).collect();
+    v.dedup();
+    v
+}
+
+/// A field's x–t map (space–time picture): `rows[k]` is the field on the grid `x` at
+/// `times[k]`, drawn as a heat map with x across and t upwards (thinned to [`MAX_XT_CELLS`]).
+/// How a researcher reads a congestion event at a glance.
+pub fn plot_xt(
+    path: &Path,
+    title: &str,
+    value_label: &str,
+    x: &[f64],
+    times: &[f64],
+    rows: &[Vec<f64>],
+) -> Result<(), PlotError> {
+    let ti = thinned_indices(times.len(), MAX_XT_CELLS.0);
+    let xi = thinned_indices(x.len(), MAX_XT_CELLS.1);
+    let xs: Vec<f64> = xi.iter().map(|&i| x[i]).collect();
+    let ys: Vec<f64> = ti.iter().map(|&k| times[k]).collect();
+    let values: Vec<Vec<f64>> = ti
+        .iter()
+        .map(|&k| {
+            xi.iter()
+                .map(|&i| rows.get(k).and_then(|r| r.get(i)).copied().unwrap_or(f64::NAN))
+                .collect()
+        })
+        .collect();
+    plot_heatmap(
+        path,
+        &HeatmapPlot {
+            title,
+            x_label: "x",
+            y_label: "t",
+            value_label,
+            xs: &xs,
+            ys: &ys,
+            values: &values,
+            log_x: false,
+            log_y: false,
+        },
+    )
+}
+
 /// Draws one dot per member at (x, y), translucent so that overlaps show; the members that
 /// were skipped (non-finite x or y) are counted in a note.
 pub fn plot_scatter(path: &Path, plot: &ScatterPlot) -> Result<(), PlotError> {

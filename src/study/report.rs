@@ -403,6 +403,39 @@ fn write_point_plots(
             },
         )?;
     }
+    // Space–time pictures over all output times: the mean, and the width of the band between
+    // the first and last quantile levels.
+    for field in ["rho", "u"] {
+        let bands = &state.fields[field];
+        let mean: Vec<Vec<f64>> = bands.iter().map(|b| b.mean_row()).collect();
+        let mut width: Vec<Vec<f64>> = Vec::with_capacity(t);
+        for b in bands {
+            let lo = b.quantile_row(q_lo).map_err(|e| stats_error(plots, e))?;
+            let hi = b.quantile_row(q_hi).map_err(|e| stats_error(plots, e))?;
+            width.push(hi.iter().zip(&lo).map(|(h, l)| h - l).collect());
+        }
+        crate::plot::plot_xt(
+            &plots.join(format!("{prefix}{field}_xt_mean.png")),
+            &format!("{}: mean {field}(x, t) over {} members", header.scene_name, state.completed),
+            &format!("mean {field}"),
+            &header.x,
+            &header.times,
+            &mean,
+        )?;
+        crate::plot::plot_xt(
+            &plots.join(format!("{prefix}{field}_xt_band.png")),
+            &format!(
+                "{}: width of the {:.0}%-{:.0}% band of {field}(x, t)",
+                header.scene_name,
+                100.0 * q_lo,
+                100.0 * q_hi
+            ),
+            &format!("{field} band width"),
+            &header.x,
+            &header.times,
+            &width,
+        )?;
+    }
     let last = t - 1;
     let hist = state.scalars["max_density"][last]
         .range_histogram(SCALAR_BINS)
