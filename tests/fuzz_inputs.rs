@@ -1,4 +1,4 @@
-//! Fuzz-style robustness of the command line against bad input (issue 9): a few hundred mutants
+//! Fuzz-style robustness of the command line against bad input (issue 9): several hundred mutants
 //! of the test scenes and of a particle file (random byte edits, deleted and repeated lines, and
 //! numbers replaced by extreme or ill-typed values) are run through `roughlub run`.
 //!
@@ -314,4 +314,10 @@ fn mutated_particle_files_are_refused_cleanly_or_run() {
 fn mutated_ensemble_scenes_are_refused_cleanly_or_run() {
     let tally = fuzz("study_basic.toml", "study_basic.toml", &[], MUTANTS_PER_BASE, SEED ^ 3);
     assert_mixed(&tally, "study_basic.toml");
+}
+
+#[test]
+fn mutated_parameter_studies_are_refused_cleanly_or_run() {
+    let tally = fuzz("study_sweep.toml", "study_sweep.toml", &[], MUTANTS_PER_BASE, SEED ^ 4);
+    assert_mixed(&tally, "study_sweep.toml");
 }
