@@ -5,6 +5,7 @@
 //! [`backend::BatchSolver`]) → observables and [`stats`] → [`output`] directory, orchestrated by
 //! [`run`] (one batch) and [`study`] (ensembles).
 
+pub mod accuracy;
 pub mod backend;
 pub mod ensemble;
 pub mod error;

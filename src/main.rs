@@ -52,6 +52,31 @@ enum Command {
         #[arg(long)]
         allow_large: bool,
     },
+    /// Measure the speed/accuracy trade on a scene: a reference, a ladder of settings (orders x
+    /// tolerances and fixed steps), work_precision.csv and .png, and the cheapest setting that
+    /// meets --target. Uses the scene's first member(s).
+    Accuracy {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// The error to reach (largest of: relative gap error, relative velocity error, L1 of rho).
+        #[arg(long, default_value_t = 1e-6)]
+        target: f64,
+        /// Output directory [default: out/<scene name>_accuracy].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// How many of the scene's first members to measure.
+        #[arg(long, default_value_t = 1)]
+        members: usize,
+        /// Backends and precisions of the ladder: a comma list of cpu, gpu (f64), gpu-f32.
+        #[arg(long, default_value = "cpu")]
+        backends: String,
+        /// No progress lines.
+        #[arg(long)]
+        quiet: bool,
+        /// Replace an --out directory that holds files that are not a roughlub run.
+        #[arg(long)]
+        force: bool,
+    },
     /// Merge the partial statistics of ensemble shards into the statistics of the whole study.
     Merge {
         /// Shard output directories.
@@ -70,6 +95,23 @@ enum Command {
         #[arg(long)]
         force: bool,
     },
+}
+
+/// `--backends cpu,gpu,gpu-f32`.
+fn parse_backends(text: &str) -> roughlub::Result<Vec<(Backend, Precision)>> {
+    text.split(',')
+        .map(|b| match b.trim() {
+            "cpu" | "cpu-f64" => Ok((Backend::Cpu, Precision::F64)),
+            "gpu" | "gpu-f64" => Ok((Backend::Gpu, Precision::F64)),
+            "gpu-f32" => Ok((Backend::Gpu, Precision::F32)),
+            other => Err(Error::invalid(
+                "--backends",
+                format!("\"{other}\""),
+                "a backend and precision of the ladder",
+                "a comma list of cpu, gpu (f64), gpu-f32",
+            )),
+        })
+        .collect()
 }
 
 fn parse_shard(text: &str) -> roughlub::Result<(u64, u64)> {
@@ -186,6 +228,32 @@ fn main() -> ExitCode {
                 );
             }
             Ok(())
+        })(),
+        Command::Accuracy {
+            scene,
+            target,
+            out,
+            members,
+            backends,
+            quiet,
+            force,
+        } => (|| {
+            let scene = Scene::from_file(&scene)?;
+            let backends = parse_backends(&backends)?;
+            let out_dir =
+                out.unwrap_or_else(|| PathBuf::from("out").join(format!("{}_accuracy", scene.name)));
+            roughlub::accuracy::run_accuracy(
+                &scene,
+                &roughlub::accuracy::AccuracyOptions {
+                    out_dir,
+                    target,
+                    members,
+                    backends,
+                    quiet,
+                    force,
+                },
+            )
+            .map(|_| ())
         })(),
         Command::Merge {
             dirs,

@@ -28,6 +28,7 @@ mod ranges;
 mod response;
 mod series;
 mod style;
+mod work_precision;
 
 pub use style::register_fonts;
 
@@ -224,6 +225,28 @@ pub fn plot_heatmap(path: &Path, plot: &HeatmapPlot) -> Result<(), PlotError> {
         path,
         || check_heatmap(plot),
         || response::draw_heatmap(path, plot),
+    )
+}
+
+/// The work–precision figure: per scheme, its runs' (wall time, error) pairs joined by a line,
+/// on log–log axes, with the target error as a dashed line. Non-positive or non-finite values
+/// are skipped.
+pub fn plot_work_precision(
+    path: &Path,
+    title: &str,
+    lines: &[(String, Vec<(f64, f64)>)],
+    target: Option<f64>,
+) -> Result<(), PlotError> {
+    checked_draw(
+        path,
+        || {
+            if lines.is_empty() || lines.iter().all(|(_, p)| p.is_empty()) {
+                Err("no runs to draw".to_string())
+            } else {
+                Ok(())
+            }
+        },
+        || work_precision::draw(path, title, lines, target),
     )
 }
 

@@ -1,0 +1,524 @@
+//! `roughlub accuracy`: the speed/accuracy trade measured on the user's own scene.
+//!
+//! A reference solution (order 2, adaptive, a tight tolerance, checked against a run ten times
+//! tighter), then a ladder of settings (orders × adaptive tolerances and fixed steps, on each
+//! backend and precision asked for), each run once on the scene's first members and compared
+//! with the reference at every output time. Written: `work_precision.csv` (one row per setting),
+//! `work_precision.png` (error against wall time, log–log, one line per order, stepping,
+//! backend and precision), the reference arrays, and `manifest.json`; printed: the cheapest
+//! setting that meets `--target`.
+//!
+//! The error of a run is the largest of three, over output times and members:
+//! - gaps: max_i |ln d_i − ln d_i,ref| (relative gap error, meaningful at any gap size);
+//! - velocities: max_i |u_i − u_i,ref| / max_i |u_i,ref|;
+//! - rho: the L1 norm on [0, 1] (grid mean) of rho − rho_ref.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::backend::{select, Backend, Precision};
+use crate::ensemble::members::EnsembleMembers;
+use crate::error::{Error, Result};
+use crate::model::chain::Chain;
+use crate::model::observables::Snapshot;
+use crate::model::params::{MemberParams, OutputFields, Stepping};
+use crate::model::plan::Plan;
+use crate::output::manifest::VERSION;
+use crate::output::{write_json_atomic, write_npy, StagedDir, MANIFEST};
+use crate::scene::Scene;
+
+/// Settings of `roughlub accuracy`.
+#[derive(Debug, Clone)]
+pub struct AccuracyOptions {
+    pub out_dir: PathBuf,
+    /// The error the user wants to reach.
+    pub target: f64,
+    /// How many of the scene's first members are solved (the error is the largest over them).
+    pub members: usize,
+    /// (backend, precision) pairs of the ladder; the reference is always CPU f64.
+    pub backends: Vec<(Backend, Precision)>,
+    pub quiet: bool,
+    pub force: bool,
+}
+
+/// One rung of the ladder.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Setting {
+    pub order: u8,
+    pub stepping: Stepping,
+    pub backend: Backend,
+    pub precision: Precision,
+}
+
+impl Setting {
+    /// e.g. "order 2, tolerance 1e-6, cpu f64".
+    pub fn label(&self) -> String {
+        let step = match self.stepping {
+            Stepping::Fixed { dt, .. } => format!("dt {dt:e}"),
+            Stepping::Adaptive { tolerance, .. } => format!("tolerance {tolerance:e}"),
+        };
+        format!(
+            "order {}, {step}, {} {}",
+            self.order,
+            backend_name(self.backend),
+            precision_name(self.precision)
+        )
+    }
+
+    /// The line of the work–precision figure it belongs to.
+    fn scheme(&self) -> String {
+        let kind = match self.stepping {
+            Stepping::Fixed { .. } => "fixed dt",
+            Stepping::Adaptive { .. } => "adaptive",
+        };
+        format!(
+            "order {} {kind}, {} {}",
+            self.order,
+            backend_name(self.backend),
+            precision_name(self.precision)
+        )
+    }
+}
+
+fn backend_name(b: Backend) -> &'static str {
+    match b {
+        Backend::Cpu => "cpu",
+        Backend::Gpu => "gpu",
+        Backend::Auto => "auto",
+    }
+}
+
+fn precision_name(p: Precision) -> &'static str {
+    match p {
+        Precision::F64 => "f64",
+        Precision::F32 => "f32",
+    }
+}
+
+/// The errors of a run against the reference (see the module documentation).
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct Errors {
+    pub gaps: f64,
+    pub velocities: f64,
+    pub rho: f64,
+}
+
+impl Errors {
+    /// The error a setting is judged by: the largest of the three.
+    pub fn worst(&self) -> f64 {
+        self.gaps.max(self.velocities).max(self.rho)
+    }
+}
+
+/// One measured setting.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Measurement {
+    pub setting: Setting,
+    /// `None` when a member failed.
+    pub errors: Option<Errors>,
+    pub wall_seconds: f64,
+    pub steps_accepted: u64,
+    pub steps_rejected: u64,
+    pub particle_steps_per_second: f64,
+}
+
+/// What `roughlub accuracy` found.
+#[derive(Debug, Clone)]
+pub struct AccuracySummary {
+    pub out_dir: PathBuf,
+    pub measurements: Vec<Measurement>,
+    /// The reference's own error estimate (against the ten times tighter run).
+    pub reference_error: f64,
+    /// Index into `measurements` of the cheapest setting that meets the target.
+    pub recommended: Option<usize>,
+}
+
+struct Run {
+    /// Per output time, per member.
+    snapshots: Vec<Vec<Snapshot>>,
+    wall: f64,
+    accepted: u64,
+    rejected: u64,
+    failed: bool,
+}
+
+/// The members the trade is measured on: the scene's first `count` (members of an ensemble are
+/// built as the study builds them).
+fn first_members(scene: &Scene, count: usize) -> Result<(Scene, Vec<Chain>, Vec<MemberParams>)> {
+    if let Some(spec) = &scene.ensemble {
+        let members = EnsembleMembers::new(scene, spec)?;
+        let count = (count as u64).min(members.total()).max(1);
+        let mut chains = Vec::new();
+        let mut params = Vec::new();
+        for m in 0..count {
+            let inputs = members.member(m)?;
+            chains.push(inputs.chain);
+            params.push(inputs.params);
+        }
+        let scene = members.setup(0)?.scene.clone();
+        return Ok((scene, chains, params));
+    }
+    let chain = scene.initial_chain()?;
+    let params: Vec<MemberParams> = scene.member_parameters().into_iter().take(count.max(1)).collect();
+    Ok((scene.clone(), vec![chain; params.len()], params))
+}
+
+fn solve(base: &Plan, chains: &[Chain], setting: &Setting) -> Result<Run> {
+    let mut plan = base.clone();
+    plan.order = setting.order;
+    plan.stepping = setting.stepping;
+    let engine = select(setting.backend, setting.precision, &plan)?;
+    let started = Instant::now();
+    let mut solver = engine.solver(plan, chains.to_vec())?;
+    let mut snapshots = Vec::new();
+    while let Some(s) = solver.next_output(&|_| {})? {
+        snapshots.push(s);
+    }
+    let wall = started.elapsed().as_secs_f64();
+    let reports = solver.reports();
+    Ok(Run {
+        snapshots,
+        wall,
+        accepted: reports.iter().map(|r| r.steps_accepted).sum(),
+        rejected: reports.iter().map(|r| r.steps_rejected).sum(),
+        failed: reports
+            .iter()
+            .any(|r| r.status != crate::backend::MemberStatus::Ok),
+    })
+}
+
+/// The errors of `run` against `reference` (see the module documentation).
+pub fn errors(run: &[Vec<Snapshot>], reference: &[Vec<Snapshot>]) -> Errors {
+    let mut e = Errors {
+        gaps: 0.0,
+        velocities: 0.0,
+        rho: 0.0,
+    };
+    for (at, ref_at) in run.iter().zip(reference) {
+        for (s, r) in at.iter().zip(ref_at) {
+            for (&d, &dr) in s.gaps.iter().zip(&r.gaps) {
+                let diff = if d == dr { 0.0 } else { (d.ln() - dr.ln()).abs() };
+                e.gaps = e.gaps.max(if diff.is_nan() { f64::INFINITY } else { diff });
+            }
+            let scale = r.velocities.iter().fold(0.0f64, |m, u| m.max(u.abs()));
+            for (&u, &ur) in s.velocities.iter().zip(&r.velocities) {
+                let diff = (u - ur).abs() / scale.max(f64::MIN_POSITIVE);
+                e.velocities = e.velocities.max(if diff.is_nan() { f64::INFINITY } else { diff });
+            }
+            if !r.rho.is_empty() {
+                let l1 = s.rho.iter().zip(&r.rho).map(|(a, b)| (a - b).abs()).sum::<f64>()
+                    / r.rho.len() as f64;
+                e.rho = e.rho.max(if l1.is_nan() { f64::INFINITY } else { l1 });
+            }
+        }
+    }
+    e
+}
+
+/// The adaptive rungs: orders 1 and 2, tolerances 1e-2, 1e-3, ... down to a hundredth of the
+/// target (no tighter than ten times the reference's tolerance).
+fn adaptive_ladder(
+    scene: &Scene,
+    target: f64,
+    reference_tolerance: f64,
+    backends: &[(Backend, Precision)],
+) -> Vec<Setting> {
+    let mut out = Vec::new();
+    for &(backend, precision) in backends {
+        for order in [1u8, 2] {
+            for k in 2..=14 {
+                let tolerance = format!("1e-{k}").parse::<f64>().expect("a number");
+                if tolerance < (target / 100.0).max(reference_tolerance * 10.0) * 0.999 {
+                    break;
+                }
+                out.push(Setting {
+                    order,
+                    stepping: Stepping::Adaptive {
+                        tolerance,
+                        dt_initial: 1e-4 * scene.end,
+                        dt_min: scene.stepping.dt_min(),
+                    },
+                    backend,
+                    precision,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// The fixed-step rung k of an order: dt = end/25 · 2^-k. The ladder halves dt until the error
+/// is below a tenth of the target (or k = 16).
+fn fixed_setting(scene: &Scene, order: u8, k: u32, backend: Backend, precision: Precision) -> Setting {
+    let dt = scene.end / 25.0 / f64::from(1u32 << k);
+    Setting {
+        order,
+        stepping: Stepping::Fixed {
+            dt,
+            dt_min: scene.stepping.dt_min().min(dt * 1e-6),
+        },
+        backend,
+        precision,
+    }
+}
+
+const MAX_HALVINGS: u32 = 16;
+
+/// `roughlub accuracy`.
+pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<AccuracySummary> {
+    if !(options.target > 0.0 && options.target < 1.0) {
+        return Err(Error::invalid(
+            "--target",
+            options.target,
+            "the error to reach (relative gaps, relative velocities, L1 of rho)",
+            "0 < target < 1, e.g. 1e-6",
+        ));
+    }
+    if options.members == 0 || options.members > 4096 {
+        return Err(Error::invalid(
+            "--members",
+            options.members,
+            "how many of the scene's first members are measured",
+            "1 ..= 4096",
+        ));
+    }
+    let (scene, chains, params) = first_members(scene, options.members)?;
+    let mut base = Plan::new(&scene, &chains[0]);
+    base.members = params;
+    base.fields = OutputFields {
+        gaps: true,
+        velocities: true,
+        rho: true,
+        u: false,
+        rho_star: false,
+        energy: false,
+    };
+    let say = |line: String| {
+        if !options.quiet {
+            eprintln!("{line}");
+        }
+    };
+    say(format!(
+        "accuracy of {}: the scene's first {} member(s), N = {}, {} output times",
+        scene.name,
+        chains.len(),
+        base.particles,
+        base.output_times.len()
+    ));
+
+    // The reference, and its own check ten times tighter.
+    let reference_tolerance = (options.target * 1e-3).clamp(1e-11, 1e-8);
+    let reference_setting = |tolerance: f64| Setting {
+        order: 2,
+        stepping: Stepping::Adaptive {
+            tolerance,
+            dt_initial: 1e-6 * scene.end,
+            dt_min: scene.stepping.dt_min().min(1e-14 * scene.end),
+        },
+        backend: Backend::Cpu,
+        precision: Precision::F64,
+    };
+    let reference = solve(&base, &chains, &reference_setting(reference_tolerance))?;
+    let check = solve(&base, &chains, &reference_setting(reference_tolerance / 10.0))?;
+    if reference.failed || check.failed {
+        return Err(Error::missing(
+            "accuracy",
+            "the reference run (order 2, adaptive, tight tolerance) failed for a member: the scene itself does not run; see `roughlub run` for the reason",
+        ));
+    }
+    let reference_error = errors(&reference.snapshots, &check.snapshots).worst();
+    say(format!(
+        "reference: order 2, tolerance {reference_tolerance:e} ({} steps, {:.2} s); against tolerance {:e}: error {reference_error:.2e}",
+        reference.accepted,
+        reference.wall,
+        reference_tolerance / 10.0
+    ));
+    if reference_error > options.target / 10.0 {
+        eprintln!(
+            "warning: the reference is only accurate to {reference_error:.1e}, more than a tenth of the target {:e}: errors below about {reference_error:.0e} are not resolved",
+            options.target
+        );
+    }
+
+    let staged = StagedDir::begin(&options.out_dir, options.force)?;
+    let dir = staged.staging.clone();
+    let mut measurements = Vec::new();
+    let mut measure = |setting: Setting| -> Result<Option<f64>> {
+        let run = solve(&base, &chains, &setting)?;
+        let errors = (!run.failed).then(|| errors(&run.snapshots, &reference.snapshots));
+        let particle_steps = (run.accepted * base.particles as u64) as f64;
+        let m = Measurement {
+            setting,
+            errors,
+            wall_seconds: run.wall,
+            steps_accepted: run.accepted,
+            steps_rejected: run.rejected,
+            particle_steps_per_second: particle_steps / run.wall.max(1e-9),
+        };
+        say(format!(
+            "  {:<40} error {:>9}  {:>8.3} s  {:>8} steps",
+            setting.label(),
+            m.errors.map_or("failed".to_string(), |e| format!("{:.2e}", e.worst())),
+            m.wall_seconds,
+            m.steps_accepted
+        ));
+        measurements.push(m);
+        Ok(errors.map(|e| e.worst()))
+    };
+    for setting in adaptive_ladder(&scene, options.target, reference_tolerance, &options.backends) {
+        measure(setting)?;
+    }
+    for &(backend, precision) in &options.backends {
+        for order in [1u8, 2] {
+            for k in 0..=MAX_HALVINGS {
+                let error = measure(fixed_setting(&scene, order, k, backend, precision))?;
+                if error.is_some_and(|e| e <= options.target / 10.0) {
+                    break;
+                }
+            }
+        }
+    }
+    let recommended = measurements
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| m.errors.is_some_and(|e| e.worst() <= options.target))
+        .min_by(|a, b| a.1.wall_seconds.total_cmp(&b.1.wall_seconds))
+        .map(|(i, _)| i);
+
+    write_csv(&dir.join("work_precision.csv"), &measurements)?;
+    let mut lines: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    for m in &measurements {
+        let Some(e) = m.errors else { continue };
+        let scheme = m.setting.scheme();
+        match lines.iter_mut().find(|(s, _)| *s == scheme) {
+            Some((_, points)) => points.push((m.wall_seconds, e.worst())),
+            None => lines.push((scheme, vec![(m.wall_seconds, e.worst())])),
+        }
+    }
+    for (_, points) in &mut lines {
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    crate::plot::plot_work_precision(
+        &dir.join("work_precision.png"),
+        &format!("{}: error against wall time ({} member(s))", scene.name, chains.len()),
+        &lines,
+        Some(options.target),
+    )?;
+    write_reference(&dir, &base, &reference.snapshots)?;
+    write_json_atomic(
+        &dir.join(MANIFEST),
+        &serde_json::json!({
+            "roughlub_version": VERSION,
+            "kind": "accuracy",
+            "scene": { "name": scene.name, "text": scene.source_text },
+            "members": chains.len(),
+            "target": options.target,
+            "error_definition": "largest over output times and members of: max |ln d - ln d_ref| (gaps), max |u - u_ref| / max |u_ref| (velocities), grid mean of |rho - rho_ref| (L1 of rho)",
+            "reference": {
+                "setting": reference_setting(reference_tolerance),
+                "error_estimate": reference_error,
+                "steps": reference.accepted,
+            },
+            "measurements": measurements,
+            "recommended": recommended.map(|i| &measurements[i]),
+        }),
+    )?;
+    staged.commit()?;
+    match recommended {
+        Some(i) => {
+            let m = &measurements[i];
+            say(format!(
+                "cheapest setting that meets {:e}: {} (error {:.2e}, {:.3} s for {} member(s))",
+                options.target,
+                m.setting.label(),
+                m.errors.map_or(f64::NAN, |e| e.worst()),
+                m.wall_seconds,
+                chains.len()
+            ));
+        }
+        None => say(format!(
+            "no setting of the ladder meets {:e}; the best error was {:.2e}",
+            options.target,
+            measurements
+                .iter()
+                .filter_map(|m| m.errors.map(|e| e.worst()))
+                .fold(f64::INFINITY, f64::min)
+        )),
+    }
+    Ok(AccuracySummary {
+        out_dir: options.out_dir.clone(),
+        measurements,
+        reference_error,
+        recommended,
+    })
+}
+
+fn write_csv(path: &Path, measurements: &[Measurement]) -> Result<()> {
+    let err = |e: csv::Error| Error::Output {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let mut w = csv::Writer::from_path(path).map_err(err)?;
+    w.write_record([
+        "backend",
+        "precision",
+        "order",
+        "stepping",
+        "dt_or_tolerance",
+        "error",
+        "gap_error",
+        "velocity_error",
+        "rho_error",
+        "wall_seconds",
+        "steps_accepted",
+        "steps_rejected",
+        "particle_steps_per_second",
+        "status",
+    ])
+    .map_err(err)?;
+    for m in measurements {
+        let s = &m.setting;
+        let (kind, value) = match s.stepping {
+            Stepping::Fixed { dt, .. } => ("fixed", dt),
+            Stepping::Adaptive { tolerance, .. } => ("adaptive", tolerance),
+        };
+        let e = m.errors;
+        let num = |v: Option<f64>| v.map_or("NaN".to_string(), |v| format!("{v:e}"));
+        w.write_record([
+            backend_name(s.backend).to_string(),
+            precision_name(s.precision).to_string(),
+            s.order.to_string(),
+            kind.to_string(),
+            format!("{value:e}"),
+            num(e.map(|e| e.worst())),
+            num(e.map(|e| e.gaps)),
+            num(e.map(|e| e.velocities)),
+            num(e.map(|e| e.rho)),
+            format!("{:e}", m.wall_seconds),
+            m.steps_accepted.to_string(),
+            m.steps_rejected.to_string(),
+            format!("{:e}", m.particle_steps_per_second),
+            if e.is_some() { "ok" } else { "failed" }.to_string(),
+        ])
+        .map_err(err)?;
+    }
+    w.flush().map_err(|e| Error::io(path, e))
+}
+
+/// The reference's gaps, velocities and rho, [T, B, ...], for checking any later run by hand.
+fn write_reference(dir: &Path, plan: &Plan, snapshots: &[Vec<Snapshot>]) -> Result<()> {
+    let (t, b) = (snapshots.len() as u64, plan.members.len() as u64);
+    let (n, g) = (plan.particles as u64, plan.grid as u64);
+    let flat = |f: &dyn Fn(&Snapshot) -> &Vec<f64>| -> Vec<f64> {
+        snapshots.iter().flatten().flat_map(|s| f(s).iter().copied()).collect()
+    };
+    write_npy(dir.join("reference_gaps.npy"), &[t, b, n], &flat(&|s| &s.gaps))?;
+    write_npy(
+        dir.join("reference_velocities.npy"),
+        &[t, b, n - 1],
+        &flat(&|s| &s.velocities),
+    )?;
+    write_npy(dir.join("reference_rho.npy"), &[t, b, g], &flat(&|s| &s.rho))?;
+    write_npy(dir.join("times.npy"), &[t], &plan.output_times)?;
+    Ok(())
+}

@@ -1,0 +1,87 @@
+//! The work–precision figure of `roughlub accuracy`: error against wall time, both on log axes
+//! (drawn as log10 of the values, with the axis titles saying so), one line per scheme.
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::chart::{build_chart, draw_line, figure, msg};
+use super::legend::{draw_legend, legend_width, LegendEntry, LegendMark};
+use super::ranges::{finite_min_max, padded_range};
+use super::style::{indexed_color, shorten, TAB10};
+
+/// Draws the figure of [`plot_work_precision`](super::plot_work_precision) on checked input.
+pub(super) fn draw(
+    path: &Path,
+    title: &str,
+    lines: &[(String, Vec<(f64, f64)>)],
+    target: Option<f64>,
+) -> Result<(), String> {
+    let n = lines.len();
+    let color = |i: usize| {
+        if n <= TAB10.len() {
+            let (r, g, b) = TAB10[i];
+            RGBColor(r, g, b)
+        } else {
+            indexed_color(i, n)
+        }
+    };
+    let log = |v: f64| if v > 0.0 { v.log10() } else { f64::NAN };
+    let xs: Vec<Vec<f64>> = lines.iter().map(|(_, p)| p.iter().map(|q| log(q.0)).collect()).collect();
+    let ys: Vec<Vec<f64>> = lines.iter().map(|(_, p)| p.iter().map(|q| log(q.1)).collect()).collect();
+    let x_range = padded_range(finite_min_max(xs.iter().flatten()), "the wall times")?;
+    let mut y_values: Vec<f64> = ys.iter().flatten().copied().collect();
+    if let Some(t) = target {
+        y_values.push(log(t));
+    }
+    let y_range = padded_range(finite_min_max(y_values.iter()), "the errors")?;
+
+    let (root, body) = figure(path, title)?;
+    let labels: Vec<String> = lines.iter().map(|(l, _)| shorten(l, 32)).collect();
+    let width = legend_width(&body, &labels, 120)?;
+    let (panel, legend_area) = body.split_horizontally(body.dim_in_pixel().0 as i32 - width);
+    let mut chart = build_chart(
+        &panel,
+        x_range.clone(),
+        y_range,
+        "log10 wall time per run [s]",
+        "log10 error",
+    )?;
+    for (i, (x, y)) in xs.iter().zip(&ys).enumerate() {
+        draw_line(&mut chart, x, y, color(i), false)?;
+        chart
+            .draw_series(
+                x.iter()
+                    .zip(y)
+                    .filter(|(a, b)| a.is_finite() && b.is_finite())
+                    .map(|(&a, &b)| Circle::new((a, b), 4, color(i).filled())),
+            )
+            .map_err(msg)?;
+    }
+    let mut entries: Vec<LegendEntry> = labels
+        .iter()
+        .enumerate()
+        .map(|(i, l)| LegendEntry {
+            label: l.clone(),
+            color: color(i),
+            mark: LegendMark::Line,
+        })
+        .collect();
+    if let Some(t) = target {
+        let ty = log(t);
+        draw_line(
+            &mut chart,
+            &[x_range.start, x_range.end],
+            &[ty, ty],
+            RGBColor(120, 120, 120),
+            true,
+        )?;
+        entries.push(LegendEntry {
+            label: format!("target {t:e}"),
+            color: RGBColor(120, 120, 120),
+            mark: LegendMark::Line,
+        });
+    }
+    draw_legend(&legend_area, 22, "", &entries)?;
+    root.present().map_err(msg)
+}
