@@ -82,6 +82,9 @@ pub enum Node {
     /// A function call; the argument count always equals [`Func::arity`] for trees built by
     /// [`Expr::parse`].
     Call(Func, Vec<Node>),
+    /// Parameter k of the member, read at run time ([`Expr::parse_symbolic`]): a study sweeping a
+    /// forcing parameter keeps members of many points in one batch.
+    Param(usize),
 }
 
 /// A parse error, with the 0-based character offset of the offending token in the source.
@@ -180,17 +183,19 @@ impl BinOp {
 }
 
 impl Node {
-    /// Evaluates the tree at (x, t). Recursive, allocation-free.
-    pub fn eval(&self, x: f64, t: f64) -> f64 {
+    /// Evaluates the tree at (x, t) with symbolic parameters `p` (a missing one is NaN).
+    /// Recursive, allocation-free.
+    pub fn eval(&self, x: f64, t: f64, p: &[f64]) -> f64 {
         match self {
             Node::Num(v) => *v,
             Node::X => x,
             Node::T => t,
-            Node::Neg(a) => -a.eval(x, t),
-            Node::Bin(op, a, b) => op.apply(a.eval(x, t), b.eval(x, t)),
+            Node::Param(k) => p.get(*k).copied().unwrap_or(f64::NAN),
+            Node::Neg(a) => -a.eval(x, t, p),
+            Node::Bin(op, a, b) => op.apply(a.eval(x, t, p), b.eval(x, t, p)),
             Node::Call(f, args) => match args.as_slice() {
-                [a] => f.apply(a.eval(x, t), 0.0),
-                [a, b] => f.apply(a.eval(x, t), b.eval(x, t)),
+                [a] => f.apply(a.eval(x, t, p), 0.0),
+                [a, b] => f.apply(a.eval(x, t, p), b.eval(x, t, p)),
                 _ => f64::NAN,
             },
         }
@@ -199,7 +204,7 @@ impl Node {
     fn uses(&self, var: &Node) -> bool {
         match self {
             Node::Num(_) => false,
-            Node::X | Node::T => self == var,
+            Node::X | Node::T | Node::Param(_) => self == var,
             Node::Neg(a) => a.uses(var),
             Node::Bin(_, a, b) => a.uses(var) || b.uses(var),
             Node::Call(_, args) => args.iter().any(|a| a.uses(var)),
@@ -222,7 +227,20 @@ impl Expr {
     /// replaced by `value` (then folded like a literal). An identifier that is neither a known
     /// name nor a parameter is an error listing both.
     pub fn parse_with(src: &str, params: &[(String, f64)]) -> Result<Expr, ExprError> {
-        let (root, params_used) = parse::parse_tree(src, params)?;
+        Expr::parse_symbolic(src, params, &[])
+    }
+
+    /// Like [`parse_with`](Self::parse_with), with the parameters named in `symbolic` left as
+    /// [`Node::Param`]`(k)` (k their index there), read from the slice given to
+    /// [`eval_with`](Self::eval_with) (and, in WGSL, from `forcing_param(k)`). The operations
+    /// around them are those the literal would get, in the same order, so a symbolic parameter
+    /// gives the literal's value bit for bit in f64.
+    pub fn parse_symbolic(
+        src: &str,
+        params: &[(String, f64)],
+        symbolic: &[String],
+    ) -> Result<Expr, ExprError> {
+        let (root, params_used) = parse::parse_tree(src, params, symbolic)?;
         Ok(Expr {
             root,
             source: src.to_string(),
@@ -262,7 +280,27 @@ impl Expr {
     /// Evaluates at (x, t) with plain f64 semantics (`log(-1)` is NaN, `1/0` is inf, …).
     #[inline]
     pub fn eval(&self, x: f64, t: f64) -> f64 {
-        self.root.eval(x, t)
+        self.root.eval(x, t, &[])
+    }
+
+    /// Evaluates at (x, t) with the values `p` of its symbolic parameters.
+    #[inline]
+    pub fn eval_with(&self, x: f64, t: f64, p: &[f64]) -> f64 {
+        self.root.eval(x, t, p)
+    }
+
+    /// How many symbolic parameters the tree reads (the largest index + 1).
+    pub fn symbolic_count(&self) -> usize {
+        fn walk(n: &Node) -> usize {
+            match n {
+                Node::Param(k) => k + 1,
+                Node::Num(_) | Node::X | Node::T => 0,
+                Node::Neg(a) => walk(a),
+                Node::Bin(_, a, b) => walk(a).max(walk(b)),
+                Node::Call(_, args) => args.iter().map(walk).max().unwrap_or(0),
+            }
+        }
+        walk(&self.root)
     }
 
     /// Whether the value depends on `x`.
@@ -280,7 +318,9 @@ impl Expr {
     pub fn constant_value(&self) -> Option<f64> {
         match self.root {
             Node::Num(v) => Some(v),
-            _ if !self.uses_x() && !self.uses_t() => Some(self.eval(0.0, 0.0)),
+            _ if !self.uses_x() && !self.uses_t() && self.symbolic_count() == 0 => {
+                Some(self.eval(0.0, 0.0))
+            }
             _ => None,
         }
     }
@@ -386,5 +426,29 @@ mod parameter_tests {
         assert!(e.message.contains("parameters: A"), "{e}");
         assert!(Expr::is_reserved_name("pi") && Expr::is_reserved_name("x"));
         assert!(!Expr::is_reserved_name("A"));
+    }
+}
+
+#[cfg(test)]
+mod symbolic_tests {
+    use super::*;
+
+    /// A symbolic parameter, read at run time, gives the literal's value bit for bit: the same
+    /// f64 operations in the same order (the literal's are folded while parsing).
+    #[test]
+    fn a_symbolic_parameter_is_its_literal() {
+        let names = vec!["A".to_string(), "k".to_string()];
+        let sym = Expr::parse_symbolic("A*sin(k*pi*x)*exp(-t/A) + 2*A", &[], &names).unwrap();
+        let lit = Expr::parse("0.37*sin(3.0*pi*x)*exp(-t/0.37) + 2*0.37").unwrap();
+        assert_eq!(sym.symbolic_count(), 2);
+        assert_eq!(sym.params_used(), ["A", "k"]);
+        for (x, t) in [(0.1, 0.0), (0.73, 0.4), (0.999, 2.5)] {
+            let a = sym.eval_with(x, t, &[0.37, 3.0]);
+            assert_eq!(a.to_bits(), lit.eval(x, t).to_bits(), "x = {x}, t = {t}");
+        }
+        assert!(sym.eval(0.5, 0.0).is_nan(), "a missing parameter is NaN, never 0");
+        assert!(sym.constant_value().is_none());
+        let wgsl = sym.to_wgsl(WgslFloat::F64, "forcing");
+        assert!(wgsl.contains("forcing_param(0u)") && wgsl.contains("forcing_param(1u)"), "{wgsl}");
     }
 }

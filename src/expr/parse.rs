@@ -21,6 +21,7 @@ pub(super) const RESERVED_NAMES: [&str; 14] = [
 pub(super) fn parse_tree(
     src: &str,
     params: &[(String, f64)],
+    symbolic: &[String],
 ) -> Result<(Node, Vec<String>), ExprError> {
     let tokens = lex(src)?;
     if tokens.len() == 1 {
@@ -31,6 +32,7 @@ pub(super) fn parse_tree(
         pos: 0,
         nesting: 0,
         params,
+        symbolic,
         used: Vec::new(),
     };
     let root = p.expr()?;
@@ -233,6 +235,9 @@ struct Parser<'a> {
     nesting: usize,
     /// Named parameters and their values.
     params: &'a [(String, f64)],
+    /// Parameters left symbolic ([`Node::Param`], read per member at run time); they take
+    /// precedence over `params`.
+    symbolic: &'a [String],
     /// The parameters used, in order of first use.
     used: Vec<String>,
 }
@@ -361,6 +366,13 @@ impl Parser<'_> {
                 "e" => Ok(Sub::leaf(Node::Num(std::f64::consts::E))),
                 _ => match Func::from_name(&name) {
                     Some(f) => self.call(f, tok.pos),
+                    None if self.symbolic.contains(&name) => {
+                        let k = self.symbolic.iter().position(|p| *p == name).unwrap_or(0);
+                        if !self.used.contains(&name) {
+                            self.used.push(name);
+                        }
+                        Ok(Sub::leaf(Node::Param(k)))
+                    }
                     None => match self.params.iter().find(|(p, _)| *p == name) {
                         Some(&(_, value)) => {
                             if !self.used.contains(&name) {

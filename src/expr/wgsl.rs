@@ -137,6 +137,9 @@ fn emit(node: &Node, float: WgslFloat, out: &mut String) {
         Node::Num(v) => emit_num(*v, float, out),
         Node::X => out.push('x'),
         Node::T => out.push('t'),
+        Node::Param(k) => {
+            let _ = write!(out, "forcing_param({k}u)");
+        }
         Node::Neg(a) => {
             out.push_str("(-");
             emit(a, float, out);
@@ -222,7 +225,7 @@ fn emit_pow(a: &Node, b: &Node, float: WgslFloat, out: &mut String) {
 
 fn collect_f64_functions(node: &Node, names: &mut Vec<&'static str>) {
     match node {
-        Node::Num(_) | Node::X | Node::T => {}
+        Node::Num(_) | Node::X | Node::T | Node::Param(_) => {}
         Node::Neg(a) => collect_f64_functions(a, names),
         Node::Bin(op, a, b) => {
             if *op == BinOp::Pow && small_int(b, MAX_UNROLLED_POW).is_none() {
