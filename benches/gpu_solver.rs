@@ -117,6 +117,7 @@ fn plan(case: &Case, eps: f64) -> Plan {
         forcing: case.forcing.then(|| Forcing {
             expr: Expr::parse("0*x").unwrap(),
             rule: GaussLegendre::new(3),
+            params: Vec::new(),
         }),
         order: 1,
         stepping: Stepping::Fixed {

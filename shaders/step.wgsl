@@ -281,6 +281,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         let next = gap_terms(next_gap, gap_sets[gi + next_gap], p, h, eps2);
         var f: real = 0.0;
 //@BEGIN FORCING
+        forcing_member = b;
         q = q + stored_decode(gap_sets[gi + row]) + mass;
         f = particle_force(eps, t, q);
         scratch[3u * rows + row] = f;

@@ -96,6 +96,7 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
             let forcing = Forcing {
                 expr: Expr::parse("0.5*x^2 - 0.3*x^3 + t*x").unwrap(),
                 rule: GaussLegendre::new(3), // exact for this cubic
+                params: Vec::new(),
             };
             let total_gap: [f64; L] = std::array::from_fn(|l| chains[l].gaps.iter().sum());
             let terms = Terms::<L> {

@@ -65,6 +65,17 @@ pub fn powi_by_squaring(ratio: f64, n: u32) -> f64 {
 pub struct Forcing {
     pub expr: Expr,
     pub rule: GaussLegendre,
+    /// Values of the expression's symbolic parameters ([`Expr::parse_symbolic`]), member-major:
+    /// member b's K values at `b·K..(b+1)·K`, K = `expr.symbolic_count()`. Empty when K = 0.
+    pub params: Vec<f64>,
+}
+
+impl Forcing {
+    /// Member b's symbolic parameter values.
+    pub fn member_params(&self, b: usize) -> &[f64] {
+        let k = self.expr.symbolic_count();
+        self.params.get(b * k..(b + 1) * k).unwrap_or(&[])
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -104,6 +115,7 @@ impl Plan {
             forcing: scene.forcing.as_ref().map(|e| Forcing {
                 expr: e.clone(),
                 rule: GaussLegendre::new(scene.quadrature_points),
+                params: Vec::new(),
             }),
             order: scene.order,
             stepping: scene.stepping,

@@ -33,6 +33,7 @@ pub fn plan_for(
         forcing: forcing.map(|(src, points)| Forcing {
             expr: Expr::parse(src).expect("test forcing parses"),
             rule: GaussLegendre::new(points),
+            params: Vec::new(),
         }),
         order,
         stepping,

@@ -67,6 +67,8 @@ pub struct InitialData {
     pub dstar: Option<Vec<u8>>,
     /// Bonded flags per gap as u32 (clusters only).
     pub bonded: Option<Vec<u8>>,
+    /// The forcing's symbolic parameter values, member-major (only when it has some).
+    pub forcing_params: Option<Vec<u8>>,
 }
 
 impl InitialData {
@@ -116,6 +118,11 @@ impl InitialData {
             let flags: Vec<u32> = interleave(&refs).into_iter().map(u32::from).collect();
             bytemuck::cast_slice(&flags).to_vec()
         });
+        let forcing_params = plan
+            .forcing
+            .as_ref()
+            .filter(|f| f.expr.symbolic_count() > 0)
+            .map(|f| real_bytes(&f.params, precision));
         InitialData {
             sizes,
             gap_sets,
@@ -124,6 +131,7 @@ impl InitialData {
             controls: controls_bytes(&vec![control; plan.members.len()], precision),
             dstar,
             bonded,
+            forcing_params,
         }
     }
 }
@@ -145,6 +153,7 @@ pub struct StepBuffers {
     pub gathered_vel: wgpu::Buffer,
     dstar: Option<wgpu::Buffer>,
     bonded: Option<wgpu::Buffer>,
+    forcing_params: Option<wgpu::Buffer>,
 }
 
 /// The step kernel's buffers bound in group 0.
@@ -218,6 +227,10 @@ impl StepBuffers {
             gathered_vel: empty("gathered velocities", sizes.velocities, readable),
             dstar: initial.dstar.as_ref().map(|d| init("dstar", d, storage)),
             bonded: initial.bonded.as_ref().map(|b| init("bonded", b, storage)),
+            forcing_params: initial
+                .forcing_params
+                .as_ref()
+                .map(|f| init("forcing parameters", f, storage)),
         };
         (buffers, bytes_written)
     }
@@ -243,6 +256,9 @@ impl StepBuffers {
         }
         if let Some(b) = &self.bonded {
             bindings.push((binding::BONDED, b, read_only));
+        }
+        if let Some(f) = &self.forcing_params {
+            bindings.push((binding::FORCING_PARAMS, f, read_only));
         }
         bindings
     }

@@ -37,6 +37,7 @@ pub mod binding {
     pub const DSTAR: u32 = 8;
     pub const BONDED: u32 = 9;
     pub const GATHERED_VEL: u32 = 10;
+    pub const FORCING_PARAMS: u32 = 11;
 }
 
 /// The time scheme compiled into the kernel.
@@ -73,7 +74,8 @@ pub struct KernelSpec {
     pub repulsion: Option<GammaSpec>,
     /// Whether some member has clusters (bonded gaps).
     pub clusters: bool,
-    /// The forcing f(x, t) and the Gauss–Legendre nodes and weights on [-1, 1].
+    /// The forcing f(x, t) and the Gauss–Legendre nodes and weights on [-1, 1]; its symbolic
+    /// parameters (`forcing_param(k)`) are read per member from binding 11.
     pub forcing: Option<(Expr, Vec<f64>, Vec<f64>)>,
     pub scheme: SchemeSpec,
 }
@@ -243,6 +245,18 @@ fn generated(spec: &KernelSpec) -> String {
             weights.len(),
             "Gauss–Legendre nodes and weights"
         );
+        // The member whose forcing is evaluated (set by `euler` before its loop): the symbolic
+        // parameters of a parameter study are that member's.
+        out.push_str("var<private> forcing_member: u32;\n");
+        let k = expr.symbolic_count();
+        if k > 0 {
+            let _ = writeln!(
+                out,
+                "@group(0) @binding({}) var<storage, read> forcing_params: array<real>;\n\
+                 fn forcing_param(k: u32) -> real {{\n    return forcing_params[forcing_member * {k}u + k];\n}}",
+                binding::FORCING_PARAMS
+            );
+        }
         out.push_str(&expr.to_wgsl(float, "forcing"));
         out.push('\n');
         // F_i = eps * sum_k w_k f(q + eps xi_k, t), unrolled, summed in the CPU's order.

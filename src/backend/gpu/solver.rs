@@ -178,6 +178,16 @@ fn check_chains(plan: &Plan, chains: &[Chain]) -> Result<(), GpuError> {
             )));
         }
     }
+    if let Some(f) = &plan.forcing {
+        let k = f.expr.symbolic_count();
+        if f.params.len() != k * bsz {
+            return Err(invalid(format!(
+                "the forcing reads {k} parameter(s) per member: need {} values for {bsz} members, got {}",
+                k * bsz,
+                f.params.len()
+            )));
+        }
+    }
     Ok(())
 }
 
