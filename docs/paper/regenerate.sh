@@ -6,7 +6,7 @@
 #   bash docs/paper/regenerate.sh path/to/roughlub     # a given binary
 #   OUT=/tmp/paper BACKEND=auto bash docs/paper/regenerate.sh
 #
-# Run outputs go to $OUT (default out/paper, about 1 GB); unchanged runs found there are reused.
+# Run outputs go to $OUT (default out/paper, about 700 MB); unchanged runs found there are reused.
 # Needs python3 (3.11+) with numpy. About 3 minutes on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
