@@ -6,6 +6,7 @@ use crate::ensemble::{
     dstar_from_radii, jitter_gaps, mean_radii_from_rho_star, perturbed_velocity, RoughnessSampler,
 };
 use crate::error::{Error, Result};
+use crate::expr::Expr;
 use crate::model::chain::{positions_from_gaps, Chain};
 use crate::model::params::MemberParams;
 use crate::scene::{EnsembleSpec, InitialSpec, Scene, SweepTarget};
@@ -95,6 +96,9 @@ pub struct EnsembleMembers {
     pub first: Arc<PointSetup>,
     /// The setups built last (members of a chunk are mostly of one or two points).
     recent: Mutex<Vec<Arc<PointSetup>>>,
+    /// The forcing with the swept parameters it uses left symbolic (read per member), and their
+    /// names; `None` when the sweep does not reach the forcing.
+    symbolic_forcing: Option<(Expr, Vec<String>)>,
 }
 
 /// Member m's inputs: the chain and parameters it is solved with, and its velocity draw (for
@@ -128,7 +132,34 @@ impl EnsembleMembers {
             // without roughness is refused there).
             base_scene.initial_chain()?;
         }
+        let symbolic_forcing = match (&scene.forcing, &scene.sweep) {
+            (Some(forcing), Some(sweep)) => {
+                let names: Vec<String> = sweep
+                    .targets
+                    .iter()
+                    .filter_map(|t| match t {
+                        SweepTarget::Parameter(name) if forcing.params_used().contains(name) => {
+                            Some(name.clone())
+                        }
+                        _ => None,
+                    })
+                    .collect();
+                if names.is_empty() {
+                    None
+                } else {
+                    let expr = Expr::parse_symbolic(forcing.source(), &scene.parameters, &names)
+                        .map_err(|source| Error::Expression {
+                            field: "model.forcing".into(),
+                            source_text: forcing.source().to_string(),
+                            source,
+                        })?;
+                    Some((expr, names))
+                }
+            }
+            _ => None,
+        };
         Ok(EnsembleMembers {
+            symbolic_forcing,
             points,
             per_point: spec.members,
             independent_draws: scene.sweep.as_ref().is_some_and(|s| s.independent_draws),
@@ -142,6 +173,29 @@ impl EnsembleMembers {
     /// Number of members: `spec.members` per sweep point.
     pub fn total(&self) -> u64 {
         self.per_point * self.points
+    }
+
+    /// The forcing with its swept parameters symbolic, when the sweep reaches it: members of
+    /// different points then share one batch, each reading its own values.
+    pub fn symbolic_forcing(&self) -> Option<&Expr> {
+        self.symbolic_forcing.as_ref().map(|(e, _)| e)
+    }
+
+    /// The values of the symbolic forcing's parameters at point p (empty without).
+    pub fn forcing_values(&self, p: u64) -> Vec<f64> {
+        let Some((_, names)) = &self.symbolic_forcing else {
+            return Vec::new();
+        };
+        let values = self.base_scene.point_values(p);
+        names
+            .iter()
+            .map(|n| {
+                values
+                    .iter()
+                    .find(|(v, _)| v == n)
+                    .map_or(f64::NAN, |(_, x)| *x)
+            })
+            .collect()
     }
 
     /// The sweep point of member m.

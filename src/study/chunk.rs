@@ -64,8 +64,9 @@ fn batch_groups(inputs: &[MemberInputs], members: &EnsembleMembers) -> Result<Ve
                         && x.chain.eps.to_bits() == y.chain.eps.to_bits()
                         && x.chain.dstar.is_some() == y.chain.dstar.is_some()
                         && x.chain.bonded.is_some() == y.chain.bonded.is_some()
-                        && members.setup(x.point)?.scene.forcing
-                            == members.setup(y.point)?.scene.forcing)
+                        && (members.symbolic_forcing().is_some()
+                            || members.setup(x.point)?.scene.forcing
+                                == members.setup(y.point)?.scene.forcing))
             }
             None => false,
         };
@@ -126,7 +127,14 @@ pub(super) fn solve_chunk(
         let setup = members.setup(inputs[a].point)?;
         let params: Vec<MemberParams> = inputs[a..b].iter().map(|i| i.params).collect();
         let chains: Vec<Chain> = inputs[a..b].iter().map(|i| i.chain.clone()).collect();
-        let plan = chunk_plan(&setup.scene, &chains[0], params);
+        let mut plan = chunk_plan(&setup.scene, &chains[0], params);
+        if let (Some(expr), Some(forcing)) = (members.symbolic_forcing(), plan.forcing.as_mut()) {
+            forcing.expr = expr.clone();
+            forcing.params = inputs[a..b]
+                .iter()
+                .flat_map(|i| members.forcing_values(i.point))
+                .collect();
+        }
         let mut group_recorded: Vec<Vec<Option<RecordedObservables>>> =
             (a..b).map(|_| Vec::with_capacity(t_count)).collect();
         let mut group_kept: Vec<Vec<Snapshot>> = (a..b).map(|_| Vec::new()).collect();
