@@ -53,8 +53,9 @@ pub const DRIFT_TOLERANCE: f64 = 0.15;
 /// The fields compared, in the order of every output.
 pub const FIELDS: [&str; 3] = ["rho", "u", "rho_star"];
 
-/// A difference below ROUNDING_FACTOR · N_K · ε · max|f_K| (ε of the precision, N_K the largest
-/// N) is rounding.
+/// A difference below ROUNDING_FACTOR · N_K · ε · max(1, max|f_K|) is rounding (ε of the
+/// precision, N_K the largest N; the 1 is the scale of a field that is zero, such as u at rest:
+/// rho and rho* are at most 1, and times and lengths are O(1)).
 pub const ROUNDING_FACTOR: f64 = 16.0;
 
 /// A difference at the largest pair below this many times the rounding level makes the verdict
@@ -616,7 +617,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
                 .map(|v| v.abs())
                 .filter(|v| v.is_finite())
                 .fold(0.0, f64::max)
-                .max(f64::MIN_POSITIVE);
+                .max(1.0);
             let diffs: Vec<f64> = norms.iter().map(|n| n.l1).collect();
             let v = verdict(&diffs, &r1, unit_rounding * scale);
             // The limit: the field itself when exact; Richardson with the last rate otherwise
@@ -854,7 +855,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
             ("sampling", "cubic interpolation through the 4 nearest nodes: rho and rho_star from the cell values at the cell centres, u from the particle velocities (O(h^4) for smooth profiles; the run's piecewise-constant / piecewise-linear sampling is O(h) / O(h^2) with a factor oscillating from point to point, which hides the particle system's convergence and defeats pointwise extrapolation)"),
             ("norms", "L1 and L2 as means over the grid points, Linf the largest difference"),
             ("rates", "ln(e_{k-1}/e_k)/ln(N_k/N_{k-1}) between the differences of successive pairs: log2 of the ratio when N doubles; exact for e = C N^-p only when the ratios are equal (ratios_equal)"),
-            ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 N_K eps max|f_K| (exact), or the difference at the largest pair within 100 times that level (rounding_limited: converged as far as the precision resolves)"),
+            ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 N_K eps max(1, max|f_K|) (exact), or the difference at the largest pair within 100 times that level (rounding_limited: converged as far as the precision resolves)"),
         ]),
     };
     write_json_atomic(&dir.join(MANIFEST), &manifest)?;
