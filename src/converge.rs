@@ -53,9 +53,9 @@ pub const DRIFT_TOLERANCE: f64 = 0.15;
 /// The fields compared, in the order of every output.
 pub const FIELDS: [&str; 3] = ["rho", "u", "rho_star"];
 
-/// A difference below ROUNDING_FACTOR · N_K · ε · max(1, max|f_K|) is rounding (ε of the
-/// precision, N_K the largest N; the 1 is the scale of a field that is zero, such as u at rest:
-/// rho and rho* are at most 1, and times and lengths are O(1)).
+/// A difference below ROUNDING_FACTOR · max(N_K ε₆₄, ε) · max(1, max|f_K|) is rounding (N_K the
+/// largest N, ε₆₄ that of f64, ε that of the run's precision; the 1 is the scale of a field that
+/// is zero, such as u at rest: rho and rho* are at most 1, and times and lengths are O(1)).
 pub const ROUNDING_FACTOR: f64 = 16.0;
 
 /// A difference at the largest pair below this many times the rounding level makes the verdict
@@ -425,6 +425,12 @@ fn fit_rate(n: &[f64], e: &[f64]) -> Option<(f64, f64)> {
     Some((-slope, my - slope * mx))
 }
 
+/// An output time in a message, to 7 significant digits (0.15, not 0.15000000000000002).
+fn time_text(t: f64) -> String {
+    let rounded: f64 = format!("{t:.6e}").parse().unwrap_or(t);
+    crate::scene::number_text(rounded)
+}
+
 /// Text of a number in the CSV: the shortest text that reads back to the same f64 (exponent
 /// form for small and large values); `NaN`, `inf`, `-inf`.
 fn csv_number(x: f64) -> String {
@@ -463,6 +469,29 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         let s = scene_at(scene, ns[0]);
         let chain = s.initial_chain()?;
         select(requested, precision, &Plan::new(&s, &chain))?;
+    }
+
+    // Every field of every N is held in memory (and written): refuse what would not fit.
+    let bytes = 8
+        * FIELDS.len() as u64
+        * k_count as u64
+        * scene.output_times.len() as u64
+        * scene.grid as u64;
+    if bytes > crate::run::OUTPUT_SIZE_LIMIT {
+        return Err(Error::invalid(
+            "output.grid",
+            scene.grid,
+            format!(
+                "the fields of {k_count} values of N x {} output times x {} grid points take {:.1} GB, held in memory",
+                scene.output_times.len(),
+                scene.grid,
+                bytes as f64 / 1e9
+            ),
+            format!(
+                "at most {:.1} GB: a coarser [output] grid, fewer [time] outputs or fewer N",
+                crate::run::OUTPUT_SIZE_LIMIT as f64 / 1e9
+            ),
+        ));
     }
 
     let staged = StagedDir::begin(&options.out_dir, options.force)?;
@@ -557,14 +586,13 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         .windows(2)
         .all(|w| (w[0] - w[1]).abs() <= 1e-12 * w[0]);
     // Rounding level of a difference, relative to the field's size: the gaps of the initial
-    // data are differences of positions near 1 (relative error about N ε), so the level grows
-    // with the largest N.
-    let unit_rounding = ROUNDING_FACTOR
-        * ns[k_count - 1] as f64
-        * match precision {
-            Precision::F64 => f64::EPSILON,
-            Precision::F32 => f32::EPSILON as f64,
-        };
+    // data are differences of positions near 1 (relative error about N ε in f64), so the level
+    // grows with the largest N; in f32 the solver's own rounding is larger.
+    let run_epsilon = match precision {
+        Precision::F64 => f64::EPSILON,
+        Precision::F32 => f32::EPSILON as f64,
+    };
+    let unit_rounding = ROUNDING_FACTOR * (ns[k_count - 1] as f64 * f64::EPSILON).max(run_epsilon);
     let field_on = |f: usize| f != 2 || repulsion;
     let mut csv =
         csv::Writer::from_path(dir.join("convergence.csv")).map_err(|e| Error::Output {
@@ -600,7 +628,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
             continue;
         }
         let mut records = Vec::with_capacity(t_count);
-        for t in 0..t_count {
+        for (t, &time) in scene.output_times.iter().enumerate() {
             let norms: Vec<Norms> = (0..k_count - 1)
                 .map(|k| difference_norms(&fields[f][k + 1][t], &fields[f][k][t]))
                 .collect();
@@ -642,7 +670,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
                 let last = k + 2 == k_count;
                 csv.write_record([
                     name.to_string(),
-                    csv_number(scene.output_times[t]),
+                    csv_number(time),
                     ns[k].to_string(),
                     ns[k + 1].to_string(),
                     csv_number(norm.l1),
@@ -662,7 +690,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
                 .map_err(csv_err)?;
             }
             records.push(TimeRecord {
-                time: scene.output_times[t],
+                time,
                 diff_l1: diffs,
                 rates_l1: r1,
                 verdict: v,
@@ -679,18 +707,15 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
             _ => f64::NAN,
         };
         let not_asymptotic: Vec<&TimeRecord> = records.iter().filter(|r| !r.asymptotic).collect();
-        if !not_asymptotic.is_empty() {
+        if !not_asymptotic.is_empty() && k_count >= 3 {
             let first = not_asymptotic[0];
-            let times: Vec<String> = not_asymptotic
-                .iter()
-                .map(|r| crate::scene::number_text(r.time))
-                .collect();
+            let times: Vec<String> = not_asymptotic.iter().map(|r| time_text(r.time)).collect();
             let rates: Vec<String> = first.rates_l1.iter().map(|p| format!("{p:.3}")).collect();
             warnings.push(format!(
                 "{name}: the observed L1 rate is not asymptotic at t = {} ({} at t = {}: rates [{}]; asymptotic needs the last two rates finite, positive and within {DRIFT_TOLERANCE} of each other, with 4 or more N); its rates and limit are not converged numbers",
                 times.join(", "),
                 first.verdict.name(),
-                crate::scene::number_text(first.time),
+                time_text(first.time),
                 rates.join(", ")
             ));
         }
@@ -713,6 +738,12 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         .map_err(|e| Error::io(dir.join("convergence.csv"), e))?;
     drop(csv);
     let asymptotic = summaries.iter().all(|s| s.asymptotic_all_times);
+    if k_count == 2 {
+        warnings.push(
+            "2 values of N give the differences only: no rate, no limit, and no verdict (3 or more N for a rate, 4 or more to judge whether it is asymptotic)"
+                .to_string(),
+        );
+    }
 
     // Arrays.
     let (k64, t64, g64) = (k_count as u64, t_count as u64, g as u64);
@@ -806,7 +837,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
                     title: &format!(
                         "{}: {name}, L1 difference between successive N at t = {}",
                         scene.name,
-                        crate::scene::number_text(last_t)
+                        time_text(last_t)
                     ),
                     y_label: &format!("L1 difference of {name}"),
                     n: &n_fine,
@@ -853,9 +884,10 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
             ("fields_*.npy", "[K, T, G]: each N (particles.npy) at each output time (times.npy) on the grid x.npy"),
             ("limit_*.npy", "[T, G]: Richardson extrapolation from the two largest N with the L1 rate at the largest pair, f_K + (f_K - f_{K-1})/(r^p - 1); the field itself where every difference is rounding (verdict exact); NaN where the rate is not finite and positive; absent with 2 values of N"),
             ("sampling", "cubic interpolation through the 4 nearest nodes: rho and rho_star from the cell values at the cell centres, u from the particle velocities (O(h^4) for smooth profiles; the run's piecewise-constant / piecewise-linear sampling is O(h) / O(h^2) with a factor oscillating from point to point, which hides the particle system's convergence and defeats pointwise extrapolation)"),
+            ("time_steps", "every N runs with the scene's time stepping: the limit is N -> infinity at those steps, and the time-step error (common to all N) is not in the differences"),
             ("norms", "L1 and L2 as means over the grid points, Linf the largest difference"),
             ("rates", "ln(e_{k-1}/e_k)/ln(N_k/N_{k-1}) between the differences of successive pairs: log2 of the ratio when N doubles; exact for e = C N^-p only when the ratios are equal (ratios_equal)"),
-            ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 N_K eps max(1, max|f_K|) (exact), or the difference at the largest pair within 100 times that level (rounding_limited: converged as far as the precision resolves)"),
+            ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 max(N_K eps_f64, eps) max(1, max|f_K|) with eps that of the precision (exact), or the difference at the largest pair within 100 times that level (rounding_limited: converged as far as the precision resolves)"),
         ]),
     };
     write_json_atomic(&dir.join(MANIFEST), &manifest)?;
