@@ -3,10 +3,11 @@
 //!
 //! scene file → [`scene::Scene`] → [`model::plan::Plan`] → [`backend`] (cpu | gpu, behind
 //! [`backend::BatchSolver`]) → observables and [`stats`] → [`output`] directory, orchestrated by
-//! [`run`] (one batch) and [`study`] (ensembles).
+//! [`run`] (one batch), [`study`] (ensembles) and [`converge`] (convergence in N).
 
 pub mod accuracy;
 pub mod backend;
+pub mod converge;
 pub mod ensemble;
 pub mod error;
 pub mod expr;

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use roughlub::backend::{Backend, Precision};
+use roughlub::converge::{run_convergence, ConvergeOptions};
 use roughlub::error::Error;
 use roughlub::run::{run_scene, RunOptions};
 use roughlub::scene::Scene;
@@ -91,6 +92,31 @@ enum Command {
         /// Merge even when shards are missing (stderr and the manifest name the missing members).
         #[arg(long)]
         allow_partial: bool,
+        /// Replace an --out directory that holds files that are not a roughlub run.
+        #[arg(long)]
+        force: bool,
+    },
+    /// Convergence in N: the scene at each particle number N (Prop. 3.1 initial data), the
+    /// differences between successive N, observed rates and an extrapolated limit.
+    Converge {
+        /// Scene file (TOML) with profile initial data (no particle file, no [ensemble]).
+        scene: PathBuf,
+        /// Particle numbers N, strictly increasing, comma-separated: 100,200,400,800 (at least
+        /// 3 for a rate, 4 to judge whether it is asymptotic).
+        #[arg(long, value_delimiter = ',', required = true)]
+        particles: Vec<usize>,
+        /// Output directory [default: out/<scene name>_converge].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Override the scene's backend.
+        #[arg(long, value_enum)]
+        backend: Option<Backend>,
+        /// Override the scene's precision.
+        #[arg(long, value_enum)]
+        precision: Option<Precision>,
+        /// No progress bar and no summary (warnings are still printed).
+        #[arg(long)]
+        quiet: bool,
         /// Replace an --out directory that holds files that are not a roughlub run.
         #[arg(long)]
         force: bool,
@@ -263,6 +289,57 @@ fn main() -> ExitCode {
             force,
         } => merge_studies(&dirs, &out, !no_plots, allow_partial, force)
             .map(|s| report_study(&s, false)),
+        Command::Converge {
+            scene,
+            particles,
+            out,
+            backend,
+            precision,
+            quiet,
+            force,
+        } => (|| {
+            let scene = Scene::from_file(&scene)?;
+            let out_dir = out
+                .unwrap_or_else(|| PathBuf::from("out").join(format!("{}_converge", scene.name)));
+            let summary = run_convergence(
+                &scene,
+                &ConvergeOptions {
+                    out_dir,
+                    particles,
+                    backend,
+                    precision,
+                    quiet,
+                    force,
+                },
+            )?;
+            if !quiet {
+                for f in &summary.fields {
+                    eprintln!(
+                        "{}: L1 differences at the last output time {:?}, rates {:?}, rate at the largest pair {:.3} ({}), limit error estimate {:.3e}",
+                        f.field,
+                        f.diff_l1.iter().map(|e| format!("{e:.3e}")).collect::<Vec<_>>(),
+                        f.rates_l1.iter().map(|p| format!("{p:.3}")).collect::<Vec<_>>(),
+                        f.rate,
+                        f.verdict.name(),
+                        f.limit_error_l1
+                    );
+                }
+                eprintln!(
+                    "N = {:?} on {} ({}) in {:.2} s; {}; outputs in {}",
+                    summary.particles,
+                    summary.backend,
+                    summary.adapter,
+                    summary.wall_seconds,
+                    if summary.asymptotic {
+                        "rates asymptotic at every output time"
+                    } else {
+                        "NOT asymptotic everywhere (see the warnings)"
+                    },
+                    summary.out_dir.display()
+                );
+            }
+            Ok(())
+        })(),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,7 +1,8 @@
 //! PNG plots of the macroscopic profiles of one ensemble member, of scalar observables over
 //! time, of an ensemble's mean profile with a quantile band, histograms, and the response of a
 //! parameter sweep (a mean with its quantile band against one parameter, a heat map over two,
-//! a scatter of sampled members) (plotters, bitmap backend).
+//! a scatter of sampled members), and the figures of a convergence study in N (plotters, bitmap
+//! backend).
 //!
 //! Text is rendered with plotters' `ab_glyph` feature, which does not look for system fonts: the
 //! DejaVu Sans font shipped in `assets/` is embedded in the binary and registered on first use
@@ -21,6 +22,7 @@ use std::path::{Path, PathBuf};
 
 mod bands;
 mod chart;
+mod convergence;
 mod histograms;
 mod legend;
 mod profiles;
@@ -313,6 +315,70 @@ pub fn plot_scatter(path: &Path, plot: &ScatterPlot) -> Result<(), PlotError> {
     )
 }
 
+/// A field at every N of a convergence study, at a few times (one panel each).
+pub struct ConvergenceProfilesPlot<'a> {
+    /// Title at the top of the figure.
+    pub title: &'a str,
+    /// Name of the field (y axis label), e.g. "rho".
+    pub y_label: &'a str,
+    /// Grid, length G.
+    pub x: &'a [f64],
+    /// The times shown, 1 to 4 (one panel each).
+    pub times: &'a [f64],
+    /// Legend label of each N, e.g. "N = 400", length K.
+    pub labels: &'a [String],
+    /// `values[j][k]`: the field at times[j] for labels[k], G values (non-finite values skipped).
+    pub values: &'a [Vec<Vec<f64>>],
+    /// The extrapolated limit at each time (G values), drawn dashed black.
+    pub limit: Option<&'a [Vec<f64>]>,
+}
+
+/// Differences between successive N against N, on log–log axes.
+pub struct ConvergenceRatePlot<'a> {
+    /// Title at the top of the figure.
+    pub title: &'a str,
+    /// y axis label, e.g. "L1 difference of rho".
+    pub y_label: &'a str,
+    /// The finer N of each pair, length K − 1.
+    pub n: &'a [f64],
+    /// The difference of each pair (values <= 0 or non-finite are skipped).
+    pub diff: &'a [f64],
+    /// The fitted line diff = C N^-p as (p, log10 C), drawn dashed.
+    pub fit: Option<(f64, f64)>,
+    /// Text in a box in the top right corner (e.g. the rates), may be empty.
+    pub note: &'a str,
+}
+
+/// Draws a field at every N over x: one panel per time (up to 4, in a 2 × 2 grid), one line
+/// per N coloured along the sequential colormap (small N dark), the optional extrapolated limit
+/// dashed black, and a legend of the N.
+pub fn plot_convergence_profiles(
+    path: &Path,
+    plot: &ConvergenceProfilesPlot,
+) -> Result<(), PlotError> {
+    checked_draw(
+        path,
+        || check_convergence_profiles(plot),
+        || convergence::draw_profiles(path, plot),
+    )
+}
+
+/// Draws differences between successive N against N on log–log axes (a line with a marker per
+/// pair) with the fitted rate as a dashed line and the note in the top right corner.
+pub fn plot_convergence_rate(path: &Path, plot: &ConvergenceRatePlot) -> Result<(), PlotError> {
+    checked_draw(
+        path,
+        || {
+            if plot.n.is_empty() {
+                return Err("there are no pairs (n is empty)".to_string());
+            }
+            check_length("diff", plot.diff, plot.n.len(), "n")?;
+            check_log_axis("n", plot.n, true)
+        },
+        || convergence::draw_rate(path, plot),
+    )
+}
+
 /// The steps shared by the public plotting functions: check the input, make sure the font is
 /// registered, draw; the first failure becomes a [`PlotError`] naming the file.
 fn checked_draw(
@@ -513,4 +579,33 @@ fn check_scatter(plot: &ScatterPlot) -> Result<(), String> {
     }
     check_length("y", plot.y, plot.x.len(), "x")?;
     check_log_axis("x", plot.x, plot.log_x)
+}
+
+fn check_convergence_profiles(plot: &ConvergenceProfilesPlot) -> Result<(), String> {
+    if plot.x.is_empty() {
+        return Err("the grid x is empty".to_string());
+    }
+    if plot.times.is_empty() || plot.times.len() > 4 {
+        return Err(format!(
+            "{} times to show (allowed: 1 to 4 panels)",
+            plot.times.len()
+        ));
+    }
+    if plot.labels.is_empty() {
+        return Err("there are no N to show (labels is empty)".to_string());
+    }
+    if plot.values.len() != plot.times.len() {
+        return Err(format!(
+            "values has {} rows but there are {} times",
+            plot.values.len(),
+            plot.times.len()
+        ));
+    }
+    for rows in plot.values {
+        check_rows("values", rows, plot.labels.len(), plot.x.len())?;
+    }
+    if let Some(limit) = plot.limit {
+        check_rows("limit", limit, plot.times.len(), plot.x.len())?;
+    }
+    Ok(())
 }

@@ -46,7 +46,7 @@ pub(super) fn draw_scatter(path: &Path, plot: &ScatterPlot) -> Result<(), String
 
 /// Plot coordinate of a value: the value itself, or its log10 on a log axis (NaN for values
 /// <= 0, which are then skipped like other non-finite values).
-fn coord(v: f64, log: bool) -> f64 {
+pub(super) fn coord(v: f64, log: bool) -> f64 {
     match (log, v > 0.0) {
         (false, _) => v,
         (true, true) => v.log10(),
@@ -55,7 +55,7 @@ fn coord(v: f64, log: bool) -> f64 {
 }
 
 /// Fills `root` white and writes the title; returns the area below it.
-fn titled<'a>(root: &Area<'a>, title: &str) -> Result<Area<'a>, String> {
+pub(super) fn titled<'a>(root: &Area<'a>, title: &str) -> Result<Area<'a>, String> {
     root.fill(&WHITE).map_err(msg)?;
     root.titled(&shorten(title, 90), (FONT, 26)).map_err(msg)
 }
@@ -81,7 +81,7 @@ fn label_count(span: f64, log: bool) -> usize {
 
 /// A panel like [`build_chart`](super::chart::build_chart), with optional log axes (plot
 /// coordinates log10 of the values, labelled with the values) and optional grid lines.
-fn sweep_chart<'a, 'b>(
+pub(super) fn sweep_chart<'a, 'b>(
     area: &'a Area<'b>,
     (x_range, log_x): (Range<f64>, bool),
     (y_range, log_y): (Range<f64>, bool),

@@ -1,0 +1,1001 @@
+//! Convergence in N (`roughlub converge`): the same macroscopic scene at several particle
+//! numbers N with the initial data of Prop. 3.1, the fields rho, u, rho* on one common grid at
+//! the scene's output times, the differences between successive N, the observed rates, a
+//! Richardson-extrapolated limit with its error estimate, and whether the rates are asymptotic.
+//!
+//! Sampling. rho and rho* (cell values at the cell centres) and u (values at the particles) are
+//! sampled on the grid by cubic interpolation through the 4 nearest nodes
+//! ([`cubic_interpolated`]; error O(h⁴) for smooth profiles). The run's own sampling (rho
+//! piecewise constant, u piecewise linear) has errors O(h) and O(h²) whose factor oscillates
+//! with a grid point's place in its cell: measured on case 1, it makes rho's differences fall
+//! like 1/N whatever the particle system does, it scatters the rates of u by ±0.2, and the
+//! pointwise extrapolation of rho lands twice as far from N = 6400 as N = 1600 itself. With the
+//! cubic sampling the same runs give rate 2.00 for rho and u and an extrapolation 15 times
+//! closer than the largest N.
+//!
+//! Rates. For successive pairs k = (N_k, N_{k+1}) with differences e_k (L1, L2, L∞ of
+//! f_{N_{k+1}} − f_{N_k} over the grid points; L1 and L2 as means over the grid, i.e. the
+//! quadrature on [0, 1]), the observed rate at pair k >= 1 is ln(e_{k−1}/e_k)/ln(r_k),
+//! r_k = N_k/N_{k−1}: log2 of the ratio when N doubles; exact for e = C N^-p only when the ratios
+//! N_{k+1}/N_k are all equal (otherwise an approximation, and the manifest says
+//! `"ratios_equal": false`).
+//!
+//! Limit. From the two largest N with the observed L1 rate p at the largest pair:
+//! f_∞ = f_K + (f_K − f_{K−1})/(r^p − 1), r = N_K/N_{K−1}, with the estimate |f_∞ − f_K| (L1).
+//!
+//! Asymptotic: per field and output time, the verdict of the L1 rates ([`Verdict`]): the last
+//! two observed rates must be finite, positive and within [`DRIFT_TOLERANCE`] of each other
+//! (so 4 or more N), unless the differences are at rounding level ([`ROUNDING_FACTOR`],
+//! [`ROUNDING_LIMITED`]). The study is asymptotic when every field is at every output time.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::backend::select::RunsOn;
+use crate::backend::{select, Backend, BackendRecord, MemberReport, MemberStatus, Precision};
+use crate::error::{Error, Result};
+use crate::model::observables::{cell_centres, cubic_interpolated};
+use crate::model::params::OutputFields;
+use crate::model::plan::Plan;
+use crate::output::manifest::{SceneRecord, VERSION};
+use crate::output::{write_json_atomic, write_npy, ProgressReporter, StagedDir, MANIFEST};
+use crate::plot::{
+    plot_convergence_profiles, plot_convergence_rate, ConvergenceProfilesPlot, ConvergenceRatePlot,
+};
+use crate::scene::{InitialSpec, Scene, MAX_PARTICLES};
+
+/// Two successive observed rates further apart than this are "drifting": not yet asymptotic.
+pub const DRIFT_TOLERANCE: f64 = 0.15;
+
+/// The fields compared, in the order of every output.
+pub const FIELDS: [&str; 3] = ["rho", "u", "rho_star"];
+
+/// A difference below ROUNDING_FACTOR · max(N_K ε₆₄, ε) · max(1, max|f_K|) is rounding (N_K the
+/// largest N, ε₆₄ that of f64, ε that of the run's precision; the 1 is the scale of a field that
+/// is zero, such as u at rest: rho and rho* are at most 1, and times and lengths are O(1)).
+pub const ROUNDING_FACTOR: f64 = 16.0;
+
+/// A difference at the largest pair below this many times the rounding level makes the verdict
+/// [`Verdict::RoundingLimited`] (a relative error of 1 % in each difference moves a rate by
+/// about 0.03).
+pub const ROUNDING_LIMITED: f64 = 100.0;
+
+/// Profile figures show at most this many output times.
+const PLOTTED_TIMES: usize = 4;
+
+#[derive(Debug, Clone)]
+pub struct ConvergeOptions {
+    pub out_dir: PathBuf,
+    /// The particle numbers N, strictly increasing, at least 2 (3 for a rate).
+    pub particles: Vec<usize>,
+    pub backend: Option<Backend>,
+    pub precision: Option<Precision>,
+    pub quiet: bool,
+    /// Replace an `out_dir` that holds files that are not a roughlub run.
+    pub force: bool,
+}
+
+/// What the L1 rates at one field and output time say.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    /// Every difference is at rounding level (the field does not depend on N): nothing to
+    /// converge, the limit is the field itself.
+    Exact,
+    /// The difference at the largest pair is within [`ROUNDING_LIMITED`] times the rounding
+    /// level (but not every difference is rounding): the field has converged as far as the
+    /// precision resolves, and its last rates are set by rounding, not by N.
+    RoundingLimited,
+    /// The last two observed rates are finite, positive and within [`DRIFT_TOLERANCE`].
+    Asymptotic,
+    /// The last two observed rates differ by more than [`DRIFT_TOLERANCE`].
+    Drifting,
+    /// A difference grew, or a rate is not finite (NaN from a failed member, or a difference
+    /// that is zero at one pair only): the differences do not decrease like a power of N.
+    NotMonotone,
+    /// Fewer than two observed rates (fewer than 4 values of N): drift cannot be judged.
+    TooFewRates,
+}
+
+impl Verdict {
+    /// Whether the rates may be read as converged.
+    pub fn is_asymptotic(self) -> bool {
+        matches!(
+            self,
+            Verdict::Exact | Verdict::RoundingLimited | Verdict::Asymptotic
+        )
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Verdict::Exact => "exact",
+            Verdict::RoundingLimited => "rounding_limited",
+            Verdict::Asymptotic => "asymptotic",
+            Verdict::Drifting => "drifting",
+            Verdict::NotMonotone => "not_monotone",
+            Verdict::TooFewRates => "too_few_rates",
+        }
+    }
+}
+
+/// L1, L2 (means over the grid points) and L∞ norms of a difference.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Norms {
+    pub l1: f64,
+    pub l2: f64,
+    pub linf: f64,
+}
+
+/// Norms of `a − b` over the grid (NaN where either holds a NaN).
+pub fn difference_norms(a: &[f64], b: &[f64]) -> Norms {
+    let g = a.len().max(1) as f64;
+    let (mut l1, mut l2, mut linf) = (0.0, 0.0, 0.0f64);
+    for (x, y) in a.iter().zip(b) {
+        let d = (x - y).abs();
+        l1 += d;
+        l2 += d * d;
+        linf = if d.is_nan() { f64::NAN } else { linf.max(d) };
+    }
+    Norms {
+        l1: l1 / g,
+        l2: (l2 / g).sqrt(),
+        linf,
+    }
+}
+
+/// Observed rate between two successive differences: ln(e_prev/e_next)/ln(r) (NaN when either
+/// is NaN or both are zero; +inf when only the later one is zero).
+pub fn observed_rate(e_prev: f64, e_next: f64, ratio: f64) -> f64 {
+    if !(e_prev.is_finite() && e_next.is_finite()) || (e_prev == 0.0 && e_next == 0.0) {
+        return f64::NAN;
+    }
+    (e_prev / e_next).ln() / ratio.ln()
+}
+
+/// The verdict on a sequence of L1 differences and their rates (`rates[k]` between
+/// `diffs[k]` and `diffs[k + 1]`); `rounding` is the level below which a difference is rounding.
+pub fn verdict(diffs: &[f64], rates: &[f64], rounding: f64) -> Verdict {
+    if diffs.iter().all(|&e| e <= rounding) {
+        return Verdict::Exact;
+    }
+    if diffs
+        .last()
+        .is_some_and(|&e| e <= ROUNDING_LIMITED * rounding)
+    {
+        return Verdict::RoundingLimited;
+    }
+    let tail: Vec<f64> = rates.iter().rev().take(2).copied().collect();
+    if tail.iter().any(|&p| !(p.is_finite() && p > 0.0)) {
+        return Verdict::NotMonotone;
+    }
+    if tail.len() < 2 {
+        return Verdict::TooFewRates;
+    }
+    if (tail[0] - tail[1]).abs() > DRIFT_TOLERANCE {
+        Verdict::Drifting
+    } else {
+        Verdict::Asymptotic
+    }
+}
+
+/// Richardson extrapolation f_K + (f_K − f_{K−1})/(r^p − 1) (NaN everywhere when p is not a
+/// finite positive rate).
+pub fn richardson(fine: &[f64], coarse: &[f64], ratio: f64, rate: f64) -> Vec<f64> {
+    let denom = ratio.powf(rate) - 1.0;
+    fine.iter()
+        .zip(coarse)
+        .map(|(&f, &c)| {
+            if rate.is_finite() && rate > 0.0 && denom > 0.0 {
+                f + (f - c) / denom
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
+}
+
+/// The `--particles` list: at least 2 values, strictly increasing, each in 2 ..= 1e8.
+pub fn check_particles(list: &[usize]) -> Result<()> {
+    let shown = || {
+        list.iter()
+            .map(|n| n.to_string())
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    let allowed = format!(
+        "at least 2 (3 or more for a rate) strictly increasing particle numbers, each in 2 ..= {MAX_PARTICLES}, e.g. 100,200,400,800"
+    );
+    if list.len() < 2 {
+        return Err(Error::invalid(
+            "--particles",
+            shown(),
+            "a convergence study compares successive N",
+            allowed,
+        ));
+    }
+    if let Some(&n) = list
+        .iter()
+        .find(|&&n| n < 2 || n as u64 > MAX_PARTICLES as u64)
+    {
+        return Err(Error::invalid(
+            "--particles",
+            shown(),
+            format!("N = {n} is outside the scene's range of particle numbers"),
+            allowed,
+        ));
+    }
+    if let Some(w) = list.windows(2).find(|w| w[1] <= w[0]) {
+        return Err(Error::invalid(
+            "--particles",
+            shown(),
+            format!("{} after {} is not increasing", w[1], w[0]),
+            allowed,
+        ));
+    }
+    Ok(())
+}
+
+/// Per field, what the study found at the last output time (also in the manifest).
+#[derive(Debug, Clone, Serialize)]
+pub struct FieldSummary {
+    pub field: &'static str,
+    /// L1 differences between successive N at the last output time.
+    #[serde(serialize_with = "vec_f64")]
+    pub diff_l1: Vec<f64>,
+    /// Observed L1 rates at the last output time (K − 2 of them).
+    #[serde(serialize_with = "vec_f64")]
+    pub rates_l1: Vec<f64>,
+    /// The rate at the largest pair (NaN without one).
+    #[serde(with = "crate::output::serde_f64")]
+    pub rate: f64,
+    /// Least-squares slope of ln e against ln N over all pairs, negated (the plots' fitted line).
+    #[serde(with = "crate::output::serde_f64")]
+    pub fitted_rate: f64,
+    pub verdict: Verdict,
+    /// |f_∞ − f_K| (L1) at the last output time (NaN when there is no limit).
+    #[serde(with = "crate::output::serde_f64")]
+    pub limit_error_l1: f64,
+    /// Whether every output time of this field is asymptotic (or exact).
+    pub asymptotic_all_times: bool,
+}
+
+#[derive(Debug, Clone)]
+pub struct ConvergeSummary {
+    pub out_dir: PathBuf,
+    pub particles: Vec<usize>,
+    /// What ran the largest N, e.g. "cpu (rayon, 2 threads)".
+    pub adapter: String,
+    pub backend: String,
+    pub fields: Vec<FieldSummary>,
+    /// Every field at every output time asymptotic (or exact).
+    pub asymptotic: bool,
+    /// The warning lines printed (also with `quiet`).
+    pub warnings: Vec<String>,
+    pub wall_seconds: f64,
+}
+
+fn vec_f64<S: serde::Serializer>(v: &[f64], s: S) -> std::result::Result<S::Ok, S::Error> {
+    use serde::ser::SerializeSeq;
+    let mut seq = s.serialize_seq(Some(v.len()))?;
+    for x in v {
+        seq.serialize_element(&Num(*x))?;
+    }
+    seq.end()
+}
+
+/// An f64 serialised as `serde_f64` does (non-finite values as strings).
+struct Num(f64);
+impl Serialize for Num {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        crate::output::serde_f64::serialize(&self.0, s)
+    }
+}
+
+/// One N's run, as recorded in the manifest.
+#[derive(Debug, Serialize)]
+struct RunRecord {
+    particles: usize,
+    eps: f64,
+    adapter: String,
+    wall_seconds: f64,
+    member: MemberReport,
+}
+
+/// Per field and output time: the rate at the largest pair, the verdict and the limit error.
+#[derive(Debug, Serialize)]
+struct TimeRecord {
+    #[serde(with = "crate::output::serde_f64")]
+    time: f64,
+    #[serde(serialize_with = "vec_f64")]
+    diff_l1: Vec<f64>,
+    #[serde(serialize_with = "vec_f64")]
+    rates_l1: Vec<f64>,
+    verdict: Verdict,
+    asymptotic: bool,
+    #[serde(with = "crate::output::serde_f64")]
+    limit_error_l1: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct ConvergeManifest {
+    roughlub_version: &'static str,
+    kind: &'static str,
+    scene: SceneRecord,
+    #[serde(flatten)]
+    backend: BackendRecord,
+    wall_seconds: f64,
+    particles: Vec<usize>,
+    ratios_equal: bool,
+    mu: f64,
+    gamma: f64,
+    batch_note: Option<String>,
+    output_times: Vec<f64>,
+    grid: usize,
+    asymptotic: bool,
+    drift_tolerance: f64,
+    fields: Vec<FieldSummary>,
+    per_time: BTreeMap<&'static str, Vec<TimeRecord>>,
+    runs: Vec<RunRecord>,
+    warnings: Vec<String>,
+    files: Vec<String>,
+    conventions: BTreeMap<&'static str, &'static str>,
+}
+
+/// The fields of all N: `[field][k][t]` → G values.
+type FieldStack = Vec<Vec<Vec<Vec<f64>>>>;
+
+/// Refuses scenes whose macroscopic data are not rebuilt at each N.
+fn check_scene(scene: &Scene) -> Result<()> {
+    if let InitialSpec::Particles { path, .. } = &scene.initial {
+        return Err(Error::invalid(
+            "initial.particles",
+            format!("\"{}\"", path.display()),
+            "a convergence study rebuilds the initial data at each N from the profiles (Prop. 3.1); a particle file fixes N",
+            "a scene with initial.rho (and initial.velocity, initial.rho_star) profiles",
+        ));
+    }
+    if scene.ensemble.is_some() {
+        return Err(Error::invalid(
+            "ensemble",
+            "[ensemble]",
+            "a convergence study runs one member per N from the scene's profiles; an ensemble's members draw their own roughness and perturbations",
+            "a scene without [ensemble] (and without [sweep])",
+        ));
+    }
+    Ok(())
+}
+
+/// The scene at particle number `n`, with its first `[batch]` member only.
+fn scene_at(scene: &Scene, n: usize) -> Scene {
+    let mut s = scene.clone();
+    s.particles = Some(n);
+    s.mu.truncate(1);
+    s.gamma.truncate(1);
+    s.gamma_swept = false;
+    s.fields = OutputFields {
+        gaps: true,
+        velocities: true,
+        rho: false,
+        u: false,
+        rho_star: false,
+        energy: false,
+    };
+    s
+}
+
+/// Output indices shown in the profile figures: up to [`PLOTTED_TIMES`], evenly spaced, the
+/// last one included.
+fn shown_times(count: usize) -> Vec<usize> {
+    if count <= PLOTTED_TIMES {
+        return (0..count).collect();
+    }
+    let mut v: Vec<usize> = (0..PLOTTED_TIMES)
+        .map(|j| j * (count - 1) / (PLOTTED_TIMES - 1))
+        .collect();
+    v.dedup();
+    v
+}
+
+/// Least-squares slope of ln e against ln n over the pairs with e > 0 (negated: the rate), and
+/// log10 of the constant C in e = C n^-p; `None` with fewer than 2 such pairs.
+fn fit_rate(n: &[f64], e: &[f64]) -> Option<(f64, f64)> {
+    let pts: Vec<(f64, f64)> = n
+        .iter()
+        .zip(e)
+        .filter(|(_, &e)| e.is_finite() && e > 0.0)
+        .map(|(&n, &e)| (n.log10(), e.log10()))
+        .collect();
+    if pts.len() < 2 {
+        return None;
+    }
+    let m = pts.len() as f64;
+    let (sx, sy) = pts
+        .iter()
+        .fold((0.0, 0.0), |(a, b), &(x, y)| (a + x, b + y));
+    let (mx, my) = (sx / m, sy / m);
+    let sxx: f64 = pts.iter().map(|&(x, _)| (x - mx) * (x - mx)).sum();
+    let sxy: f64 = pts.iter().map(|&(x, y)| (x - mx) * (y - my)).sum();
+    if sxx <= 0.0 {
+        return None;
+    }
+    let slope = sxy / sxx;
+    Some((-slope, my - slope * mx))
+}
+
+/// An output time in a message, to 7 significant digits (0.15, not 0.15000000000000002).
+fn time_text(t: f64) -> String {
+    let rounded: f64 = format!("{t:.6e}").parse().unwrap_or(t);
+    crate::scene::number_text(rounded)
+}
+
+/// Text of a number in the CSV: the shortest text that reads back to the same f64 (exponent
+/// form for small and large values); `NaN`, `inf`, `-inf`.
+fn csv_number(x: f64) -> String {
+    format!("{x:?}")
+}
+
+pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<ConvergeSummary> {
+    let started = Instant::now();
+    check_particles(&options.particles)?;
+    check_scene(scene)?;
+    let requested = options.backend.unwrap_or(scene.backend);
+    let precision = options.precision.unwrap_or(scene.precision);
+    if requested == Backend::Cpu && precision == Precision::F32 {
+        return Err(select::cpu_has_no_f32());
+    }
+    let ns = &options.particles;
+    let k_count = ns.len();
+    let mut warnings = Vec::new();
+    let batch_note = (scene.mu.len() > 1 || scene.gamma.len() > 1).then(|| {
+        format!(
+            "the scene's [batch] has {} members; the study uses its first (mu = {}, gamma = {})",
+            scene.mu.len() * scene.gamma.len(),
+            scene.mu[0],
+            scene.gamma[0]
+        )
+    });
+    if let Some(note) = &batch_note {
+        if !options.quiet {
+            eprintln!("note: {note}");
+        }
+    }
+
+    // The initial data and the backend at the smallest N are checked before anything is
+    // written (a bad profile, a repulsion that overflows, a missing adapter).
+    {
+        let s = scene_at(scene, ns[0]);
+        let chain = s.initial_chain()?;
+        select(requested, precision, &Plan::new(&s, &chain))?;
+    }
+
+    // Every field of every N is held in memory (and written): refuse what would not fit.
+    let bytes = 8
+        * FIELDS.len() as u64
+        * k_count as u64
+        * scene.output_times.len() as u64
+        * scene.grid as u64;
+    if bytes > crate::run::OUTPUT_SIZE_LIMIT {
+        return Err(Error::invalid(
+            "output.grid",
+            scene.grid,
+            format!(
+                "the fields of {k_count} values of N x {} output times x {} grid points take {:.1} GB, held in memory",
+                scene.output_times.len(),
+                scene.grid,
+                bytes as f64 / 1e9
+            ),
+            format!(
+                "at most {:.1} GB: a coarser [output] grid, fewer [time] outputs or fewer N",
+                crate::run::OUTPUT_SIZE_LIMIT as f64 / 1e9
+            ),
+        ));
+    }
+
+    let staged = StagedDir::begin(&options.out_dir, options.force)?;
+    let dir = staged.staging.clone();
+    let t_count = scene.output_times.len();
+    let grid = crate::model::observables::grid_points(scene.grid);
+    let g = grid.len();
+    let repulsion = matches!(
+        &scene.initial,
+        InitialSpec::Profiles {
+            rho_star: Some(_),
+            ..
+        }
+    );
+
+    // fields[f][k][t] = G values
+    let mut fields: FieldStack = vec![Vec::with_capacity(k_count); FIELDS.len()];
+    let mut runs = Vec::with_capacity(k_count);
+    let mut record: Option<BackendRecord> = None;
+    let total: u64 = ns.iter().map(|&n| n as u64).sum::<u64>() * t_count as u64;
+    let progress = ProgressReporter::new(total, "particle-intervals", options.quiet);
+    for &n in ns {
+        let run_started = Instant::now();
+        let s = scene_at(scene, n);
+        let chain = s.initial_chain()?;
+        let plan = Plan::new(&s, &chain);
+        let engine = select(requested, precision, &plan)?;
+        let eps = plan.eps;
+        let dstar = chain.dstar.clone();
+        let mut solver = engine.solver(plan, vec![chain])?;
+        let mut per_field: [Vec<Vec<f64>>; 3] = Default::default();
+        while let Some(snaps) = solver.next_output(&|_| {})? {
+            progress.inc(n as u64);
+            let snap = &snaps[0];
+            let widths: Vec<f64> = snap.gaps.iter().map(|&d| d + 2.0 * eps).collect();
+            let finite = widths.iter().chain(&snap.velocities).all(|v| v.is_finite());
+            if !finite {
+                // A failed member's rows are NaN.
+                for rows in per_field.iter_mut() {
+                    rows.push(vec![f64::NAN; g]);
+                }
+                continue;
+            }
+            let centres = cell_centres(&widths);
+            let rho: Vec<f64> = widths.iter().map(|&w| 2.0 * eps / w).collect();
+            per_field[0].push(cubic_interpolated(&centres, &rho, &grid));
+            let mut nodes = Vec::with_capacity(n + 1);
+            nodes.push(0.0);
+            nodes.extend(widths.iter().scan(0.0, |q, &w| {
+                *q += w;
+                Some(*q)
+            }));
+            let mut u = Vec::with_capacity(n + 1);
+            u.push(0.0);
+            u.extend_from_slice(&snap.velocities);
+            u.push(0.0);
+            per_field[1].push(cubic_interpolated(&nodes, &u, &grid));
+            per_field[2].push(match &dstar {
+                Some(ds) => {
+                    let rs: Vec<f64> = ds.iter().map(|&d| 2.0 * eps / (d + 2.0 * eps)).collect();
+                    cubic_interpolated(&centres, &rs, &grid)
+                }
+                None => vec![f64::NAN; g],
+            });
+        }
+        let member = solver.reports().remove(0);
+        if member.status != MemberStatus::Ok {
+            let line = format!(
+                "the run at N = {n} failed ({}); its fields after the failure are NaN, and every rate involving it is NaN",
+                serde_json::to_string(&member.status).unwrap_or_default()
+            );
+            warnings.push(line);
+        }
+        runs.push(RunRecord {
+            particles: n,
+            eps,
+            adapter: engine.record.short(),
+            wall_seconds: run_started.elapsed().as_secs_f64(),
+            member,
+        });
+        record = Some(engine.record.clone());
+        for (f, rows) in per_field.into_iter().enumerate() {
+            fields[f].push(rows);
+        }
+    }
+    progress.finish();
+    let record = record.expect("at least two N");
+
+    // Differences, rates, verdicts and limits.
+    let ratios: Vec<f64> = ns.windows(2).map(|w| w[1] as f64 / w[0] as f64).collect();
+    let ratios_equal = ratios
+        .windows(2)
+        .all(|w| (w[0] - w[1]).abs() <= 1e-12 * w[0]);
+    // Rounding level of a difference, relative to the field's size: the gaps of the initial
+    // data are differences of positions near 1 (relative error about N ε in f64), so the level
+    // grows with the largest N; in f32 the solver's own rounding is larger.
+    let run_epsilon = match precision {
+        Precision::F64 => f64::EPSILON,
+        Precision::F32 => f32::EPSILON as f64,
+    };
+    let unit_rounding = ROUNDING_FACTOR * (ns[k_count - 1] as f64 * f64::EPSILON).max(run_epsilon);
+    let field_on = |f: usize| f != 2 || repulsion;
+    let mut csv =
+        csv::Writer::from_path(dir.join("convergence.csv")).map_err(|e| Error::Output {
+            path: dir.join("convergence.csv"),
+            message: e.to_string(),
+        })?;
+    let csv_err = |e: csv::Error| Error::Output {
+        path: dir.join("convergence.csv"),
+        message: e.to_string(),
+    };
+    csv.write_record([
+        "field",
+        "time",
+        "n_coarse",
+        "n_fine",
+        "diff_l1",
+        "diff_l2",
+        "diff_linf",
+        "rate_l1",
+        "rate_l2",
+        "rate_linf",
+        "verdict",
+        "asymptotic",
+        "limit_error_l1",
+    ])
+    .map_err(csv_err)?;
+    let mut limits: Vec<Vec<f64>> = vec![Vec::with_capacity(t_count * g); FIELDS.len()];
+    let mut per_time: BTreeMap<&'static str, Vec<TimeRecord>> = BTreeMap::new();
+    let mut summaries = Vec::new();
+    let mut files = vec![PathBuf::from("convergence.csv")];
+    for (f, name) in FIELDS.iter().enumerate() {
+        if !field_on(f) {
+            continue;
+        }
+        let mut records = Vec::with_capacity(t_count);
+        for (t, &time) in scene.output_times.iter().enumerate() {
+            let norms: Vec<Norms> = (0..k_count - 1)
+                .map(|k| difference_norms(&fields[f][k + 1][t], &fields[f][k][t]))
+                .collect();
+            let rate_of = |pick: fn(&Norms) -> f64| -> Vec<f64> {
+                (1..k_count - 1)
+                    .map(|k| observed_rate(pick(&norms[k - 1]), pick(&norms[k]), ratios[k - 1]))
+                    .collect()
+            };
+            let (r1, r2, rinf) = (rate_of(|n| n.l1), rate_of(|n| n.l2), rate_of(|n| n.linf));
+            let fine = &fields[f][k_count - 1][t];
+            let coarse = &fields[f][k_count - 2][t];
+            let scale = fine
+                .iter()
+                .map(|v| v.abs())
+                .filter(|v| v.is_finite())
+                .fold(0.0, f64::max)
+                .max(1.0);
+            let diffs: Vec<f64> = norms.iter().map(|n| n.l1).collect();
+            let v = verdict(&diffs, &r1, unit_rounding * scale);
+            // The limit: the field itself when exact; Richardson with the last rate otherwise
+            // (NaN when there is no rate, or it is not positive).
+            let usable = |p: f64| p.is_finite() && p > 0.0;
+            let limit: Vec<f64> = match (v, r1.last()) {
+                (Verdict::Exact, _) => fine.clone(),
+                (Verdict::RoundingLimited, p) if !p.is_some_and(|&p| usable(p)) => fine.clone(),
+                (_, Some(&p)) => richardson(fine, coarse, ratios[k_count - 2], p),
+                (_, None) => vec![f64::NAN; g],
+            };
+            let limit_error = difference_norms(&limit, fine).l1;
+            limits[f].extend_from_slice(&limit);
+            for (k, norm) in norms.iter().enumerate() {
+                let rate = |r: &[f64]| {
+                    if k == 0 {
+                        String::new()
+                    } else {
+                        csv_number(r[k - 1])
+                    }
+                };
+                let last = k + 2 == k_count;
+                csv.write_record([
+                    name.to_string(),
+                    csv_number(time),
+                    ns[k].to_string(),
+                    ns[k + 1].to_string(),
+                    csv_number(norm.l1),
+                    csv_number(norm.l2),
+                    csv_number(norm.linf),
+                    rate(&r1),
+                    rate(&r2),
+                    rate(&rinf),
+                    v.name().to_string(),
+                    v.is_asymptotic().to_string(),
+                    if last {
+                        csv_number(limit_error)
+                    } else {
+                        String::new()
+                    },
+                ])
+                .map_err(csv_err)?;
+            }
+            records.push(TimeRecord {
+                time,
+                diff_l1: diffs,
+                rates_l1: r1,
+                verdict: v,
+                asymptotic: v.is_asymptotic(),
+                limit_error_l1: limit_error,
+            });
+        }
+        let last = records.last().expect("at least two output times");
+        let n_fine: Vec<f64> = ns[1..].iter().map(|&n| n as f64).collect();
+        // Rates of rounding noise are no rates.
+        let exact = last.verdict == Verdict::Exact;
+        let fitted_rate = match fit_rate(&n_fine, &last.diff_l1) {
+            Some((p, _)) if !exact => p,
+            _ => f64::NAN,
+        };
+        let not_asymptotic: Vec<&TimeRecord> = records.iter().filter(|r| !r.asymptotic).collect();
+        if !not_asymptotic.is_empty() && k_count >= 3 {
+            let first = not_asymptotic[0];
+            let times: Vec<String> = not_asymptotic.iter().map(|r| time_text(r.time)).collect();
+            let rates: Vec<String> = first.rates_l1.iter().map(|p| format!("{p:.3}")).collect();
+            warnings.push(format!(
+                "{name}: the observed L1 rate is not asymptotic at t = {} ({} at t = {}: rates [{}]; asymptotic needs the last two rates finite, positive and within {DRIFT_TOLERANCE} of each other, with 4 or more N); its rates and limit are not converged numbers",
+                times.join(", "),
+                first.verdict.name(),
+                time_text(first.time),
+                rates.join(", ")
+            ));
+        }
+        summaries.push(FieldSummary {
+            field: name,
+            diff_l1: last.diff_l1.clone(),
+            rates_l1: last.rates_l1.clone(),
+            rate: match last.rates_l1.last() {
+                Some(&p) if !exact => p,
+                _ => f64::NAN,
+            },
+            fitted_rate,
+            verdict: last.verdict,
+            limit_error_l1: last.limit_error_l1,
+            asymptotic_all_times: not_asymptotic.is_empty(),
+        });
+        per_time.insert(name, records);
+    }
+    csv.flush()
+        .map_err(|e| Error::io(dir.join("convergence.csv"), e))?;
+    drop(csv);
+    let asymptotic = summaries.iter().all(|s| s.asymptotic_all_times);
+    if k_count == 2 {
+        warnings.push(
+            "2 values of N give the differences only: no rate, no limit, and no verdict (3 or more N for a rate, 4 or more to judge whether it is asymptotic)"
+                .to_string(),
+        );
+    }
+
+    // Arrays.
+    let (k64, t64, g64) = (k_count as u64, t_count as u64, g as u64);
+    for (f, name) in FIELDS.iter().enumerate() {
+        if !field_on(f) {
+            continue;
+        }
+        let flat: Vec<f64> = fields[f].iter().flatten().flatten().copied().collect();
+        files.push(write_npy(
+            dir.join(format!("fields_{name}.npy")),
+            &[k64, t64, g64],
+            &flat,
+        )?);
+        if k_count >= 3 {
+            files.push(write_npy(
+                dir.join(format!("limit_{name}.npy")),
+                &[t64, g64],
+                &limits[f],
+            )?);
+        }
+    }
+    let ns_f64: Vec<f64> = ns.iter().map(|&n| n as f64).collect();
+    files.push(write_npy(dir.join("particles.npy"), &[k64], &ns_f64)?);
+    files.push(write_npy(
+        dir.join("times.npy"),
+        &[t64],
+        &scene.output_times,
+    )?);
+    files.push(write_npy(dir.join("x.npy"), &[g64], &grid)?);
+
+    // Plots.
+    if scene.plots {
+        let plot_dir = dir.join("plots");
+        std::fs::create_dir_all(&plot_dir).map_err(|e| Error::io(&plot_dir, e))?;
+        let shown = shown_times(t_count);
+        let labels: Vec<String> = ns.iter().map(|n| format!("N = {n}")).collect();
+        let times: Vec<f64> = shown.iter().map(|&t| scene.output_times[t]).collect();
+        let last_t = *scene.output_times.last().expect("output times");
+        for (f, name) in FIELDS.iter().enumerate() {
+            if !field_on(f) {
+                continue;
+            }
+            let values: Vec<Vec<Vec<f64>>> = shown
+                .iter()
+                .map(|&t| (0..k_count).map(|k| fields[f][k][t].clone()).collect())
+                .collect();
+            let limit_rows: Vec<Vec<f64>> = shown
+                .iter()
+                .map(|&t| limits[f][t * g..(t + 1) * g].to_vec())
+                .collect();
+            let path = plot_dir.join(format!("{name}_profiles.png"));
+            plot_convergence_profiles(
+                &path,
+                &ConvergenceProfilesPlot {
+                    title: &format!("{}: {name} at each N", scene.name),
+                    y_label: name,
+                    x: &grid,
+                    times: &times,
+                    labels: &labels,
+                    values: &values,
+                    limit: (k_count >= 3).then_some(limit_rows.as_slice()),
+                },
+            )?;
+            files.push(path);
+
+            let summary = summaries
+                .iter()
+                .find(|s| s.field == *name)
+                .expect("summary of every field shown");
+            let n_fine: Vec<f64> = ns[1..].iter().map(|&n| n as f64).collect();
+            let fit =
+                fit_rate(&n_fine, &summary.diff_l1).filter(|_| summary.fitted_rate.is_finite());
+            let mut note = match fit {
+                Some((p, _)) => format!("fitted rate {p:.3} (dashed)"),
+                None if summary.verdict == Verdict::Exact => {
+                    "differences at rounding level: no rate".to_string()
+                }
+                None => "no fitted rate (fewer than 2 nonzero differences)".to_string(),
+            };
+            if summary.rate.is_finite() {
+                note.push_str(&format!(
+                    "\nrate at the largest pair {:.3}\n{}",
+                    summary.rate,
+                    summary.verdict.name().replace('_', " ")
+                ));
+            }
+            let path = plot_dir.join(format!("{name}_rate.png"));
+            plot_convergence_rate(
+                &path,
+                &ConvergenceRatePlot {
+                    title: &format!(
+                        "{}: {name}, L1 difference between successive N at t = {}",
+                        scene.name,
+                        time_text(last_t)
+                    ),
+                    y_label: &format!("L1 difference of {name}"),
+                    n: &n_fine,
+                    diff: &summary.diff_l1,
+                    fit,
+                    note: &note,
+                },
+            )?;
+            files.push(path);
+        }
+    }
+
+    for line in &warnings {
+        eprintln!("warning: {line}");
+    }
+    let wall = started.elapsed().as_secs_f64();
+    let rel = |p: &Path| p.strip_prefix(&dir).unwrap_or(p).display().to_string();
+    let manifest = ConvergeManifest {
+        roughlub_version: VERSION,
+        kind: "convergence",
+        scene: SceneRecord {
+            name: scene.name.clone(),
+            description: scene.description.clone(),
+            path: scene.source_path.display().to_string(),
+            text: scene.source_text.clone(),
+        },
+        backend: record.clone(),
+        wall_seconds: wall,
+        particles: ns.clone(),
+        ratios_equal,
+        mu: scene.mu[0],
+        gamma: scene.gamma[0],
+        batch_note,
+        output_times: scene.output_times.clone(),
+        grid: g,
+        asymptotic,
+        drift_tolerance: DRIFT_TOLERANCE,
+        fields: summaries.clone(),
+        per_time,
+        runs,
+        warnings: warnings.clone(),
+        files: files.iter().map(|p| rel(p)).collect(),
+        conventions: BTreeMap::from([
+            ("fields_*.npy", "[K, T, G]: each N (particles.npy) at each output time (times.npy) on the grid x.npy"),
+            ("limit_*.npy", "[T, G]: Richardson extrapolation from the two largest N with the L1 rate at the largest pair, f_K + (f_K - f_{K-1})/(r^p - 1); the field itself where every difference is rounding (verdict exact); NaN where the rate is not finite and positive; absent with 2 values of N"),
+            ("sampling", "cubic interpolation through the 4 nearest nodes: rho and rho_star from the cell values at the cell centres, u from the particle velocities (O(h^4) for smooth profiles; the run's piecewise-constant / piecewise-linear sampling is O(h) / O(h^2) with a factor oscillating from point to point, which hides the particle system's convergence and defeats pointwise extrapolation)"),
+            ("time_steps", "every N runs with the scene's time stepping: the limit is N -> infinity at those steps, and the time-step error (common to all N) is not in the differences"),
+            ("norms", "L1 and L2 as means over the grid points, Linf the largest difference"),
+            ("rates", "ln(e_{k-1}/e_k)/ln(N_k/N_{k-1}) between the differences of successive pairs: log2 of the ratio when N doubles; exact for e = C N^-p only when the ratios are equal (ratios_equal)"),
+            ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 max(N_K eps_f64, eps) max(1, max|f_K|) with eps that of the precision (exact), or the difference at the largest pair within 100 times that level (rounding_limited: converged as far as the precision resolves)"),
+        ]),
+    };
+    write_json_atomic(&dir.join(MANIFEST), &manifest)?;
+    staged.commit()?;
+    Ok(ConvergeSummary {
+        out_dir: options.out_dir.clone(),
+        particles: ns.clone(),
+        adapter: record.short(),
+        backend: match record.backend {
+            RunsOn::Cpu => "cpu".into(),
+            RunsOn::Gpu => "gpu".into(),
+        },
+        fields: summaries,
+        asymptotic,
+        warnings,
+        wall_seconds: wall,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rates_of_a_power_law_are_its_exponent() {
+        let ns = [100.0f64, 200.0, 400.0, 800.0];
+        let e: Vec<f64> = ns.iter().map(|n| 3.0 * n.powf(-1.5)).collect();
+        for k in 1..e.len() {
+            assert!((observed_rate(e[k - 1], e[k], 2.0) - 1.5).abs() < 1e-12);
+        }
+        let (p, _) = fit_rate(&ns, &e).unwrap();
+        assert!((p - 1.5).abs() < 1e-12);
+        assert!(observed_rate(0.0, 0.0, 2.0).is_nan());
+        assert!(observed_rate(f64::NAN, 1.0, 2.0).is_nan());
+    }
+
+    #[test]
+    fn verdicts() {
+        let r = 1e-13;
+        assert_eq!(verdict(&[0.0, 1e-16], &[f64::NAN], r), Verdict::Exact);
+        assert_eq!(
+            verdict(&[1e-9, 1e-12, 1e-12], &[3.0, 0.0], r),
+            Verdict::RoundingLimited
+        );
+        assert_eq!(
+            verdict(&[4.0, 2.0, 1.0], &[1.0, 1.0], r),
+            Verdict::Asymptotic
+        );
+        assert_eq!(verdict(&[4.0, 2.0, 0.5], &[1.0, 2.0], r), Verdict::Drifting);
+        assert_eq!(
+            verdict(&[4.0, 2.0, 3.0], &[1.0, -0.58], r),
+            Verdict::NotMonotone
+        );
+        assert_eq!(
+            verdict(&[4.0, f64::NAN, 1.0], &[f64::NAN, f64::NAN], r),
+            Verdict::NotMonotone
+        );
+        assert_eq!(verdict(&[4.0, 2.0], &[1.0], r), Verdict::TooFewRates);
+        assert_eq!(verdict(&[4.0], &[], r), Verdict::TooFewRates);
+    }
+
+    #[test]
+    fn richardson_recovers_the_limit_of_an_exact_expansion() {
+        // f_N = 1 + 2/N^2 at two points: the extrapolation with p = 2 is exact.
+        let f = |n: f64| vec![1.0 + 2.0 / (n * n), 3.0 - 1.0 / (n * n)];
+        let lim = richardson(&f(800.0), &f(400.0), 2.0, 2.0);
+        assert!((lim[0] - 1.0).abs() < 1e-14 && (lim[1] - 3.0).abs() < 1e-14);
+        assert!(richardson(&f(800.0), &f(400.0), 2.0, -1.0)[0].is_nan());
+    }
+
+    #[test]
+    fn particle_lists_are_checked() {
+        assert!(check_particles(&[100, 200, 400]).is_ok());
+        assert!(check_particles(&[100, 200]).is_ok());
+        for bad in [
+            &[100][..],
+            &[],
+            &[200, 100, 400],
+            &[100, 100, 200],
+            &[1, 2, 4],
+            &[100, 200_000_000],
+        ] {
+            let e = check_particles(bad).unwrap_err().to_string();
+            assert!(e.starts_with("--particles"), "{e}");
+            assert!(e.contains("2 ..= 100000000"), "{e}");
+        }
+    }
+
+    #[test]
+    fn cubic_sampling_is_exact_for_cubics() {
+        let nodes = [0.0, 0.1, 0.25, 0.3, 0.55, 0.7, 1.0];
+        let p = |x: f64| 1.0 - 2.0 * x + 3.0 * x * x - 0.5 * x * x * x;
+        let values: Vec<f64> = nodes.iter().map(|&x| p(x)).collect();
+        let grid = crate::model::observables::grid_points(23);
+        for (x, v) in grid.iter().zip(cubic_interpolated(&nodes, &values, &grid)) {
+            assert!((v - p(*x)).abs() < 1e-13, "{x}: {v}");
+        }
+        // Two or three nodes: the line or parabola through them.
+        let v = cubic_interpolated(&[0.25, 0.75], &[1.0, 2.0], &[0.0, 0.5, 1.0]);
+        assert!(
+            (v[0] - 0.5).abs() < 1e-15 && (v[1] - 1.5).abs() < 1e-15 && (v[2] - 2.5).abs() < 1e-15
+        );
+        assert_eq!(cell_centres(&[0.2, 0.3, 0.5]), vec![0.1, 0.35, 0.75]);
+    }
+
+    #[test]
+    fn shown_times_include_first_and_last() {
+        assert_eq!(shown_times(3), vec![0, 1, 2]);
+        assert_eq!(shown_times(9), vec![0, 2, 5, 8]);
+    }
+}
