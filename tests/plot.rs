@@ -598,3 +598,51 @@ fn xt_maps_put_x_across_and_t_upwards() {
     assert_eq!((thinned[0], *thinned.last().unwrap()), (0, 1000));
     assert!(thinned.windows(2).all(|w| w[1] > w[0]));
 }
+
+/// The x–t map's pixels match the field: every cell's exact colour (the colour scale applied to
+/// its value) fills a block of the picture, the blocks ordered by x from left to right and by
+/// t from bottom to top.
+#[test]
+fn xt_map_pixels_match_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let x = [0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0];
+    let times = [0.0, 0.5, 1.0];
+    // Distinct values: 0.1 (x index) + 0.02 (t index), in [0.5, 0.84].
+    let value = |i: usize, k: usize| 0.5 + 0.1 * i as f64 + 0.02 * k as f64;
+    let rows: Vec<Vec<f64>> = (0..3).map(|k| (0..4).map(|i| value(i, k)).collect()).collect();
+    let path = dir.path().join("xt_cells.png");
+    roughlub::plot::plot_xt(&path, "cells", "rho", &x, &times, &rows).unwrap();
+    keep(&path, "xt_cells.png");
+    let (img, w) = png_pixels(&path);
+    let (lo, hi) = (value(0, 0), value(3, 2));
+    let mut centres = vec![vec![(0.0, 0.0); 4]; 3];
+    for k in 0..3 {
+        for i in 0..4 {
+            let want = roughlub::plot::heatmap_color(value(i, k), lo, hi);
+            let (mut n, mut sx, mut sy) = (0usize, 0usize, 0usize);
+            for (p, px) in img.chunks_exact(3).enumerate() {
+                if px == want {
+                    n += 1;
+                    sx += p % w;
+                    sy += p / w;
+                }
+            }
+            assert!(
+                n > 2000,
+                "cell (x {i}, t {k}) = {}: its colour {want:?} fills only {n} pixels",
+                value(i, k)
+            );
+            centres[k][i] = (sx as f64 / n as f64, sy as f64 / n as f64);
+        }
+    }
+    for k in 0..3 {
+        for i in 1..4 {
+            assert!(centres[k][i].0 > centres[k][i - 1].0 + 50.0, "x order, row {k}: {centres:?}");
+        }
+    }
+    for i in 0..4 {
+        for k in 1..3 {
+            assert!(centres[k][i].1 + 50.0 < centres[k - 1][i].1, "t upwards, column {i}: {centres:?}");
+        }
+    }
+}

@@ -252,6 +252,13 @@ pub fn plot_work_precision(
     )
 }
 
+/// The RGB colour a heat map (and an x–t map) gives `value` on a colour scale from `lo` to `hi`
+/// (the range of its finite values): for checking a picture against its data.
+pub fn heatmap_color(value: f64, lo: f64, hi: f64) -> [u8; 3] {
+    let c = response::value_color(response::scale_position(value, (lo, hi)));
+    [c.0, c.1, c.2]
+}
+
 /// Largest number of rows (times) and columns (grid points) of an x–t map: more cells than the
 /// picture has pixels only cost drawing time.
 pub const MAX_XT_CELLS: (usize, usize) = (400, 250);

@@ -252,13 +252,13 @@ fn ranked(values: &[f64], log: bool) -> (Vec<f64>, Vec<usize>) {
 }
 
 /// Colour of a value at `s` in [0, 1] of the colour scale: the colormap of the other figures.
-fn value_color(s: f64) -> RGBColor {
+pub(super) fn value_color(s: f64) -> RGBColor {
     indexed_color((s.clamp(0.0, 1.0) * 1000.0).round() as usize, 1001)
 }
 
 /// Position in [0, 1] of `v` on the scale `[lo, hi]` (0.5 for a constant scale); computed on
 /// halves so that a span beyond the largest double does not overflow.
-fn scale_position(v: f64, (lo, hi): (f64, f64)) -> f64 {
+pub(super) fn scale_position(v: f64, (lo, hi): (f64, f64)) -> f64 {
     if hi > lo {
         (0.5 * v - 0.5 * lo) / (0.5 * hi - 0.5 * lo)
     } else {
