@@ -17,6 +17,47 @@ use crate::model::params::{MemberParams, Stepping};
 use crate::model::plan::Plan;
 use block::Block;
 
+/// The instruction set of the CPU step's lane loops, chosen once per process at run time (the
+/// build targets baseline x86-64). Both levels run the same operations in the same order (Rust
+/// never contracts a·b + c into an fma), so their results are bitwise equal; only speed differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SimdLevel {
+    /// Whatever the build targets (SSE2 on x86-64).
+    Portable,
+    /// 256-bit AVX2 with FMA enabled for the lane loops (x86-64 only).
+    Avx2Fma,
+}
+
+impl SimdLevel {
+    /// The widest level this CPU runs; `ROUGHLUB_CPU_SIMD=portable` forces the portable one.
+    pub fn detect() -> SimdLevel {
+        static LEVEL: std::sync::OnceLock<SimdLevel> = std::sync::OnceLock::new();
+        *LEVEL.get_or_init(|| {
+            if std::env::var("ROUGHLUB_CPU_SIMD").is_ok_and(|v| v == "portable") {
+                return SimdLevel::Portable;
+            }
+            #[cfg(target_arch = "x86_64")]
+            if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+                return SimdLevel::Avx2Fma;
+            }
+            SimdLevel::Portable
+        })
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            SimdLevel::Portable => "portable",
+            SimdLevel::Avx2Fma => "avx2+fma",
+        }
+    }
+}
+
+/// The name of the instruction set the CPU step uses here ("avx2+fma" or "portable"), for the
+/// manifest.
+pub fn simd_level() -> &'static str {
+    SimdLevel::detect().name()
+}
+
 enum Blocks {
     Single(Vec<Block<1>>),
     Eight(Vec<Block<8>>),

@@ -32,7 +32,7 @@
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
 
-use super::twin_math;
+use super::{twin_math, SimdLevel};
 use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};
 
@@ -65,16 +65,7 @@ pub const MAX_OPENING: f64 = 5.0;
 #[inline(always)]
 pub fn gap_exp(x: f64) -> f64 {
     if x.abs() < GAP_EXP_TAYLOR {
-        // Horner, 1/k! as the nearest f64 (the WGSL twin writes the same literals).
-        1.0 + x
-            * (1.0
-                + x * (0.5
-                    + x * (1.666_666_666_666_666_6e-1
-                        + x * (4.166_666_666_666_666_4e-2
-                            + x * (8.333_333_333_333_333e-3
-                                + x * (1.388_888_888_888_889e-3
-                                    + x * (1.984_126_984_126_984e-4
-                                        + x * 2.480_158_730_158_730_2e-5)))))))
+        gap_exp_taylor(x)
     } else {
         twin_math::exp_in_range(x.clamp(-EXP_FAST_MAX, EXP_FAST_MAX))
     }
@@ -210,14 +201,58 @@ struct Law<P, Q> {
     gamma: Q,
 }
 
-/// (a, G, d) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) at the effective gap d.
+/// The L lanes of row `at` of an interleaved buffer: one bounds check per row, none per lane
+/// (a check inside the lane loop keeps it out of SIMD registers).
 #[inline(always)]
-fn gap_terms<const L: usize, const REP: bool, const CLU: bool, P, Q>(
-    terms: &Terms<L>,
+fn lanes<const L: usize, T>(s: &[T], at: usize) -> &[T; L] {
+    s[at..at + L].try_into().unwrap()
+}
+
+#[inline(always)]
+fn lanes_mut<const L: usize, T>(s: &mut [T], at: usize) -> &mut [T; L] {
+    (&mut s[at..at + L]).try_into().unwrap()
+}
+
+/// The per-element inputs of the model, as interleaved slices: d* (the gaps themselves without
+/// repulsion, never read then) and the bonded flags (empty without clusters, never read then).
+struct Inputs<'a> {
+    dstar: &'a [f64],
+    bonded: &'a [bool],
+}
+
+impl<'a> Inputs<'a> {
+    #[inline(always)]
+    fn of<const L: usize>(terms: &Terms<'a, L>, gaps: &'a [f64]) -> Inputs<'a> {
+        Inputs {
+            dstar: terms.repulsion.map_or(gaps, |r| r.0),
+            bonded: terms.bonded.unwrap_or(&[]),
+        }
+    }
+
+    /// Row `at` of d* and of the bonded flags (all free without clusters).
+    #[inline(always)]
+    fn row<const L: usize, const CLU: bool>(&self, at: usize) -> (&'a [f64; L], [bool; L]) {
+        let bonded = if CLU {
+            *lanes::<L, bool>(self.bonded, at)
+        } else {
+            [false; L]
+        };
+        (lanes::<L, f64>(self.dstar, at), bonded)
+    }
+}
+
+/// (a, G, d) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) at the effective gap d
+/// (eps2 = 2eps; `dstar` is d* of the gap, read only with repulsion).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn gap_terms<const REP: bool, const CLU: bool, P, Q>(
     law: Law<P, Q>,
     l: usize,
-    index: usize,
+    mu: f64,
+    eps2: f64,
     stored: f64,
+    dstar: f64,
+    bonded: bool,
     h: f64,
 ) -> (f64, f64, f64)
 where
@@ -225,15 +260,13 @@ where
     Q: Fn(usize) -> f64 + Copy,
 {
     let d = stored.max(GAP_FLOOR);
-    let mu = terms.mu[l];
     if !REP {
         return (mu, 0.0, d);
     }
-    let dstar = terms.repulsion.map_or(&[][..], |r| r.0);
-    let inv_s = 1.0 / (d + 2.0 * terms.eps);
-    let ratio = (dstar[index] + 2.0 * terms.eps) * inv_s;
+    let inv_s = 1.0 / (d + eps2);
+    let ratio = (dstar + eps2) * inv_s;
     let mut g = (law.power)(l, ratio);
-    if CLU && terms.bonded.is_some_and(|b| b[index]) {
+    if CLU && bonded {
         g = 0.0;
     }
     (mu + h * (law.gamma)(l) * g * d * inv_s, g, d)
@@ -241,13 +274,7 @@ where
 
 /// Phi_i(d) of one free gap: (d + 2eps) G/(gamma - 1), or -(d* + 2eps) ln(d + 2eps) at gamma = 1.
 #[inline(always)]
-fn potential_of<const L: usize, const REP: bool, P, Q>(
-    terms: &Terms<L>,
-    law: Law<P, Q>,
-    l: usize,
-    index: usize,
-    d: f64,
-) -> f64
+fn potential_of<const REP: bool, P, Q>(law: Law<P, Q>, l: usize, eps2: f64, dstar: f64, d: f64) -> f64
 where
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
@@ -255,9 +282,8 @@ where
     if !REP {
         return 0.0;
     }
-    let dstar = terms.repulsion.map_or(&[][..], |r| r.0);
-    let s = d + 2.0 * terms.eps;
-    let s_star = dstar[index] + 2.0 * terms.eps;
+    let s = d + eps2;
+    let s_star = dstar + eps2;
     let g = (law.gamma)(l);
     if g == 1.0 {
         -s_star * twin_math::ln(s)
@@ -280,8 +306,9 @@ fn repulsion_failure<const L: usize>(
     }
 }
 
-/// Calls `$body` with `$law` bound to the specialised [`Law`] for the block's gamma and the
-/// const generics REP (repulsion), FRC (forcing) and CLU (clusters) set from `$terms`.
+/// Calls `$f` (a function made by `simd_versions!`) with `$law` bound to the specialised [`Law`]
+/// for the block's gamma and the const generics REP (repulsion), FRC (forcing) and CLU
+/// (clusters) set from `$terms`.
 macro_rules! specialised {
     ($terms:expr, $f:ident, ($($arg:expr),*)) => {{
         let terms = $terms;
@@ -335,6 +362,46 @@ macro_rules! specialised {
     }};
 }
 
+/// Defines `$name`, which runs the `#[inline(always)]` body `$body` compiled for the instruction
+/// set `simd` names: the same source, so the same operations in the same order at every level
+/// (bitwise equal results), only wider registers. `$avx` is the AVX2 + FMA instance.
+macro_rules! simd_versions {
+    ($name:ident, $avx:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
+        #[allow(clippy::too_many_arguments)]
+        fn $name<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+            simd: SimdLevel,
+            $($arg: $ty,)*
+            law: Law<P, Q>,
+        ) -> $ret
+        where
+            P: Fn(usize, f64) -> f64 + Copy,
+            Q: Fn(usize) -> f64 + Copy,
+        {
+            #[cfg(target_arch = "x86_64")]
+            if simd == SimdLevel::Avx2Fma {
+                // SAFETY: SimdLevel::Avx2Fma is only chosen where the CPU has AVX2 and FMA.
+                return unsafe { $avx::<L, REP, FRC, CLU, P, Q>($($arg,)* law) };
+            }
+            let _ = simd;
+            $body::<L, REP, FRC, CLU, P, Q>($($arg,)* law)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn $avx<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+            $($arg: $ty,)*
+            law: Law<P, Q>,
+        ) -> $ret
+        where
+            P: Fn(usize, f64) -> f64 + Copy,
+            Q: Fn(usize) -> f64 + Copy,
+        {
+            $body::<L, REP, FRC, CLU, P, Q>($($arg,)* law)
+        }
+    };
+}
+
 /// Discrete energy E = eps Σ u_i² + Σ Phi_i(d_i) of every lane's state (the same sums, in the
 /// same order, as a step's report, so that the energy check compares like with like).
 pub fn state_energy<const L: usize>(
@@ -357,18 +424,24 @@ where
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
 {
+    let eps2 = 2.0 * terms.eps;
+    let inputs = Inputs::of(terms, gaps);
     let mut kinetic = [0.0; L];
     let mut energy = [0.0; L];
     for i in 0..n {
+        let k = i * L;
+        let (dstar, bonded) = inputs.row::<L, CLU>(k);
+        let stored = lanes::<L, f64>(gaps, k);
         for l in 0..L {
-            let k = i * L + l;
-            let phi = potential_of::<L, REP, P, Q>(terms, law, l, k, gaps[k].max(0.0));
-            if !(CLU && terms.bonded.is_some_and(|b| b[k])) {
+            let phi = potential_of::<REP, P, Q>(law, l, eps2, dstar[l], stored[l].max(0.0));
+            if !bonded[l] {
                 energy[l] += phi;
             }
-            if i + 1 < n {
-                let u = vel[k];
-                kinetic[l] += u * u;
+        }
+        if i + 1 < n {
+            let u = lanes::<L, f64>(vel, k);
+            for l in 0..L {
+                kinetic[l] += u[l] * u[l];
             }
         }
     }
@@ -388,6 +461,22 @@ fn particle_force(forcing: &Forcing, eps: f64, t: f64, q: f64) -> f64 {
     eps * s
 }
 
+/// The Taylor branch of [`gap_exp`] (|x| < GAP_EXP_TAYLOR), branch-free for the lane loop.
+#[allow(clippy::excessive_precision)]
+#[inline(always)]
+fn gap_exp_taylor(x: f64) -> f64 {
+    // Horner, 1/k! as the nearest f64 (the WGSL twin writes the same literals).
+    1.0 + x
+        * (1.0
+            + x * (0.5
+                + x * (1.666_666_666_666_666_6e-1
+                    + x * (4.166_666_666_666_666_4e-2
+                        + x * (8.333_333_333_333_333e-3
+                            + x * (1.388_888_888_888_889e-3
+                                + x * (1.984_126_984_126_984e-4
+                                    + x * 2.480_158_730_158_730_2e-5)))))))
+}
+
 /// Advances every lane by its own step h[l] from (gaps_in, vel_in) to (gaps_out, vel_out)
 /// (gaps in the stored form: d, or ln d below GAP_FLOOR). Lanes whose report is not admissible
 /// (or has a hard failure) must be rejected by the caller: their output is garbage.
@@ -403,14 +492,55 @@ pub fn euler_step<const L: usize>(
     vel_out: &mut [f64],
     scratch: &mut Scratch,
 ) -> [StepReport; L] {
-    specialised!(
+    euler_step_at(
+        SimdLevel::detect(),
         terms,
-        euler_impl,
-        (terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch)
+        particles,
+        t,
+        h,
+        gaps_in,
+        vel_in,
+        gaps_out,
+        vel_out,
+        scratch,
     )
 }
 
+/// [`euler_step`] with the lane loops compiled for `simd` (which the CPU must support).
 #[allow(clippy::too_many_arguments)]
+pub(crate) fn euler_step_at<const L: usize>(
+    simd: SimdLevel,
+    terms: &Terms<L>,
+    particles: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch,
+) -> [StepReport; L] {
+    specialised!(
+        terms,
+        euler_simd,
+        (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch)
+    )
+}
+
+simd_versions!(euler_simd, euler_avx2, euler_impl, (
+    terms: &Terms<L>,
+    n: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch
+) -> [StepReport; L]);
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn euler_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
     terms: &Terms<L>,
     n: usize,
@@ -428,9 +558,12 @@ where
     Q: Fn(usize) -> f64 + Copy,
 {
     let eps = terms.eps;
-    debug_assert_eq!(gaps_in.len(), n * L);
-    debug_assert_eq!(vel_in.len(), (n - 1) * L);
+    assert_eq!(gaps_in.len(), n * L);
+    assert_eq!(vel_in.len(), (n - 1) * L);
     let mass = 2.0 * eps;
+    let eps2 = 2.0 * eps;
+    let mu = terms.mu;
+    let inputs = Inputs::of(terms, gaps_in);
     let mut report = [StepReport::START; L];
     let mut m_over_h = [0.0; L];
     for l in 0..L {
@@ -445,44 +578,63 @@ where
     let mut ls_prev = [0.0; L];
     let mut ys_prev = [0.0; L];
     let mut q = [0.0; L];
+    let mut f = [0.0; L];
     let mut finite = [true; L];
-    for l in 0..L {
-        let (a, g, d) = gap_terms::<L, REP, CLU, P, Q>(terms, law, l, l, gaps_in[l], h[l]);
-        a_prev[l] = a;
-        g_prev[l] = g;
-        ls_prev[l] = 1.0 / d;
-        finite[l] &= g.is_finite();
+    {
+        let stored = lanes::<L, f64>(gaps_in, 0);
+        let (dstar, bonded) = inputs.row::<L, CLU>(0);
+        for l in 0..L {
+            let (a, g, d) = gap_terms::<REP, CLU, P, Q>(
+                law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
+            );
+            a_prev[l] = a;
+            g_prev[l] = g;
+            ls_prev[l] = 1.0 / d;
+            finite[l] &= g.is_finite();
+        }
     }
     for i in 1..n {
         let row = (i - 1) * L;
         let next_gap = i * L;
-        for l in 0..L {
-            let stored_next = gaps_in[next_gap + l];
-            let (a_next, g_next, d_next) =
-                gap_terms::<L, REP, CLU, P, Q>(terms, law, l, next_gap + l, stored_next, h[l]);
-            let mut f = 0.0;
-            if FRC {
-                if let Some(forcing) = terms.forcing {
-                    q[l] += stored_gap::decode(gaps_in[row + l]) + mass;
-                    f = particle_force(forcing, eps, t[l], q[l]);
-                    scratch.force[row + l] = f;
+        if FRC {
+            if let Some(forcing) = terms.forcing {
+                // Not vectorisable (the expression is interpreted): a loop of its own.
+                let prev = lanes::<L, f64>(gaps_in, row);
+                let force = lanes_mut::<L, f64>(&mut scratch.force, row);
+                for l in 0..L {
+                    q[l] += stored_gap::decode(prev[l]) + mass;
+                    f[l] = particle_force(forcing, eps, t[l], q[l]);
+                    force[l] = f[l];
                 }
             }
-            finite[l] &= (g_next + f).is_finite();
-            let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
+        }
+        // The lane loop works on local copies of the rows (no aliasing for the vectoriser to
+        // rule out) and stores whole rows after it.
+        let stored = *lanes::<L, f64>(gaps_in, next_gap);
+        let (dstar, bonded) = inputs.row::<L, CLU>(next_gap);
+        let dstar = *dstar;
+        let vel = *lanes::<L, f64>(vel_in, row);
+        let mut w = [0.0; L];
+        for l in 0..L {
+            let (a_next, g_next, d_next) = gap_terms::<REP, CLU, P, Q>(
+                law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
+            );
+            finite[l] &= (g_next + f[l]).is_finite();
+            let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
             let excess = m_over_h[l] + a_prev[l] * ls_prev[l];
             let delta = rhs + a_prev[l] * ys_prev[l];
             let inv = 1.0 / (excess * d_next + a_next);
             let ls = excess * inv;
             let ys = delta * inv;
-            scratch.w[row + l] = a_next * inv;
-            scratch.ls[row + l] = ls;
-            scratch.ys[row + l] = ys;
+            w[l] = a_next * inv;
             ls_prev[l] = ls;
             ys_prev[l] = ys;
             a_prev[l] = a_next;
             g_prev[l] = g_next;
         }
+        *lanes_mut::<L, f64>(&mut scratch.w, row) = w;
+        *lanes_mut::<L, f64>(&mut scratch.ls, row) = ls_prev;
+        *lanes_mut::<L, f64>(&mut scratch.ys, row) = ys_prev;
     }
     for l in 0..L {
         if !finite[l] {
@@ -499,33 +651,61 @@ where
     let mut closing = [f64::NEG_INFINITY; L];
     let mut sum = [0.0; L];
     let mut u_next = [0.0; L];
+    let gamma2: [f64; L] = std::array::from_fn(|l| -((law.gamma)(l) + 2.0));
     for i in (1..n).rev() {
         let row = (i - 1) * L;
         let gap = i * L;
+        let old = *lanes::<L, f64>(gaps_in, gap);
+        let (_, bonded) = inputs.row::<L, CLU>(gap);
+        let w = *lanes::<L, f64>(&scratch.w, row);
+        let ys = *lanes::<L, f64>(&scratch.ys, row);
+        let ls = *lanes::<L, f64>(&scratch.ls, row);
+        let mut rates = [0.0; L];
+        let mut x = [0.0; L];
+        let mut taylor = true;
         for l in 0..L {
-            let old = gaps_in[gap + l];
-            let d = old.max(GAP_FLOOR);
-            let mut u = d * scratch.ys[row + l] + scratch.w[row + l] * u_next[l];
-            if CLU && terms.bonded.is_some_and(|b| b[gap + l]) {
+            let d = old[l].max(GAP_FLOOR);
+            let mut u = d * ys[l] + w[l] * u_next[l];
+            if CLU && bonded[l] {
                 // Exactly the velocity of the body it is bonded to (the penalty gives it to
                 // ~1e-250).
                 u = u_next[l];
             }
-            let rate = scratch.ls[row + l] * u_next[l] - scratch.ys[row + l];
-            let x = h[l] * rate;
-            let grown = old * gap_exp(x);
-            vel_out[row + l] = u;
-            gaps_out[gap + l] = grown;
-            scratch.ls[row + l] = rate;
-            sum[l] += grown.max(0.0);
-            if old > 0.0 {
-                opening[l] = opening[l].max(x);
-            }
-            closing[l] = closing[l].max(d * (-((law.gamma)(l) + 2.0) * x.min(0.0) - 1.0));
-            // NaN fails the comparisons.
-            needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX);
+            let rate = ls[l] * u_next[l] - ys[l];
+            x[l] = h[l] * rate;
+            taylor &= x[l].abs() < GAP_EXP_TAYLOR;
+            rates[l] = rate;
             u_next[l] = u;
         }
+        *lanes_mut::<L, f64>(vel_out, row) = u_next;
+        *lanes_mut::<L, f64>(&mut scratch.ls, row) = rates;
+        // e^x: the polynomial for the whole row when every lane's |x| is small (so the lane
+        // loop stays branch-free), else lane by lane. Either way each lane gets gap_exp(x).
+        let mut e = [0.0; L];
+        if taylor {
+            for l in 0..L {
+                e[l] = gap_exp_taylor(x[l]);
+            }
+        } else {
+            for l in 0..L {
+                e[l] = gap_exp(x[l]);
+            }
+        }
+        let mut grown_row = [0.0; L];
+        for l in 0..L {
+            let grown = old[l] * e[l];
+            grown_row[l] = grown;
+            sum[l] += grown.max(0.0);
+            if old[l] > 0.0 {
+                opening[l] = opening[l].max(x[l]);
+            }
+            let d = old[l].max(GAP_FLOOR);
+            closing[l] = closing[l].max(d * (gamma2[l] * x[l].min(0.0) - 1.0));
+            // NaN fails the comparisons.
+            needs_fixup[l] |=
+                !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x[l] <= EXP_FAST_MAX);
+        }
+        *lanes_mut::<L, f64>(gaps_out, gap) = grown_row;
     }
     if CLU {
         if let Some(bonded) = terms.bonded {
@@ -553,8 +733,8 @@ where
             opening[l] = opening[l].max(x);
         }
         let d = old.max(GAP_FLOOR);
-        closing[l] = closing[l].max(d * (-((law.gamma)(l) + 2.0) * x.min(0.0) - 1.0));
-        needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX);
+        closing[l] = closing[l].max(d * (gamma2[l] * x.min(0.0) - 1.0));
+        needs_fixup[l] |= !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX);
     }
 
     for l in 0..L {
@@ -606,8 +786,8 @@ where
 /// where R_i is the Taylor remainder of Phi_i beyond second order over D_i (the scheme's own
 /// balance gives -mu/h sum d x^2 - sum k D^2/2, the projection at most G_max sum e_i, and
 /// sum e_i <= e^{max x} sum d x^2/2). The third derivative of Phi is negative, so R_i <= 0 for
-/// an opening gap, and R_i <= k_i D_i^2/2 for a closing one when (gamma + 1)|D_i| <= d_i + D_i
-/// + 2eps, i.e. when `closing` = max_i d_i ((gamma + 2)(-x_i) - 1) <= 2eps; the second term is
+/// an opening gap, and R_i <= k_i D_i^2/2 for a closing one when
+/// (gamma + 1)|D_i| <= d_i + D_i + 2eps, i.e. when `closing` = max_i d_i ((gamma + 2)(-x_i) - 1) <= 2eps; the second term is
 /// <= 0 when e^{max x} G_max/2 <= mu/h, with G_max bounded by the contact repulsion. A mild step
 /// is certified and skips the potential energy; any other is checked by computing E'.
 #[inline(always)]
@@ -652,10 +832,21 @@ where
                 }
             }
         }
-        if terms.repulsion.is_some() && terms.bonded.is_none_or(|b| !b[k]) {
-            let (_, g, d) = gap_terms::<L, true, false, P, Q>(terms, law, l, k, gaps_in[k], h);
-            if !g.is_finite() {
-                return Some(repulsion_failure(terms, i, k, d));
+        if let Some((dstar, _)) = terms.repulsion {
+            if terms.bonded.is_none_or(|b| !b[k]) {
+                let (_, g, d) = gap_terms::<true, false, P, Q>(
+                    law,
+                    l,
+                    terms.mu[l],
+                    2.0 * eps,
+                    gaps_in[k],
+                    dstar[k],
+                    false,
+                    h,
+                );
+                if !g.is_finite() {
+                    return Some(repulsion_failure(terms, i, k, d));
+                }
             }
         }
     }
@@ -697,7 +888,7 @@ fn fix_up_lane<const L: usize>(
         };
         let x = h * rate;
         let grown = gaps_out[k];
-        if grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX && gaps_in[k] > 0.0 {
+        if (GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX && gaps_in[k] > 0.0 {
             continue;
         }
         gaps_out[k] = encode_ln_gap(stored_ln(gaps_in[k]) + x);
@@ -738,12 +929,24 @@ pub fn conclude<const L: usize>(
     }
     specialised!(
         terms,
-        conclude_impl,
-        (terms, n, h, total, gaps, vel, None, report)
+        conclude_simd,
+        (SimdLevel::detect(), terms, n, h, total, gaps, vel, None, report)
     )
 }
 
+simd_versions!(conclude_simd, conclude_avx2, conclude_impl, (
+    terms: &Terms<L>,
+    n: usize,
+    h: &[f64; L],
+    sum: [f64; L],
+    gaps: &mut [f64],
+    vel: &[f64],
+    force: Option<&[f64]>,
+    report: &mut [StepReport; L]
+) -> ());
+
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
     terms: &Terms<L>,
     n: usize,
@@ -758,64 +961,87 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
 {
+    assert_eq!(gaps.len(), n * L);
+    let eps2 = 2.0 * terms.eps;
     let mut scale = [1.0; L];
     for l in 0..L {
         scale[l] = terms.total_gap[l] / sum[l];
     }
+    let force = if FRC { force } else { None };
     let mut logged = [false; L];
+    let mut finite = [true; L];
+    let mut work = [0.0; L];
     if report.iter().all(|r| r.certified) {
         // Only the projection (and the forcing's work, which a later energy check of a
         // Richardson step adds up): no lane needs its energy.
-        let mut work = [0.0; L];
         for i in 0..n {
+            let row = lanes_mut::<L, f64>(gaps, i * L);
             for l in 0..L {
-                let k = i * L + l;
-                let v = gaps[k];
+                let v = row[l];
                 logged[l] |= v < 0.0;
-                report[l].admissible &= v.is_finite();
-                gaps[k] = if v > 0.0 { v * scale[l] } else { v };
-                if FRC && i + 1 < n {
-                    if let Some(f) = force {
-                        work[l] += vel[k] * f[k];
-                    }
+                finite[l] &= v.is_finite();
+                row[l] = if v > 0.0 { v * scale[l] } else { v };
+            }
+            if let (Some(f), true) = (force, i + 1 < n) {
+                let u = lanes::<L, f64>(vel, i * L);
+                let f = lanes::<L, f64>(f, i * L);
+                for l in 0..L {
+                    work[l] += u[l] * f[l];
                 }
             }
         }
         shift_logged(n, &scale, &logged, gaps);
         for l in 0..L {
+            report[l].admissible &= finite[l];
             report[l].energy = -1.0;
             report[l].work = h[l] * work[l];
         }
         return;
     }
+    let dstar_all: &[f64] = terms.repulsion.map_or(&[], |r| r.0);
+    let bonded_all: &[bool] = terms.bonded.unwrap_or(&[]);
     let mut potential = [0.0; L];
     let mut kinetic = [0.0; L];
-    let mut work = [0.0; L];
     for i in 0..n {
+        let k = i * L;
+        let dstar = if REP {
+            *lanes::<L, f64>(dstar_all, k)
+        } else {
+            [0.0; L]
+        };
+        let bonded = if CLU {
+            *lanes::<L, bool>(bonded_all, k)
+        } else {
+            [false; L]
+        };
+        let row = lanes_mut::<L, f64>(gaps, k);
         for l in 0..L {
-            let k = i * L + l;
-            let v = gaps[k];
+            let v = row[l];
             let scaled = v * scale[l];
             logged[l] |= v < 0.0;
-            report[l].admissible &= v.is_finite();
-            gaps[k] = if v > 0.0 { scaled } else { v };
-            let phi = potential_of::<L, REP, P, Q>(terms, law, l, k, scaled.max(0.0));
-            if !(CLU && terms.bonded.is_some_and(|b| b[k])) {
+            finite[l] &= v.is_finite();
+            row[l] = if v > 0.0 { scaled } else { v };
+            let phi = potential_of::<REP, P, Q>(law, l, eps2, dstar[l], scaled.max(0.0));
+            if !bonded[l] {
                 potential[l] += phi;
             }
-            if i + 1 < n {
-                let u = vel[k];
-                kinetic[l] += u * u;
-                if FRC {
-                    if let Some(f) = force {
-                        work[l] += u * f[k];
-                    }
+        }
+        if i + 1 < n {
+            let u = lanes::<L, f64>(vel, k);
+            for l in 0..L {
+                kinetic[l] += u[l] * u[l];
+            }
+            if let Some(f) = force {
+                let f = lanes::<L, f64>(f, k);
+                for l in 0..L {
+                    work[l] += u[l] * f[l];
                 }
             }
         }
     }
     shift_logged(n, &scale, &logged, gaps);
     for l in 0..L {
+        report[l].admissible &= finite[l];
         report[l].energy = potential[l] + terms.eps * kinetic[l];
         report[l].work = h[l] * work[l];
         report[l].admissible &= report[l].energy.is_finite();
