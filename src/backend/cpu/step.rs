@@ -274,7 +274,13 @@ where
 
 /// Phi_i(d) of one free gap: (d + 2eps) G/(gamma - 1), or -(d* + 2eps) ln(d + 2eps) at gamma = 1.
 #[inline(always)]
-fn potential_of<const REP: bool, P, Q>(law: Law<P, Q>, l: usize, eps2: f64, dstar: f64, d: f64) -> f64
+fn potential_of<const REP: bool, P, Q>(
+    law: Law<P, Q>,
+    l: usize,
+    eps2: f64,
+    dstar: f64,
+    d: f64,
+) -> f64
 where
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
@@ -930,7 +936,17 @@ pub fn conclude<const L: usize>(
     specialised!(
         terms,
         conclude_simd,
-        (SimdLevel::detect(), terms, n, h, total, gaps, vel, None, report)
+        (
+            SimdLevel::detect(),
+            terms,
+            n,
+            h,
+            total,
+            gaps,
+            vel,
+            None,
+            report
+        )
     )
 }
 
@@ -1073,9 +1089,7 @@ mod tests {
 
     fn case(clusters: bool, mild: bool) -> Case {
         let wave = |k: usize, a: f64| (a * (k as f64 + 1.0)).sin();
-        let mut gaps: Vec<f64> = (0..N * L)
-            .map(|k| 0.02 * (1.2 + wave(k, 0.37)))
-            .collect();
+        let mut gaps: Vec<f64> = (0..N * L).map(|k| 0.02 * (1.2 + wave(k, 0.37))).collect();
         let mut bonded = vec![false; N * L];
         if !mild {
             gaps[5 * L + 3] = stored_gap::encode(1e-300, GAP_FLOOR);
@@ -1113,7 +1127,9 @@ mod tests {
         forcing: Option<&Forcing>,
     ) -> Outcome {
         let pick = |v: &[f64], rows: usize| -> Vec<f64> {
-            (0..rows * M).map(|k| v[(k / M) * L + lanes[k % M]]).collect()
+            (0..rows * M)
+                .map(|k| v[(k / M) * L + lanes[k % M]])
+                .collect()
         };
         let gaps = pick(&c.gaps, N);
         let vel = pick(&c.vel, N - 1);
@@ -1166,7 +1182,9 @@ mod tests {
             ("1.5", Some(Gamma::Uniform(Power::Real(1.5)))),
             (
                 "per lane",
-                Some(Gamma::PerLane(std::array::from_fn(|l| 1.0 + 0.5 * l as f64))),
+                Some(Gamma::PerLane(std::array::from_fn(|l| {
+                    1.0 + 0.5 * l as f64
+                }))),
             ),
         ];
         let mut out = Vec::new();
@@ -1200,7 +1218,10 @@ mod tests {
                 let f = forcing.as_ref();
                 let portable = step::<L>(SimdLevel::Portable, &c, all, gamma, clusters, f);
                 let avx2 = step::<L>(SimdLevel::Avx2Fma, &c, all, gamma, clusters, f);
-                assert!(portable == avx2, "{label}, mild {mild}: AVX2 and portable differ");
+                assert!(
+                    portable == avx2,
+                    "{label}, mild {mild}: AVX2 and portable differ"
+                );
                 // Both ends of the step ran: the certified projection, the energy (a bonded
                 // gap goes through the fix-up, which the certificate leaves out).
                 assert_eq!(
@@ -1219,12 +1240,21 @@ mod tests {
         for (label, gamma, clusters, forcing) in variants() {
             let c = case(clusters, false);
             let all = std::array::from_fn(|l| l);
-            let block = step::<L>(SimdLevel::detect(), &c, all, gamma, clusters, forcing.as_ref());
+            let block = step::<L>(
+                SimdLevel::detect(),
+                &c,
+                all,
+                gamma,
+                clusters,
+                forcing.as_ref(),
+            );
             for l in 0..L {
-                let alone_gamma = gamma.map(|g| Gamma::Uniform(match g {
-                    Gamma::PerLane(gs) => Power::of(gs[l]),
-                    Gamma::Uniform(p) => p,
-                }));
+                let alone_gamma = gamma.map(|g| {
+                    Gamma::Uniform(match g {
+                        Gamma::PerLane(gs) => Power::of(gs[l]),
+                        Gamma::Uniform(p) => p,
+                    })
+                });
                 let alone = step::<1>(
                     SimdLevel::Portable,
                     &c,
