@@ -585,7 +585,8 @@ where
     let mut ys_prev = [0.0; L];
     let mut q = [0.0; L];
     let mut f = [0.0; L];
-    let mut finite = [true; L];
+    // Flags as 0/1 in u64 lanes (what a packed f64 comparison yields; bools cost packing).
+    let mut nonfinite = [0u64; L];
     {
         let stored = lanes::<L, f64>(gaps_in, 0);
         let (dstar, bonded) = inputs.row::<L, CLU>(0);
@@ -596,7 +597,7 @@ where
             a_prev[l] = a;
             g_prev[l] = g;
             ls_prev[l] = 1.0 / d;
-            finite[l] &= g.is_finite();
+            nonfinite[l] |= !g.is_finite() as u64;
         }
     }
     for i in 1..n {
@@ -625,7 +626,7 @@ where
             let (a_next, g_next, d_next) = gap_terms::<REP, CLU, P, Q>(
                 law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
             );
-            finite[l] &= (g_next + f[l]).is_finite();
+            nonfinite[l] |= !(g_next + f[l]).is_finite() as u64;
             let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
             let excess = m_over_h[l] + a_prev[l] * ls_prev[l];
             let delta = rhs + a_prev[l] * ys_prev[l];
@@ -643,7 +644,7 @@ where
         *lanes_mut::<L, f64>(&mut scratch.ys, row) = ys_prev;
     }
     for l in 0..L {
-        if !finite[l] {
+        if nonfinite[l] != 0 {
             report[l].hard = find_hard_failure(terms, law, n, l, t[l], h[l], gaps_in);
         }
     }
@@ -652,7 +653,7 @@ where
     // ln d' = ln d + h r, and the sum of the new gaps (for the projection). Log-stored
     // gaps and gaps that leave [GAP_FLOOR, inf) are redone by the fix-up below (rare), from the rate
     // left in `ls`.
-    let mut needs_fixup = [false; L];
+    let mut needs_fixup = [0u64; L];
     let mut opening = [0.0f64; L];
     let mut closing = [f64::NEG_INFINITY; L];
     let mut sum = [0.0; L];
@@ -668,7 +669,7 @@ where
         let ls = *lanes::<L, f64>(&scratch.ls, row);
         let mut rates = [0.0; L];
         let mut x = [0.0; L];
-        let mut taylor = true;
+        let mut large = 0u64;
         for l in 0..L {
             let d = old[l].max(GAP_FLOOR);
             let mut u = d * ys[l] + w[l] * u_next[l];
@@ -679,7 +680,7 @@ where
             }
             let rate = ls[l] * u_next[l] - ys[l];
             x[l] = h[l] * rate;
-            taylor &= x[l].abs() < GAP_EXP_TAYLOR;
+            large |= !(x[l].abs() < GAP_EXP_TAYLOR) as u64;
             rates[l] = rate;
             u_next[l] = u;
         }
@@ -688,7 +689,7 @@ where
         // e^x: the polynomial for the whole row when every lane's |x| is small (so the lane
         // loop stays branch-free), else lane by lane. Either way each lane gets gap_exp(x).
         let mut e = [0.0; L];
-        if taylor {
+        if large == 0 {
             for l in 0..L {
                 e[l] = gap_exp_taylor(x[l]);
             }
@@ -709,7 +710,7 @@ where
             closing[l] = closing[l].max(d * (gamma2[l] * x[l].min(0.0) - 1.0));
             // NaN fails the comparisons.
             needs_fixup[l] |=
-                !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x[l] <= EXP_FAST_MAX);
+                !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x[l] <= EXP_FAST_MAX) as u64;
         }
         *lanes_mut::<L, f64>(gaps_out, gap) = grown_row;
     }
@@ -740,11 +741,12 @@ where
         }
         let d = old.max(GAP_FLOOR);
         closing[l] = closing[l].max(d * (gamma2[l] * x.min(0.0) - 1.0));
-        needs_fixup[l] |= !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX);
+        needs_fixup[l] |=
+            !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX) as u64;
     }
 
     for l in 0..L {
-        if needs_fixup[l] {
+        if needs_fixup[l] != 0 {
             fix_up_lane::<L>(
                 terms,
                 n,
@@ -758,7 +760,7 @@ where
             sum[l] = lane_sum::<L>(n, l, gaps_out);
         }
         report[l].admissible &= opening[l] <= MAX_OPENING;
-        report[l].certified = !needs_fixup[l]
+        report[l].certified = needs_fixup[l] == 0
             && energy_certified(
                 REP,
                 closing[l],
@@ -903,9 +905,9 @@ fn fix_up_lane<const L: usize>(
 
 /// Shifts the log-stored gaps of the lanes that have some by ln(scale) (outside the hot loop:
 /// rare).
-fn shift_logged<const L: usize>(n: usize, scale: &[f64; L], logged: &[bool; L], gaps: &mut [f64]) {
+fn shift_logged<const L: usize>(n: usize, scale: &[f64; L], logged: &[u64; L], gaps: &mut [f64]) {
     for l in 0..L {
-        if logged[l] {
+        if logged[l] != 0 {
             let shift = twin_math::ln(scale[l]);
             for i in 0..n {
                 let k = i * L + l;
@@ -984,8 +986,9 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
         scale[l] = terms.total_gap[l] / sum[l];
     }
     let force = if FRC { force } else { None };
-    let mut logged = [false; L];
-    let mut finite = [true; L];
+    // 0/1 flags in u64 lanes, as in the sweep.
+    let mut logged = [0u64; L];
+    let mut nonfinite = [0u64; L];
     let mut work = [0.0; L];
     if report.iter().all(|r| r.certified) {
         // Only the projection (and the forcing's work, which a later energy check of a
@@ -994,8 +997,8 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
             let row = lanes_mut::<L, f64>(gaps, i * L);
             for l in 0..L {
                 let v = row[l];
-                logged[l] |= v < 0.0;
-                finite[l] &= v.is_finite();
+                logged[l] |= (v < 0.0) as u64;
+                nonfinite[l] |= !v.is_finite() as u64;
                 row[l] = if v > 0.0 { v * scale[l] } else { v };
             }
             if let (Some(f), true) = (force, i + 1 < n) {
@@ -1008,7 +1011,7 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
         }
         shift_logged(n, &scale, &logged, gaps);
         for l in 0..L {
-            report[l].admissible &= finite[l];
+            report[l].admissible &= nonfinite[l] == 0;
             report[l].energy = -1.0;
             report[l].work = h[l] * work[l];
         }
@@ -1034,8 +1037,8 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
         for l in 0..L {
             let v = row[l];
             let scaled = v * scale[l];
-            logged[l] |= v < 0.0;
-            finite[l] &= v.is_finite();
+            logged[l] |= (v < 0.0) as u64;
+            nonfinite[l] |= !v.is_finite() as u64;
             row[l] = if v > 0.0 { scaled } else { v };
             let phi = potential_of::<REP, P, Q>(law, l, eps2, dstar[l], scaled.max(0.0));
             if !bonded[l] {
@@ -1057,7 +1060,7 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
     }
     shift_logged(n, &scale, &logged, gaps);
     for l in 0..L {
-        report[l].admissible &= finite[l];
+        report[l].admissible &= nonfinite[l] == 0;
         report[l].energy = potential[l] + terms.eps * kinetic[l];
         report[l].work = h[l] * work[l];
         report[l].admissible &= report[l].energy.is_finite();
