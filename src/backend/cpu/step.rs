@@ -659,7 +659,87 @@ where
     let mut sum = [0.0; L];
     let mut u_next = [0.0; L];
     let gamma2: [f64; L] = std::array::from_fn(|l| -((law.gamma)(l) + 2.0));
-    for i in (1..n).rev() {
+    // Gaps i_top..1 are left to the loop over rows below.
+    let mut i_top = n - 1;
+    if L == 1 {
+        // One lane: gaps in groups of four (the CPU's SIMD width, in place of lanes), so that
+        // all but the velocity recurrence runs in SIMD registers across gaps. The same
+        // operations per gap as the loop below, and the sum in the same order.
+        const W: usize = 4;
+        let (h0, gamma0) = (h[0], gamma2[0]);
+        let mut open_w = [0.0f64; W];
+        let mut close_w = [f64::NEG_INFINITY; W];
+        let mut fixup_w = [0u64; W];
+        let mut un = u_next[0];
+        while i_top >= W {
+            // Gaps lo..=i_top, rows lo-1..i_top-1 (element i of the lane at i).
+            let lo = i_top + 1 - W;
+            let old: [f64; W] = gaps_in[lo..lo + W].try_into().unwrap();
+            let bonded: [bool; W] = if CLU {
+                inputs.bonded[lo..lo + W].try_into().unwrap()
+            } else {
+                [false; W]
+            };
+            let w: [f64; W] = scratch.w[lo - 1..lo - 1 + W].try_into().unwrap();
+            let ys: [f64; W] = scratch.ys[lo - 1..lo - 1 + W].try_into().unwrap();
+            let ls: [f64; W] = scratch.ls[lo - 1..lo - 1 + W].try_into().unwrap();
+            let mut u = [0.0; W];
+            let mut u_right = [0.0; W];
+            for j in (0..W).rev() {
+                u_right[j] = un;
+                let d = old[j].max(GAP_FLOOR);
+                u[j] = d * ys[j] + w[j] * un;
+                if CLU && bonded[j] {
+                    u[j] = un;
+                }
+                un = u[j];
+            }
+            let mut rates = [0.0; W];
+            let mut x = [0.0; W];
+            let mut large = 0u64;
+            for j in 0..W {
+                rates[j] = ls[j] * u_right[j] - ys[j];
+                x[j] = h0 * rates[j];
+                large |= !(x[j].abs() < GAP_EXP_TAYLOR) as u64;
+            }
+            let mut e = [0.0; W];
+            if large == 0 {
+                for j in 0..W {
+                    e[j] = gap_exp_taylor(x[j]);
+                }
+            } else {
+                for j in 0..W {
+                    e[j] = gap_exp(x[j]);
+                }
+            }
+            let mut grown = [0.0; W];
+            for j in 0..W {
+                grown[j] = old[j] * e[j];
+                if old[j] > 0.0 {
+                    open_w[j] = open_w[j].max(x[j]);
+                }
+                let d = old[j].max(GAP_FLOOR);
+                close_w[j] = close_w[j].max(d * (gamma0 * x[j].min(0.0) - 1.0));
+                fixup_w[j] |= !((GAP_FLOOR..f64::INFINITY).contains(&grown[j])
+                    && x[j] <= EXP_FAST_MAX) as u64;
+            }
+            for j in (0..W).rev() {
+                sum[0] += grown[j].max(0.0);
+            }
+            vel_out[lo - 1..lo - 1 + W].copy_from_slice(&u);
+            scratch.ls[lo - 1..lo - 1 + W].copy_from_slice(&rates);
+            gaps_out[lo..lo + W].copy_from_slice(&grown);
+            i_top -= W;
+        }
+        u_next[0] = un;
+        // max and | do not depend on the order.
+        for j in 0..W {
+            opening[0] = opening[0].max(open_w[j]);
+            closing[0] = closing[0].max(close_w[j]);
+            needs_fixup[0] |= fixup_w[j];
+        }
+    }
+    for i in (1..=i_top).rev() {
         let row = (i - 1) * L;
         let gap = i * L;
         let old = *lanes::<L, f64>(gaps_in, gap);
@@ -993,17 +1073,17 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
     if report.iter().all(|r| r.certified) {
         // Only the projection (and the forcing's work, which a later energy check of a
         // Richardson step adds up): no lane needs its energy.
-        for i in 0..n {
-            let row = lanes_mut::<L, f64>(gaps, i * L);
+        // Whole rows from chunks_exact: no per-row check, so that L = 1 vectorises over rows.
+        for row in gaps.chunks_exact_mut(L) {
             for l in 0..L {
                 let v = row[l];
                 logged[l] |= (v < 0.0) as u64;
                 nonfinite[l] |= !v.is_finite() as u64;
                 row[l] = if v > 0.0 { v * scale[l] } else { v };
             }
-            if let (Some(f), true) = (force, i + 1 < n) {
-                let u = lanes::<L, f64>(vel, i * L);
-                let f = lanes::<L, f64>(f, i * L);
+        }
+        if let Some(f) = force {
+            for (u, f) in vel.chunks_exact(L).zip(f.chunks_exact(L)) {
                 for l in 0..L {
                     work[l] += u[l] * f[l];
                 }
