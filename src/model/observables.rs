@@ -4,7 +4,7 @@
 
 use crate::model::chain::stored_gap;
 use crate::model::params::MemberParams;
-use crate::model::plan::Plan;
+use crate::model::plan::{Plan, Power};
 
 /// One member at one output time.
 #[derive(Debug, Clone, PartialEq)]
@@ -77,6 +77,8 @@ pub fn energy(
 ) -> f64 {
     let kinetic: f64 = eps * velocities.iter().map(|u| u * u).sum::<f64>();
     let Some(dstar) = dstar else { return kinetic };
+    // G as the step computes it (integer gamma by multiplications, not powf).
+    let power = Power::of(gamma);
     let mut potential = 0.0;
     for (i, (&d, &ds)) in gaps.iter().zip(dstar).enumerate() {
         if bonded.is_some_and(|b| b[i]) {
@@ -87,7 +89,7 @@ pub fn energy(
         potential += if gamma == 1.0 {
             -s_star * s.ln()
         } else {
-            s * (s_star / s).powf(gamma) / (gamma - 1.0)
+            s * power.apply(s_star / s) / (gamma - 1.0)
         };
     }
     kinetic + potential
@@ -126,12 +128,20 @@ pub fn observe(
     let eps = plan.eps;
     let n = stored_gaps.len();
     let f = &plan.fields;
-    let mut log_min_gap = f64::INFINITY;
+    // min_i ln d_i with one ln: ln is monotone, and a gap stored as ln d (< 0) lies below the
+    // floor that every gap stored as d is above.
+    let mut min_stored_d = f64::INFINITY;
+    let mut min_stored_ln = f64::INFINITY;
     for (i, &v) in stored_gaps.iter().enumerate() {
         if bonded.is_none_or(|b| !b[i]) {
-            log_min_gap = log_min_gap.min(stored_gap::ln(v));
+            if v > 0.0 {
+                min_stored_d = min_stored_d.min(v);
+            } else {
+                min_stored_ln = min_stored_ln.min(stored_gap::ln(v));
+            }
         }
     }
+    let log_min_gap = min_stored_ln.min(stored_gap::ln(min_stored_d));
     let gaps: Vec<f64> = stored_gaps.iter().map(|&v| stored_gap::decode(v)).collect();
     let mut min_gap = f64::INFINITY;
     let mut max_density: f64 = 0.0;
