@@ -4,7 +4,7 @@
 
 use crate::model::chain::stored_gap;
 use crate::model::params::MemberParams;
-use crate::model::plan::{Plan, Power};
+use crate::model::plan::Plan;
 
 /// One member at one output time.
 #[derive(Debug, Clone, PartialEq)]
@@ -77,8 +77,6 @@ pub fn energy(
 ) -> f64 {
     let kinetic: f64 = eps * velocities.iter().map(|u| u * u).sum::<f64>();
     let Some(dstar) = dstar else { return kinetic };
-    // G as the step computes it (integer gamma by multiplications, not powf).
-    let power = Power::of(gamma);
     let mut potential = 0.0;
     for (i, (&d, &ds)) in gaps.iter().zip(dstar).enumerate() {
         if bonded.is_some_and(|b| b[i]) {
@@ -89,7 +87,7 @@ pub fn energy(
         potential += if gamma == 1.0 {
             -s_star * s.ln()
         } else {
-            s * power.apply(s_star / s) / (gamma - 1.0)
+            s * (s_star / s).powf(gamma) / (gamma - 1.0)
         };
     }
     kinetic + potential
