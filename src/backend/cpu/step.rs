@@ -259,7 +259,7 @@ where
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
 {
-    let d = stored.max(GAP_FLOOR);
+    let d = fmax(stored, GAP_FLOOR);
     if !REP {
         return (mu, 0.0, d);
     }
@@ -465,6 +465,28 @@ fn particle_force(forcing: &Forcing, eps: f64, t: f64, q: f64) -> f64 {
         s += w * forcing.expr.eval(q + eps * xi, t);
     }
     eps * s
+}
+
+/// max(a, b) as one packed max: b when a is NaN, as `f64::max` gives (whose NaN handling for
+/// either argument costs a compare and a blend per use). Callers pass the value that may be NaN
+/// as `a` and a never-NaN bound or accumulator as `b`, so the result is `f64::max`'s.
+#[inline(always)]
+fn fmax(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// min(a, b) as one packed min, b when a is NaN (see [`fmax`]).
+#[inline(always)]
+fn fmin(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
 }
 
 /// The Taylor branch of [`gap_exp`] (|x| < GAP_EXP_TAYLOR), branch-free for the lane loop.
@@ -687,7 +709,7 @@ where
             let mut u_right = [0.0; W];
             for j in (0..W).rev() {
                 u_right[j] = un;
-                let d = old[j].max(GAP_FLOOR);
+                let d = fmax(old[j], GAP_FLOOR);
                 u[j] = d * ys[j] + w[j] * un;
                 if CLU && bonded[j] {
                     u[j] = un;
@@ -716,15 +738,15 @@ where
             for j in 0..W {
                 grown[j] = old[j] * e[j];
                 if old[j] > 0.0 {
-                    open_w[j] = open_w[j].max(x[j]);
+                    open_w[j] = fmax(x[j], open_w[j]);
                 }
-                let d = old[j].max(GAP_FLOOR);
-                close_w[j] = close_w[j].max(d * (gamma0 * x[j].min(0.0) - 1.0));
+                let d = fmax(old[j], GAP_FLOOR);
+                close_w[j] = fmax(d * (gamma0 * fmin(x[j], 0.0) - 1.0), close_w[j]);
                 fixup_w[j] |= !((GAP_FLOOR..f64::INFINITY).contains(&grown[j])
                     && x[j] <= EXP_FAST_MAX) as u64;
             }
             for j in (0..W).rev() {
-                sum[0] += grown[j].max(0.0);
+                sum[0] += fmax(grown[j], 0.0);
             }
             vel_out[lo - 1..lo - 1 + W].copy_from_slice(&u);
             scratch.ls[lo - 1..lo - 1 + W].copy_from_slice(&rates);
@@ -734,8 +756,8 @@ where
         u_next[0] = un;
         // max and | do not depend on the order.
         for j in 0..W {
-            opening[0] = opening[0].max(open_w[j]);
-            closing[0] = closing[0].max(close_w[j]);
+            opening[0] = fmax(open_w[j], opening[0]);
+            closing[0] = fmax(close_w[j], closing[0]);
             needs_fixup[0] |= fixup_w[j];
         }
     }
@@ -751,7 +773,7 @@ where
         let mut x = [0.0; L];
         let mut large = 0u64;
         for l in 0..L {
-            let d = old[l].max(GAP_FLOOR);
+            let d = fmax(old[l], GAP_FLOOR);
             let mut u = d * ys[l] + w[l] * u_next[l];
             if CLU && bonded[l] {
                 // Exactly the velocity of the body it is bonded to (the penalty gives it to
@@ -782,12 +804,12 @@ where
         for l in 0..L {
             let grown = old[l] * e[l];
             grown_row[l] = grown;
-            sum[l] += grown.max(0.0);
+            sum[l] += fmax(grown, 0.0);
             if old[l] > 0.0 {
-                opening[l] = opening[l].max(x[l]);
+                opening[l] = fmax(x[l], opening[l]);
             }
-            let d = old[l].max(GAP_FLOOR);
-            closing[l] = closing[l].max(d * (gamma2[l] * x[l].min(0.0) - 1.0));
+            let d = fmax(old[l], GAP_FLOOR);
+            closing[l] = fmax(d * (gamma2[l] * fmin(x[l], 0.0) - 1.0), closing[l]);
             // NaN fails the comparisons.
             needs_fixup[l] |=
                 !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x[l] <= EXP_FAST_MAX) as u64;
@@ -810,17 +832,17 @@ where
     let mut rate_first = [0.0; L];
     for l in 0..L {
         let old = gaps_in[l];
-        let rate = u_next[l] / old.max(GAP_FLOOR);
+        let rate = u_next[l] / fmax(old, GAP_FLOOR);
         let x = h[l] * rate;
         let grown = old * gap_exp(x);
         gaps_out[l] = grown;
         rate_first[l] = rate;
-        sum[l] += grown.max(0.0);
+        sum[l] += fmax(grown, 0.0);
         if old > 0.0 {
-            opening[l] = opening[l].max(x);
+            opening[l] = fmax(x, opening[l]);
         }
-        let d = old.max(GAP_FLOOR);
-        closing[l] = closing[l].max(d * (gamma2[l] * x.min(0.0) - 1.0));
+        let d = fmax(old, GAP_FLOOR);
+        closing[l] = fmax(d * (gamma2[l] * fmin(x, 0.0) - 1.0), closing[l]);
         needs_fixup[l] |=
             !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX) as u64;
     }
