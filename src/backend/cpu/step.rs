@@ -718,14 +718,14 @@ where
             }
             let mut rates = [0.0; W];
             let mut x = [0.0; W];
-            let mut large = 0u64;
+            let mut small = 1u64;
             for j in 0..W {
                 rates[j] = ls[j] * u_right[j] - ys[j];
                 x[j] = h0 * rates[j];
-                large |= !(x[j].abs() < GAP_EXP_TAYLOR) as u64;
+                small &= (x[j].abs() < GAP_EXP_TAYLOR) as u64;
             }
             let mut e = [0.0; W];
-            if large == 0 {
+            if small != 0 {
                 for j in 0..W {
                     e[j] = gap_exp_taylor(x[j]);
                 }
@@ -771,7 +771,7 @@ where
         let ls = *lanes::<L, f64>(&scratch.ls, row);
         let mut rates = [0.0; L];
         let mut x = [0.0; L];
-        let mut large = 0u64;
+        let mut small = 1u64;
         for l in 0..L {
             let d = fmax(old[l], GAP_FLOOR);
             let mut u = d * ys[l] + w[l] * u_next[l];
@@ -782,7 +782,7 @@ where
             }
             let rate = ls[l] * u_next[l] - ys[l];
             x[l] = h[l] * rate;
-            large |= !(x[l].abs() < GAP_EXP_TAYLOR) as u64;
+            small &= (x[l].abs() < GAP_EXP_TAYLOR) as u64;
             rates[l] = rate;
             u_next[l] = u;
         }
@@ -791,7 +791,7 @@ where
         // e^x: the polynomial for the whole row when every lane's |x| is small (so the lane
         // loop stays branch-free), else lane by lane. Either way each lane gets gap_exp(x).
         let mut e = [0.0; L];
-        if large == 0 {
+        if small != 0 {
             for l in 0..L {
                 e[l] = gap_exp_taylor(x[l]);
             }
