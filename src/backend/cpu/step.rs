@@ -5,6 +5,12 @@
 //!
 //! Layout: element i of lane l at `i * L + l` (the GPU interleaves the whole batch the same way).
 //!
+//! SIMD: the lane loops read whole rows into local arrays and write whole rows back (no bounds
+//! checks or aliasing inside them), and are compiled twice, for the build's baseline and for
+//! AVX2 + FMA, chosen at run time ([`SimdLevel`]); no fma is ever formed, so both give the same
+//! bits (and so does the GPU twin). A block of one lane groups four gaps in place of lanes where
+//! the recurrences allow (the back sweep's gap update).
+//!
 //! The solve. With c_i = mu/d_i + h·gamma·G_i/(d_i + 2 eps) (lubrication plus linearised
 //! repulsion),
 //!   (2eps/h) u_i' - c_{i+1}(u_{i+1}' - u_i') + c_i(u_i' - u_{i-1}') = (2eps/h) u_i + G_i - G_{i+1} + F_i.
