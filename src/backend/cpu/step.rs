@@ -511,7 +511,7 @@ fn gap_exp_taylor(x: f64) -> f64 {
                                     + x * 2.480_158_730_158_730_2e-5)))))))
 }
 
-/// Advances every lane by its own step h[l] from (gaps_in, vel_in) to (gaps_out, vel_out)
+/// Advances every lane by its own step `h[l]` from (gaps_in, vel_in) to (gaps_out, vel_out)
 /// (gaps in the stored form: d, or ln d below GAP_FLOOR). Lanes whose report is not admissible
 /// (or has a hard failure) must be rejected by the caller: their output is garbage.
 #[allow(clippy::too_many_arguments)]
