@@ -130,6 +130,55 @@ fn assert_png(path: &Path) {
     );
 }
 
+/// The CPU step's instruction set changes its speed only: a run forced onto the portable lane
+/// loops (ROUGHLUB_CPU_SIMD=portable) writes the same numbers, bit for bit, as one on the
+/// detected level (AVX2 + FMA where the CPU has them), and each manifest records its level.
+#[test]
+fn simd_level_does_not_change_results() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Nine members: a block of 8 lanes and a padded one.
+    let scene = std::fs::read_to_string(data("small.toml"))
+        .unwrap()
+        .replace(
+            "gamma = [1.0, 2.0, 5.0]",
+            "gamma = [1.0, 2.0, 5.0, 1.5, 3.0, 2.5, 4.0, 1.0, 2.0]",
+        );
+    let scene_path = tmp.path().join("nine.toml");
+    std::fs::write(&scene_path, scene).unwrap();
+    let runs = [("detected", None), ("portable", Some("portable"))];
+    let mut outputs = Vec::new();
+    for (name, level) in runs {
+        let out_dir = tmp.path().join(name);
+        let mut cmd = Command::new(BIN);
+        cmd.arg("run").arg(&scene_path).arg("--out").arg(&out_dir);
+        match level {
+            Some(level) => cmd.env("ROUGHLUB_CPU_SIMD", level),
+            None => cmd.env_remove("ROUGHLUB_CPU_SIMD"),
+        };
+        assert_success(&cmd.output().unwrap());
+        let simd = read_manifest(&out_dir)["adapter"]["cpu_simd"]
+            .as_str()
+            .unwrap_or("")
+            .to_string();
+        let expected = level.unwrap_or(roughlub::backend::cpu::simd_level());
+        assert_eq!(simd, expected, "{name} run");
+        let bits = |file: &str| -> Vec<u64> {
+            read_npy(&out_dir.join(file))
+                .values
+                .iter()
+                .map(|v| v.to_bits())
+                .collect()
+        };
+        outputs.push([bits("gaps.npy"), bits("velocities.npy"), bits("energy.npy")]);
+    }
+    for (k, file) in ["gaps.npy", "velocities.npy", "energy.npy"]
+        .iter()
+        .enumerate()
+    {
+        assert_eq!(outputs[0][k], outputs[1][k], "{file}: detected vs portable");
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // 1. End to end: tests/data/small.toml (paper case 1 with N = 40, gamma swept over 1, 2, 5).
 
@@ -151,6 +200,13 @@ fn small_scene_end_to_end() {
     assert_eq!(m["roughlub_version"], env!("CARGO_PKG_VERSION"));
     assert_eq!(m["backend"], "cpu");
     assert_eq!(m["precision"], "f64");
+    // The CPU step's instruction set, as the library detects it on this machine.
+    let simd = m["adapter"]["cpu_simd"].as_str().unwrap_or("");
+    assert!(
+        ["avx2+fma", "portable"].contains(&simd),
+        "cpu_simd {simd:?}"
+    );
+    assert_eq!(simd, roughlub::backend::cpu::simd_level());
     assert_eq!(m["particles"], N as u64);
     assert_eq!(m["grid"], GRID as u64);
     assert_eq!(m["scene"]["name"], "small");

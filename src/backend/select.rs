@@ -29,6 +29,10 @@ pub struct AdapterRecord {
     /// CPU only: rayon's worker threads.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threads: Option<usize>,
+    /// CPU only: the instruction set of the step's lane loops ([`super::cpu::simd_level`]:
+    /// "avx2+fma" or "portable"); results do not depend on it, speed does.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_simd: Option<String>,
     /// Why `backend = "auto"` did not use the GPU (`None` when it did, or was not asked).
     pub fallback_reason: Option<String>,
 }
@@ -51,6 +55,7 @@ impl BackendRecord {
             adapter: AdapterRecord {
                 description: d.clone(),
                 threads: None,
+                cpu_simd: None,
                 fallback_reason: None,
             },
         }
@@ -72,6 +77,7 @@ impl BackendRecord {
                     supports_f64: true,
                 },
                 threads: Some(threads),
+                cpu_simd: Some(super::cpu::simd_level().into()),
                 fallback_reason,
             },
         }

@@ -179,12 +179,20 @@ pub fn observe(
     let eps = plan.eps;
     let n = stored_gaps.len();
     let f = &plan.fields;
-    let mut log_min_gap = f64::INFINITY;
+    // min_i ln d_i with one ln: ln is monotone, and a gap stored as ln d (< 0) lies below the
+    // floor that every gap stored as d is above.
+    let mut min_stored_d = f64::INFINITY;
+    let mut min_stored_ln = f64::INFINITY;
     for (i, &v) in stored_gaps.iter().enumerate() {
         if bonded.is_none_or(|b| !b[i]) {
-            log_min_gap = log_min_gap.min(stored_gap::ln(v));
+            if v > 0.0 {
+                min_stored_d = min_stored_d.min(v);
+            } else {
+                min_stored_ln = min_stored_ln.min(stored_gap::ln(v));
+            }
         }
     }
+    let log_min_gap = min_stored_ln.min(stored_gap::ln(min_stored_d));
     let gaps: Vec<f64> = stored_gaps.iter().map(|&v| stored_gap::decode(v)).collect();
     let mut min_gap = f64::INFINITY;
     let mut max_density: f64 = 0.0;

@@ -17,9 +17,65 @@ use crate::model::params::{MemberParams, Stepping};
 use crate::model::plan::Plan;
 use block::Block;
 
+/// The instruction set of the CPU step's lane loops, chosen once per process at run time (the
+/// build targets baseline x86-64). Both levels run the same operations in the same order (Rust
+/// never contracts a·b + c into an fma), so their results are bitwise equal; only speed differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SimdLevel {
+    /// Whatever the build targets (SSE2 on x86-64).
+    Portable,
+    /// 256-bit AVX2 with FMA enabled for the lane loops (x86-64 only).
+    Avx2Fma,
+}
+
+impl SimdLevel {
+    /// The widest level this CPU runs; `ROUGHLUB_CPU_SIMD=portable` forces the portable one.
+    pub fn detect() -> SimdLevel {
+        static LEVEL: std::sync::OnceLock<SimdLevel> = std::sync::OnceLock::new();
+        *LEVEL.get_or_init(|| {
+            if std::env::var("ROUGHLUB_CPU_SIMD").is_ok_and(|v| v == "portable") {
+                return SimdLevel::Portable;
+            }
+            #[cfg(target_arch = "x86_64")]
+            if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+                return SimdLevel::Avx2Fma;
+            }
+            SimdLevel::Portable
+        })
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            SimdLevel::Portable => "portable",
+            SimdLevel::Avx2Fma => "avx2+fma",
+        }
+    }
+}
+
+/// The name of the instruction set the CPU step uses here ("avx2+fma" or "portable"), for the
+/// manifest.
+pub fn simd_level() -> &'static str {
+    SimdLevel::detect().name()
+}
+
+/// Blocks as wide as the batch allows: 16 lanes keep several independent sweeps in flight per
+/// core (the forward sweep's divisions have a long latency); a lane's result does not depend on
+/// its block, so the width changes speed only.
 enum Blocks {
     Single(Vec<Block<1>>),
     Eight(Vec<Block<8>>),
+    Sixteen(Vec<Block<16>>),
+}
+
+/// `$body` with `$bs` bound to the blocks, whatever their width.
+macro_rules! with_blocks {
+    ($blocks:expr, $bs:ident => $body:expr) => {
+        match $blocks {
+            Blocks::Single($bs) => $body,
+            Blocks::Eight($bs) => $body,
+            Blocks::Sixteen($bs) => $body,
+        }
+    };
 }
 
 /// The CPU backend: a batch of members sharing N, each with its own chain and parameters.
@@ -55,7 +111,9 @@ impl CpuSolver {
             Stepping::Fixed { dt, .. } => dt,
             Stepping::Adaptive { dt_initial, .. } => dt_initial,
         };
-        let blocks = if plan.members.len() >= 8 {
+        let blocks = if plan.members.len() >= 16 {
+            Blocks::Sixteen(build_blocks::<16>(&plan, &chains, dt0))
+        } else if plan.members.len() >= 8 {
             Blocks::Eight(build_blocks::<8>(&plan, &chains, dt0))
         } else {
             Blocks::Single(build_blocks::<1>(&plan, &chains, dt0))
@@ -82,25 +140,19 @@ impl CpuSolver {
         self.time_index += 1;
         let plan = &self.plan;
         let grid = &self.grid_x;
-        let mut pairs: Vec<(usize, Snapshot)> = match &mut self.blocks {
-            Blocks::Single(bs) => advance_all(bs, plan, grid, t_start, t_end, progress),
-            Blocks::Eight(bs) => advance_all(bs, plan, grid, t_start, t_end, progress),
-        };
+        let mut pairs: Vec<(usize, Snapshot)> = with_blocks!(&mut self.blocks, bs => {
+            advance_all(bs, plan, grid, t_start, t_end, progress)
+        });
         pairs.sort_by_key(|(m, _)| *m);
         Some(pairs.into_iter().map(|(_, s)| s).collect())
     }
 
     fn member_reports(&self) -> Vec<MemberReport> {
-        let mut r: Vec<MemberReport> = match &self.blocks {
-            Blocks::Single(bs) => bs
-                .iter()
-                .flat_map(|b| b.reports(&self.plan.members, self.plan.stepping.dt_min()))
-                .collect(),
-            Blocks::Eight(bs) => bs
-                .iter()
-                .flat_map(|b| b.reports(&self.plan.members, self.plan.stepping.dt_min()))
-                .collect(),
-        };
+        let dt_min = self.plan.stepping.dt_min();
+        let mut r: Vec<MemberReport> = with_blocks!(&self.blocks, bs => bs
+            .iter()
+            .flat_map(|b| b.reports(&self.plan.members, dt_min))
+            .collect());
         r.sort_by_key(|m| m.index);
         r
     }

@@ -5,6 +5,12 @@
 //!
 //! Layout: element i of lane l at `i * L + l` (the GPU interleaves the whole batch the same way).
 //!
+//! SIMD: the lane loops read whole rows into local arrays and write whole rows back (no bounds
+//! checks or aliasing inside them), and are compiled twice, for the build's baseline and for
+//! AVX2 + FMA, chosen at run time ([`SimdLevel`]); no fma is ever formed, so both give the same
+//! bits (and so does the GPU twin). A block of one lane groups four gaps in place of lanes where
+//! the recurrences allow (the back sweep's gap update).
+//!
 //! The solve. With c_i = mu/d_i + h·gamma·G_i/(d_i + 2 eps) (lubrication plus linearised
 //! repulsion),
 //!   (2eps/h) u_i' - c_{i+1}(u_{i+1}' - u_i') + c_i(u_i' - u_{i-1}') = (2eps/h) u_i + G_i - G_{i+1} + F_i.
@@ -32,7 +38,7 @@
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
 
-use super::twin_math;
+use super::{twin_math, SimdLevel};
 use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};
 
@@ -65,16 +71,7 @@ pub const MAX_OPENING: f64 = 5.0;
 #[inline(always)]
 pub fn gap_exp(x: f64) -> f64 {
     if x.abs() < GAP_EXP_TAYLOR {
-        // Horner, 1/k! as the nearest f64 (the WGSL twin writes the same literals).
-        1.0 + x
-            * (1.0
-                + x * (0.5
-                    + x * (1.666_666_666_666_666_6e-1
-                        + x * (4.166_666_666_666_666_4e-2
-                            + x * (8.333_333_333_333_333e-3
-                                + x * (1.388_888_888_888_889e-3
-                                    + x * (1.984_126_984_126_984e-4
-                                        + x * 2.480_158_730_158_730_2e-5)))))))
+        gap_exp_taylor(x)
     } else {
         twin_math::exp_in_range(x.clamp(-EXP_FAST_MAX, EXP_FAST_MAX))
     }
@@ -210,30 +207,72 @@ struct Law<P, Q> {
     gamma: Q,
 }
 
-/// (a, G, d) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) at the effective gap d.
+/// The L lanes of row `at` of an interleaved buffer: one bounds check per row, none per lane
+/// (a check inside the lane loop keeps it out of SIMD registers).
 #[inline(always)]
-fn gap_terms<const L: usize, const REP: bool, const CLU: bool, P, Q>(
-    terms: &Terms<L>,
+fn lanes<const L: usize, T>(s: &[T], at: usize) -> &[T; L] {
+    s[at..at + L].try_into().unwrap()
+}
+
+#[inline(always)]
+fn lanes_mut<const L: usize, T>(s: &mut [T], at: usize) -> &mut [T; L] {
+    (&mut s[at..at + L]).try_into().unwrap()
+}
+
+/// The per-element inputs of the model, as interleaved slices: d* (the gaps themselves without
+/// repulsion, never read then) and the bonded flags (empty without clusters, never read then).
+struct Inputs<'a> {
+    dstar: &'a [f64],
+    bonded: &'a [bool],
+}
+
+impl<'a> Inputs<'a> {
+    #[inline(always)]
+    fn of<const L: usize>(terms: &Terms<'a, L>, gaps: &'a [f64]) -> Inputs<'a> {
+        Inputs {
+            dstar: terms.repulsion.map_or(gaps, |r| r.0),
+            bonded: terms.bonded.unwrap_or(&[]),
+        }
+    }
+
+    /// Row `at` of d* and of the bonded flags (all free without clusters).
+    #[inline(always)]
+    fn row<const L: usize, const CLU: bool>(&self, at: usize) -> (&'a [f64; L], [bool; L]) {
+        let bonded = if CLU {
+            *lanes::<L, bool>(self.bonded, at)
+        } else {
+            [false; L]
+        };
+        (lanes::<L, f64>(self.dstar, at), bonded)
+    }
+}
+
+/// (a, G, d) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) at the effective gap d
+/// (eps2 = 2eps; `dstar` is d* of the gap, read only with repulsion).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn gap_terms<const REP: bool, const CLU: bool, P, Q>(
     law: Law<P, Q>,
     l: usize,
-    index: usize,
+    mu: f64,
+    eps2: f64,
     stored: f64,
+    dstar: f64,
+    bonded: bool,
     h: f64,
 ) -> (f64, f64, f64)
 where
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
 {
-    let d = stored.max(GAP_FLOOR);
-    let mu = terms.mu[l];
+    let d = fmax(stored, GAP_FLOOR);
     if !REP {
         return (mu, 0.0, d);
     }
-    let dstar = terms.repulsion.map_or(&[][..], |r| r.0);
-    let inv_s = 1.0 / (d + 2.0 * terms.eps);
-    let ratio = (dstar[index] + 2.0 * terms.eps) * inv_s;
+    let inv_s = 1.0 / (d + eps2);
+    let ratio = (dstar + eps2) * inv_s;
     let mut g = (law.power)(l, ratio);
-    if CLU && terms.bonded.is_some_and(|b| b[index]) {
+    if CLU && bonded {
         g = 0.0;
     }
     (mu + h * (law.gamma)(l) * g * d * inv_s, g, d)
@@ -241,11 +280,11 @@ where
 
 /// Phi_i(d) of one free gap: (d + 2eps) G/(gamma - 1), or -(d* + 2eps) ln(d + 2eps) at gamma = 1.
 #[inline(always)]
-fn potential_of<const L: usize, const REP: bool, P, Q>(
-    terms: &Terms<L>,
+fn potential_of<const REP: bool, P, Q>(
     law: Law<P, Q>,
     l: usize,
-    index: usize,
+    eps2: f64,
+    dstar: f64,
     d: f64,
 ) -> f64
 where
@@ -255,9 +294,8 @@ where
     if !REP {
         return 0.0;
     }
-    let dstar = terms.repulsion.map_or(&[][..], |r| r.0);
-    let s = d + 2.0 * terms.eps;
-    let s_star = dstar[index] + 2.0 * terms.eps;
+    let s = d + eps2;
+    let s_star = dstar + eps2;
     let g = (law.gamma)(l);
     if g == 1.0 {
         -s_star * twin_math::ln(s)
@@ -280,8 +318,9 @@ fn repulsion_failure<const L: usize>(
     }
 }
 
-/// Calls `$body` with `$law` bound to the specialised [`Law`] for the block's gamma and the
-/// const generics REP (repulsion), FRC (forcing) and CLU (clusters) set from `$terms`.
+/// Calls `$f` (a function made by `simd_versions!`) with `$law` bound to the specialised [`Law`]
+/// for the block's gamma and the const generics REP (repulsion), FRC (forcing) and CLU
+/// (clusters) set from `$terms`.
 macro_rules! specialised {
     ($terms:expr, $f:ident, ($($arg:expr),*)) => {{
         let terms = $terms;
@@ -335,6 +374,46 @@ macro_rules! specialised {
     }};
 }
 
+/// Defines `$name`, which runs the `#[inline(always)]` body `$body` compiled for the instruction
+/// set `simd` names: the same source, so the same operations in the same order at every level
+/// (bitwise equal results), only wider registers. `$avx` is the AVX2 + FMA instance.
+macro_rules! simd_versions {
+    ($name:ident, $avx:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
+        #[allow(clippy::too_many_arguments)]
+        fn $name<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+            simd: SimdLevel,
+            $($arg: $ty,)*
+            law: Law<P, Q>,
+        ) -> $ret
+        where
+            P: Fn(usize, f64) -> f64 + Copy,
+            Q: Fn(usize) -> f64 + Copy,
+        {
+            #[cfg(target_arch = "x86_64")]
+            if simd == SimdLevel::Avx2Fma {
+                // SAFETY: SimdLevel::Avx2Fma is only chosen where the CPU has AVX2 and FMA.
+                return unsafe { $avx::<L, REP, FRC, CLU, P, Q>($($arg,)* law) };
+            }
+            let _ = simd;
+            $body::<L, REP, FRC, CLU, P, Q>($($arg,)* law)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn $avx<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+            $($arg: $ty,)*
+            law: Law<P, Q>,
+        ) -> $ret
+        where
+            P: Fn(usize, f64) -> f64 + Copy,
+            Q: Fn(usize) -> f64 + Copy,
+        {
+            $body::<L, REP, FRC, CLU, P, Q>($($arg,)* law)
+        }
+    };
+}
+
 /// Discrete energy E = eps Σ u_i² + Σ Phi_i(d_i) of every lane's state (the same sums, in the
 /// same order, as a step's report, so that the energy check compares like with like).
 pub fn state_energy<const L: usize>(
@@ -357,18 +436,24 @@ where
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
 {
+    let eps2 = 2.0 * terms.eps;
+    let inputs = Inputs::of(terms, gaps);
     let mut kinetic = [0.0; L];
     let mut energy = [0.0; L];
     for i in 0..n {
+        let k = i * L;
+        let (dstar, bonded) = inputs.row::<L, CLU>(k);
+        let stored = lanes::<L, f64>(gaps, k);
         for l in 0..L {
-            let k = i * L + l;
-            let phi = potential_of::<L, REP, P, Q>(terms, law, l, k, gaps[k].max(0.0));
-            if !(CLU && terms.bonded.is_some_and(|b| b[k])) {
+            let phi = potential_of::<REP, P, Q>(law, l, eps2, dstar[l], stored[l].max(0.0));
+            if !bonded[l] {
                 energy[l] += phi;
             }
-            if i + 1 < n {
-                let u = vel[k];
-                kinetic[l] += u * u;
+        }
+        if i + 1 < n {
+            let u = lanes::<L, f64>(vel, k);
+            for l in 0..L {
+                kinetic[l] += u[l] * u[l];
             }
         }
     }
@@ -388,7 +473,45 @@ fn particle_force(forcing: &Forcing, eps: f64, t: f64, q: f64) -> f64 {
     eps * s
 }
 
-/// Advances every lane by its own step h[l] from (gaps_in, vel_in) to (gaps_out, vel_out)
+/// max(a, b) as one packed max: b when a is NaN, as `f64::max` gives (whose NaN handling for
+/// either argument costs a compare and a blend per use). Callers pass the value that may be NaN
+/// as `a` and a never-NaN bound or accumulator as `b`, so the result is `f64::max`'s.
+#[inline(always)]
+fn fmax(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// min(a, b) as one packed min, b when a is NaN (see [`fmax`]).
+#[inline(always)]
+fn fmin(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The Taylor branch of [`gap_exp`] (|x| < GAP_EXP_TAYLOR), branch-free for the lane loop.
+#[allow(clippy::excessive_precision)]
+#[inline(always)]
+fn gap_exp_taylor(x: f64) -> f64 {
+    // Horner, 1/k! as the nearest f64 (the WGSL twin writes the same literals).
+    1.0 + x
+        * (1.0
+            + x * (0.5
+                + x * (1.666_666_666_666_666_6e-1
+                    + x * (4.166_666_666_666_666_4e-2
+                        + x * (8.333_333_333_333_333e-3
+                            + x * (1.388_888_888_888_889e-3
+                                + x * (1.984_126_984_126_984e-4
+                                    + x * 2.480_158_730_158_730_2e-5)))))))
+}
+
+/// Advances every lane by its own step `h[l]` from (gaps_in, vel_in) to (gaps_out, vel_out)
 /// (gaps in the stored form: d, or ln d below GAP_FLOOR). Lanes whose report is not admissible
 /// (or has a hard failure) must be rejected by the caller: their output is garbage.
 #[allow(clippy::too_many_arguments)]
@@ -403,14 +526,55 @@ pub fn euler_step<const L: usize>(
     vel_out: &mut [f64],
     scratch: &mut Scratch,
 ) -> [StepReport; L] {
-    specialised!(
+    euler_step_at(
+        SimdLevel::detect(),
         terms,
-        euler_impl,
-        (terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch)
+        particles,
+        t,
+        h,
+        gaps_in,
+        vel_in,
+        gaps_out,
+        vel_out,
+        scratch,
     )
 }
 
+/// [`euler_step`] with the lane loops compiled for `simd` (which the CPU must support).
 #[allow(clippy::too_many_arguments)]
+pub(crate) fn euler_step_at<const L: usize>(
+    simd: SimdLevel,
+    terms: &Terms<L>,
+    particles: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch,
+) -> [StepReport; L] {
+    specialised!(
+        terms,
+        euler_simd,
+        (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch)
+    )
+}
+
+simd_versions!(euler_simd, euler_avx2, euler_impl, (
+    terms: &Terms<L>,
+    n: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch
+) -> [StepReport; L]);
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn euler_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
     terms: &Terms<L>,
     n: usize,
@@ -428,9 +592,12 @@ where
     Q: Fn(usize) -> f64 + Copy,
 {
     let eps = terms.eps;
-    debug_assert_eq!(gaps_in.len(), n * L);
-    debug_assert_eq!(vel_in.len(), (n - 1) * L);
+    assert_eq!(gaps_in.len(), n * L);
+    assert_eq!(vel_in.len(), (n - 1) * L);
     let mass = 2.0 * eps;
+    let eps2 = 2.0 * eps;
+    let mu = terms.mu;
+    let inputs = Inputs::of(terms, gaps_in);
     let mut report = [StepReport::START; L];
     let mut m_over_h = [0.0; L];
     for l in 0..L {
@@ -445,47 +612,67 @@ where
     let mut ls_prev = [0.0; L];
     let mut ys_prev = [0.0; L];
     let mut q = [0.0; L];
-    let mut finite = [true; L];
-    for l in 0..L {
-        let (a, g, d) = gap_terms::<L, REP, CLU, P, Q>(terms, law, l, l, gaps_in[l], h[l]);
-        a_prev[l] = a;
-        g_prev[l] = g;
-        ls_prev[l] = 1.0 / d;
-        finite[l] &= g.is_finite();
+    let mut f = [0.0; L];
+    // Flags as 0/1 in u64 lanes (what a packed f64 comparison yields; bools cost packing).
+    let mut nonfinite = [0u64; L];
+    {
+        let stored = lanes::<L, f64>(gaps_in, 0);
+        let (dstar, bonded) = inputs.row::<L, CLU>(0);
+        for l in 0..L {
+            let (a, g, d) = gap_terms::<REP, CLU, P, Q>(
+                law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
+            );
+            a_prev[l] = a;
+            g_prev[l] = g;
+            ls_prev[l] = 1.0 / d;
+            nonfinite[l] |= !g.is_finite() as u64;
+        }
     }
     for i in 1..n {
         let row = (i - 1) * L;
         let next_gap = i * L;
-        for l in 0..L {
-            let stored_next = gaps_in[next_gap + l];
-            let (a_next, g_next, d_next) =
-                gap_terms::<L, REP, CLU, P, Q>(terms, law, l, next_gap + l, stored_next, h[l]);
-            let mut f = 0.0;
-            if FRC {
-                if let Some(forcing) = terms.forcing {
-                    q[l] += stored_gap::decode(gaps_in[row + l]) + mass;
-                    f = particle_force(forcing, eps, t[l], q[l]);
-                    scratch.force[row + l] = f;
+        if FRC {
+            if let Some(forcing) = terms.forcing {
+                // Not vectorisable (the expression is interpreted): a loop of its own.
+                let prev = lanes::<L, f64>(gaps_in, row);
+                let force = lanes_mut::<L, f64>(&mut scratch.force, row);
+                for l in 0..L {
+                    q[l] += stored_gap::decode(prev[l]) + mass;
+                    f[l] = particle_force(forcing, eps, t[l], q[l]);
+                    force[l] = f[l];
                 }
             }
-            finite[l] &= (g_next + f).is_finite();
-            let rhs = m_over_h[l] * vel_in[row + l] + g_prev[l] - g_next + f;
+        }
+        // The lane loop works on local copies of the rows (no aliasing for the vectoriser to
+        // rule out) and stores whole rows after it.
+        let stored = *lanes::<L, f64>(gaps_in, next_gap);
+        let (dstar, bonded) = inputs.row::<L, CLU>(next_gap);
+        let dstar = *dstar;
+        let vel = *lanes::<L, f64>(vel_in, row);
+        let mut w = [0.0; L];
+        for l in 0..L {
+            let (a_next, g_next, d_next) = gap_terms::<REP, CLU, P, Q>(
+                law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
+            );
+            nonfinite[l] |= !(g_next + f[l]).is_finite() as u64;
+            let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
             let excess = m_over_h[l] + a_prev[l] * ls_prev[l];
             let delta = rhs + a_prev[l] * ys_prev[l];
             let inv = 1.0 / (excess * d_next + a_next);
             let ls = excess * inv;
             let ys = delta * inv;
-            scratch.w[row + l] = a_next * inv;
-            scratch.ls[row + l] = ls;
-            scratch.ys[row + l] = ys;
+            w[l] = a_next * inv;
             ls_prev[l] = ls;
             ys_prev[l] = ys;
             a_prev[l] = a_next;
             g_prev[l] = g_next;
         }
+        *lanes_mut::<L, f64>(&mut scratch.w, row) = w;
+        *lanes_mut::<L, f64>(&mut scratch.ls, row) = ls_prev;
+        *lanes_mut::<L, f64>(&mut scratch.ys, row) = ys_prev;
     }
     for l in 0..L {
-        if !finite[l] {
+        if nonfinite[l] != 0 {
             report[l].hard = find_hard_failure(terms, law, n, l, t[l], h[l], gaps_in);
         }
     }
@@ -494,38 +681,146 @@ where
     // ln d' = ln d + h r, and the sum of the new gaps (for the projection). Log-stored
     // gaps and gaps that leave [GAP_FLOOR, inf) are redone by the fix-up below (rare), from the rate
     // left in `ls`.
-    let mut needs_fixup = [false; L];
+    let mut needs_fixup = [0u64; L];
     let mut opening = [0.0f64; L];
     let mut closing = [f64::NEG_INFINITY; L];
     let mut sum = [0.0; L];
     let mut u_next = [0.0; L];
-    for i in (1..n).rev() {
+    let gamma2: [f64; L] = std::array::from_fn(|l| -((law.gamma)(l) + 2.0));
+    // Gaps i_top..1 are left to the loop over rows below.
+    let mut i_top = n - 1;
+    if L == 1 {
+        // One lane: gaps in groups of four (the CPU's SIMD width, in place of lanes), so that
+        // all but the velocity recurrence runs in SIMD registers across gaps. The same
+        // operations per gap as the loop below, and the sum in the same order.
+        const W: usize = 4;
+        let (h0, gamma0) = (h[0], gamma2[0]);
+        let mut open_w = [0.0f64; W];
+        let mut close_w = [f64::NEG_INFINITY; W];
+        let mut fixup_w = [0u64; W];
+        let mut un = u_next[0];
+        while i_top >= W {
+            // Gaps lo..=i_top, rows lo-1..i_top-1 (element i of the lane at i).
+            let lo = i_top + 1 - W;
+            let old: [f64; W] = gaps_in[lo..lo + W].try_into().unwrap();
+            let bonded: [bool; W] = if CLU {
+                inputs.bonded[lo..lo + W].try_into().unwrap()
+            } else {
+                [false; W]
+            };
+            let w: [f64; W] = scratch.w[lo - 1..lo - 1 + W].try_into().unwrap();
+            let ys: [f64; W] = scratch.ys[lo - 1..lo - 1 + W].try_into().unwrap();
+            let ls: [f64; W] = scratch.ls[lo - 1..lo - 1 + W].try_into().unwrap();
+            let mut u = [0.0; W];
+            let mut u_right = [0.0; W];
+            for j in (0..W).rev() {
+                u_right[j] = un;
+                let d = fmax(old[j], GAP_FLOOR);
+                u[j] = d * ys[j] + w[j] * un;
+                if CLU && bonded[j] {
+                    u[j] = un;
+                }
+                un = u[j];
+            }
+            let mut rates = [0.0; W];
+            let mut x = [0.0; W];
+            let mut small = 1u64;
+            for j in 0..W {
+                rates[j] = ls[j] * u_right[j] - ys[j];
+                x[j] = h0 * rates[j];
+                small &= (x[j].abs() < GAP_EXP_TAYLOR) as u64;
+            }
+            let mut e = [0.0; W];
+            if small != 0 {
+                for j in 0..W {
+                    e[j] = gap_exp_taylor(x[j]);
+                }
+            } else {
+                for j in 0..W {
+                    e[j] = gap_exp(x[j]);
+                }
+            }
+            let mut grown = [0.0; W];
+            for j in 0..W {
+                grown[j] = old[j] * e[j];
+                if old[j] > 0.0 {
+                    open_w[j] = fmax(x[j], open_w[j]);
+                }
+                let d = fmax(old[j], GAP_FLOOR);
+                close_w[j] = fmax(d * (gamma0 * fmin(x[j], 0.0) - 1.0), close_w[j]);
+                fixup_w[j] |= !((GAP_FLOOR..f64::INFINITY).contains(&grown[j])
+                    && x[j] <= EXP_FAST_MAX) as u64;
+            }
+            for j in (0..W).rev() {
+                sum[0] += fmax(grown[j], 0.0);
+            }
+            vel_out[lo - 1..lo - 1 + W].copy_from_slice(&u);
+            scratch.ls[lo - 1..lo - 1 + W].copy_from_slice(&rates);
+            gaps_out[lo..lo + W].copy_from_slice(&grown);
+            i_top -= W;
+        }
+        u_next[0] = un;
+        // max and | do not depend on the order.
+        for j in 0..W {
+            opening[0] = fmax(open_w[j], opening[0]);
+            closing[0] = fmax(close_w[j], closing[0]);
+            needs_fixup[0] |= fixup_w[j];
+        }
+    }
+    for i in (1..=i_top).rev() {
         let row = (i - 1) * L;
         let gap = i * L;
+        let old = *lanes::<L, f64>(gaps_in, gap);
+        let (_, bonded) = inputs.row::<L, CLU>(gap);
+        let w = *lanes::<L, f64>(&scratch.w, row);
+        let ys = *lanes::<L, f64>(&scratch.ys, row);
+        let ls = *lanes::<L, f64>(&scratch.ls, row);
+        let mut rates = [0.0; L];
+        let mut x = [0.0; L];
+        let mut small = 1u64;
         for l in 0..L {
-            let old = gaps_in[gap + l];
-            let d = old.max(GAP_FLOOR);
-            let mut u = d * scratch.ys[row + l] + scratch.w[row + l] * u_next[l];
-            if CLU && terms.bonded.is_some_and(|b| b[gap + l]) {
+            let d = fmax(old[l], GAP_FLOOR);
+            let mut u = d * ys[l] + w[l] * u_next[l];
+            if CLU && bonded[l] {
                 // Exactly the velocity of the body it is bonded to (the penalty gives it to
                 // ~1e-250).
                 u = u_next[l];
             }
-            let rate = scratch.ls[row + l] * u_next[l] - scratch.ys[row + l];
-            let x = h[l] * rate;
-            let grown = old * gap_exp(x);
-            vel_out[row + l] = u;
-            gaps_out[gap + l] = grown;
-            scratch.ls[row + l] = rate;
-            sum[l] += grown.max(0.0);
-            if old > 0.0 {
-                opening[l] = opening[l].max(x);
-            }
-            closing[l] = closing[l].max(d * (-((law.gamma)(l) + 2.0) * x.min(0.0) - 1.0));
-            // NaN fails the comparisons.
-            needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX);
+            let rate = ls[l] * u_next[l] - ys[l];
+            x[l] = h[l] * rate;
+            small &= (x[l].abs() < GAP_EXP_TAYLOR) as u64;
+            rates[l] = rate;
             u_next[l] = u;
         }
+        *lanes_mut::<L, f64>(vel_out, row) = u_next;
+        *lanes_mut::<L, f64>(&mut scratch.ls, row) = rates;
+        // e^x: the polynomial for the whole row when every lane's |x| is small (so the lane
+        // loop stays branch-free), else lane by lane. Either way each lane gets gap_exp(x).
+        let mut e = [0.0; L];
+        if small != 0 {
+            for l in 0..L {
+                e[l] = gap_exp_taylor(x[l]);
+            }
+        } else {
+            for l in 0..L {
+                e[l] = gap_exp(x[l]);
+            }
+        }
+        let mut grown_row = [0.0; L];
+        for l in 0..L {
+            let grown = old[l] * e[l];
+            grown_row[l] = grown;
+            sum[l] += fmax(grown, 0.0);
+            if old[l] > 0.0 {
+                opening[l] = fmax(x[l], opening[l]);
+            }
+            let d = fmax(old[l], GAP_FLOOR);
+            closing[l] = fmax(d * (gamma2[l] * fmin(x[l], 0.0) - 1.0), closing[l]);
+            // NaN fails the comparisons.
+            needs_fixup[l] |=
+                !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x[l] <= EXP_FAST_MAX) as u64;
+        }
+        *lanes_mut::<L, f64>(gaps_out, gap) = grown_row;
     }
     if CLU {
         if let Some(bonded) = terms.bonded {
@@ -543,22 +838,23 @@ where
     let mut rate_first = [0.0; L];
     for l in 0..L {
         let old = gaps_in[l];
-        let rate = u_next[l] / old.max(GAP_FLOOR);
+        let rate = u_next[l] / fmax(old, GAP_FLOOR);
         let x = h[l] * rate;
         let grown = old * gap_exp(x);
         gaps_out[l] = grown;
         rate_first[l] = rate;
-        sum[l] += grown.max(0.0);
+        sum[l] += fmax(grown, 0.0);
         if old > 0.0 {
-            opening[l] = opening[l].max(x);
+            opening[l] = fmax(x, opening[l]);
         }
-        let d = old.max(GAP_FLOOR);
-        closing[l] = closing[l].max(d * (-((law.gamma)(l) + 2.0) * x.min(0.0) - 1.0));
-        needs_fixup[l] |= !(grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX);
+        let d = fmax(old, GAP_FLOOR);
+        closing[l] = fmax(d * (gamma2[l] * fmin(x, 0.0) - 1.0), closing[l]);
+        needs_fixup[l] |=
+            !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX) as u64;
     }
 
     for l in 0..L {
-        if needs_fixup[l] {
+        if needs_fixup[l] != 0 {
             fix_up_lane::<L>(
                 terms,
                 n,
@@ -572,7 +868,7 @@ where
             sum[l] = lane_sum::<L>(n, l, gaps_out);
         }
         report[l].admissible &= opening[l] <= MAX_OPENING;
-        report[l].certified = !needs_fixup[l]
+        report[l].certified = needs_fixup[l] == 0
             && energy_certified(
                 REP,
                 closing[l],
@@ -606,8 +902,8 @@ where
 /// where R_i is the Taylor remainder of Phi_i beyond second order over D_i (the scheme's own
 /// balance gives -mu/h sum d x^2 - sum k D^2/2, the projection at most G_max sum e_i, and
 /// sum e_i <= e^{max x} sum d x^2/2). The third derivative of Phi is negative, so R_i <= 0 for
-/// an opening gap, and R_i <= k_i D_i^2/2 for a closing one when (gamma + 1)|D_i| <= d_i + D_i
-/// + 2eps, i.e. when `closing` = max_i d_i ((gamma + 2)(-x_i) - 1) <= 2eps; the second term is
+/// an opening gap, and R_i <= k_i D_i^2/2 for a closing one when
+/// (gamma + 1)|D_i| <= d_i + D_i + 2eps, i.e. when `closing` = max_i d_i ((gamma + 2)(-x_i) - 1) <= 2eps; the second term is
 /// <= 0 when e^{max x} G_max/2 <= mu/h, with G_max bounded by the contact repulsion. A mild step
 /// is certified and skips the potential energy; any other is checked by computing E'.
 #[inline(always)]
@@ -652,10 +948,21 @@ where
                 }
             }
         }
-        if terms.repulsion.is_some() && terms.bonded.is_none_or(|b| !b[k]) {
-            let (_, g, d) = gap_terms::<L, true, false, P, Q>(terms, law, l, k, gaps_in[k], h);
-            if !g.is_finite() {
-                return Some(repulsion_failure(terms, i, k, d));
+        if let Some((dstar, _)) = terms.repulsion {
+            if terms.bonded.is_none_or(|b| !b[k]) {
+                let (_, g, d) = gap_terms::<true, false, P, Q>(
+                    law,
+                    l,
+                    terms.mu[l],
+                    2.0 * eps,
+                    gaps_in[k],
+                    dstar[k],
+                    false,
+                    h,
+                );
+                if !g.is_finite() {
+                    return Some(repulsion_failure(terms, i, k, d));
+                }
             }
         }
     }
@@ -697,7 +1004,7 @@ fn fix_up_lane<const L: usize>(
         };
         let x = h * rate;
         let grown = gaps_out[k];
-        if grown >= GAP_FLOOR && grown < f64::INFINITY && x <= EXP_FAST_MAX && gaps_in[k] > 0.0 {
+        if (GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX && gaps_in[k] > 0.0 {
             continue;
         }
         gaps_out[k] = encode_ln_gap(stored_ln(gaps_in[k]) + x);
@@ -706,9 +1013,9 @@ fn fix_up_lane<const L: usize>(
 
 /// Shifts the log-stored gaps of the lanes that have some by ln(scale) (outside the hot loop:
 /// rare).
-fn shift_logged<const L: usize>(n: usize, scale: &[f64; L], logged: &[bool; L], gaps: &mut [f64]) {
+fn shift_logged<const L: usize>(n: usize, scale: &[f64; L], logged: &[u64; L], gaps: &mut [f64]) {
     for l in 0..L {
-        if logged[l] {
+        if logged[l] != 0 {
             let shift = twin_math::ln(scale[l]);
             for i in 0..n {
                 let k = i * L + l;
@@ -738,12 +1045,34 @@ pub fn conclude<const L: usize>(
     }
     specialised!(
         terms,
-        conclude_impl,
-        (terms, n, h, total, gaps, vel, None, report)
+        conclude_simd,
+        (
+            SimdLevel::detect(),
+            terms,
+            n,
+            h,
+            total,
+            gaps,
+            vel,
+            None,
+            report
+        )
     )
 }
 
+simd_versions!(conclude_simd, conclude_avx2, conclude_impl, (
+    terms: &Terms<L>,
+    n: usize,
+    h: &[f64; L],
+    sum: [f64; L],
+    gaps: &mut [f64],
+    vel: &[f64],
+    force: Option<&[f64]>,
+    report: &mut [StepReport; L]
+) -> ());
+
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
     terms: &Terms<L>,
     n: usize,
@@ -758,67 +1087,309 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
 {
+    assert_eq!(gaps.len(), n * L);
+    let eps2 = 2.0 * terms.eps;
     let mut scale = [1.0; L];
     for l in 0..L {
         scale[l] = terms.total_gap[l] / sum[l];
     }
-    let mut logged = [false; L];
+    let force = if FRC { force } else { None };
+    // 0/1 flags in u64 lanes, as in the sweep.
+    let mut logged = [0u64; L];
+    let mut nonfinite = [0u64; L];
+    let mut work = [0.0; L];
     if report.iter().all(|r| r.certified) {
         // Only the projection (and the forcing's work, which a later energy check of a
         // Richardson step adds up): no lane needs its energy.
-        let mut work = [0.0; L];
-        for i in 0..n {
+        // Whole rows from chunks_exact: no per-row check, so that L = 1 vectorises over rows.
+        for row in gaps.chunks_exact_mut(L) {
             for l in 0..L {
-                let k = i * L + l;
-                let v = gaps[k];
-                logged[l] |= v < 0.0;
-                report[l].admissible &= v.is_finite();
-                gaps[k] = if v > 0.0 { v * scale[l] } else { v };
-                if FRC && i + 1 < n {
-                    if let Some(f) = force {
-                        work[l] += vel[k] * f[k];
-                    }
+                let v = row[l];
+                logged[l] |= (v < 0.0) as u64;
+                nonfinite[l] |= !v.is_finite() as u64;
+                row[l] = if v > 0.0 { v * scale[l] } else { v };
+            }
+        }
+        if let Some(f) = force {
+            for (u, f) in vel.chunks_exact(L).zip(f.chunks_exact(L)) {
+                for l in 0..L {
+                    work[l] += u[l] * f[l];
                 }
             }
         }
         shift_logged(n, &scale, &logged, gaps);
         for l in 0..L {
+            report[l].admissible &= nonfinite[l] == 0;
             report[l].energy = -1.0;
             report[l].work = h[l] * work[l];
         }
         return;
     }
+    let dstar_all: &[f64] = terms.repulsion.map_or(&[], |r| r.0);
+    let bonded_all: &[bool] = terms.bonded.unwrap_or(&[]);
     let mut potential = [0.0; L];
     let mut kinetic = [0.0; L];
-    let mut work = [0.0; L];
     for i in 0..n {
+        let k = i * L;
+        let dstar = if REP {
+            *lanes::<L, f64>(dstar_all, k)
+        } else {
+            [0.0; L]
+        };
+        let bonded = if CLU {
+            *lanes::<L, bool>(bonded_all, k)
+        } else {
+            [false; L]
+        };
+        let row = lanes_mut::<L, f64>(gaps, k);
         for l in 0..L {
-            let k = i * L + l;
-            let v = gaps[k];
+            let v = row[l];
             let scaled = v * scale[l];
-            logged[l] |= v < 0.0;
-            report[l].admissible &= v.is_finite();
-            gaps[k] = if v > 0.0 { scaled } else { v };
-            let phi = potential_of::<L, REP, P, Q>(terms, law, l, k, scaled.max(0.0));
-            if !(CLU && terms.bonded.is_some_and(|b| b[k])) {
+            logged[l] |= (v < 0.0) as u64;
+            nonfinite[l] |= !v.is_finite() as u64;
+            row[l] = if v > 0.0 { scaled } else { v };
+            let phi = potential_of::<REP, P, Q>(law, l, eps2, dstar[l], scaled.max(0.0));
+            if !bonded[l] {
                 potential[l] += phi;
             }
-            if i + 1 < n {
-                let u = vel[k];
-                kinetic[l] += u * u;
-                if FRC {
-                    if let Some(f) = force {
-                        work[l] += u * f[k];
-                    }
+        }
+        if i + 1 < n {
+            let u = lanes::<L, f64>(vel, k);
+            for l in 0..L {
+                kinetic[l] += u[l] * u[l];
+            }
+            if let Some(f) = force {
+                let f = lanes::<L, f64>(f, k);
+                for l in 0..L {
+                    work[l] += u[l] * f[l];
                 }
             }
         }
     }
     shift_logged(n, &scale, &logged, gaps);
     for l in 0..L {
+        report[l].admissible &= nonfinite[l] == 0;
         report[l].energy = potential[l] + terms.eps * kinetic[l];
         report[l].work = h[l] * work[l];
         report[l].admissible &= report[l].energy.is_finite();
         report[l].certified = false;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::expr::Expr;
+    use crate::model::quadrature::GaussLegendre;
+
+    const N: usize = 37;
+    const L: usize = 8;
+
+    /// One block's inputs: gaps of very different sizes (unless `mild`: one below GAP_FLOOR,
+    /// stored as ln d; with clusters some bonded), velocities, d* and the per-lane mu and h
+    /// (unless `mild`, one h large enough for the exp branch and the fix-up). A mild step is
+    /// certified, the other is not.
+    struct Case {
+        gaps: Vec<f64>,
+        vel: Vec<f64>,
+        dstar: Vec<f64>,
+        bonded: Vec<bool>,
+        mu: [f64; L],
+        h: [f64; L],
+    }
+
+    fn case(clusters: bool, mild: bool) -> Case {
+        let wave = |k: usize, a: f64| (a * (k as f64 + 1.0)).sin();
+        let mut gaps: Vec<f64> = (0..N * L).map(|k| 0.02 * (1.2 + wave(k, 0.37))).collect();
+        let mut bonded = vec![false; N * L];
+        if !mild {
+            gaps[5 * L + 3] = stored_gap::encode(1e-300, GAP_FLOOR);
+            gaps[9 * L + 6] = 1e-12;
+        }
+        if clusters {
+            for k in [L + 2, 2 * L + 2, 20 * L + 5, 4] {
+                gaps[k] = 0.0;
+                bonded[k] = true;
+            }
+        }
+        Case {
+            gaps,
+            vel: (0..(N - 1) * L).map(|k| 0.5 * wave(k, 0.11)).collect(),
+            dstar: (0..N * L).map(|k| 0.02 * (1.1 + wave(k, 0.53))).collect(),
+            bonded,
+            mu: std::array::from_fn(|l| 0.01 * (1.0 + l as f64)),
+            h: std::array::from_fn(|l| match (mild, l) {
+                (true, _) => 1e-4 * (1.0 + l as f64),
+                (false, 7) => 0.5,
+                _ => 1e-3 * (1.0 + l as f64),
+            }),
+        }
+    }
+
+    type Outcome = (Vec<u64>, Vec<u64>, Vec<StepReport>);
+
+    /// One step of lanes `lanes` of the case as a block of M lanes at the given level.
+    fn step<const M: usize>(
+        simd: SimdLevel,
+        c: &Case,
+        lanes: [usize; M],
+        gamma: Option<Gamma<M>>,
+        clusters: bool,
+        forcing: Option<&Forcing>,
+    ) -> Outcome {
+        let pick = |v: &[f64], rows: usize| -> Vec<f64> {
+            (0..rows * M)
+                .map(|k| v[(k / M) * L + lanes[k % M]])
+                .collect()
+        };
+        let gaps = pick(&c.gaps, N);
+        let vel = pick(&c.vel, N - 1);
+        let dstar = pick(&c.dstar, N);
+        let bonded: Vec<bool> = (0..N * M)
+            .map(|k| c.bonded[(k / M) * L + lanes[k % M]])
+            .collect();
+        let eps = 0.5 / N as f64;
+        let terms = Terms::<M> {
+            eps,
+            mu: lanes.map(|l| c.mu[l]),
+            total_gap: std::array::from_fn(|m| {
+                (0..N).map(|i| stored_gap::decode(gaps[i * M + m])).sum()
+            }),
+            contact_repulsion: [5.0; M],
+            repulsion: gamma.map(|g| (dstar.as_slice(), g)),
+            bonded: clusters.then_some(bonded.as_slice()),
+            forcing,
+        };
+        let h = lanes.map(|l| c.h[l]);
+        let t = [0.25; M];
+        let mut gaps_out = vec![0.0; N * M];
+        let mut vel_out = vec![0.0; (N - 1) * M];
+        let mut scratch = Scratch::new(N, M);
+        let report = euler_step_at(
+            simd,
+            &terms,
+            N,
+            &t,
+            &h,
+            &gaps,
+            &vel,
+            &mut gaps_out,
+            &mut vel_out,
+            &mut scratch,
+        );
+        (
+            gaps_out.iter().map(|x| x.to_bits()).collect(),
+            vel_out.iter().map(|x| x.to_bits()).collect(),
+            report.to_vec(),
+        )
+    }
+
+    /// Every combination of the terms the step specialises on.
+    fn variants() -> Vec<(String, Option<Gamma<L>>, bool, Option<Forcing>)> {
+        let gammas: [(&str, Option<Gamma<L>>); 5] = [
+            ("none", None),
+            ("2", Some(Gamma::Uniform(Power::Integer(2)))),
+            ("5", Some(Gamma::Uniform(Power::Integer(5)))),
+            ("1.5", Some(Gamma::Uniform(Power::Real(1.5)))),
+            (
+                "per lane",
+                Some(Gamma::PerLane(std::array::from_fn(|l| {
+                    1.0 + 0.5 * l as f64
+                }))),
+            ),
+        ];
+        let mut out = Vec::new();
+        for (name, gamma) in gammas {
+            for clusters in [false, true] {
+                for forced in [false, true] {
+                    let forcing = forced.then(|| Forcing {
+                        expr: Expr::parse("0.3*sin(2*pi*(x - t))").unwrap(),
+                        rule: GaussLegendre::new(3),
+                    });
+                    let label = format!("gamma {name}, clusters {clusters}, forcing {forced}");
+                    out.push((label, gamma, clusters, forcing));
+                }
+            }
+        }
+        out
+    }
+
+    /// The run-time SIMD level changes the speed only: AVX2 + FMA gives the portable path's
+    /// results bit for bit (no contraction into fma, the same operations in the same order).
+    #[test]
+    fn avx2_path_equals_portable_path_bitwise() {
+        if SimdLevel::detect() != SimdLevel::Avx2Fma {
+            eprintln!("no AVX2 + FMA here (or ROUGHLUB_CPU_SIMD=portable): nothing to compare");
+            return;
+        }
+        let all = std::array::from_fn(|l| l);
+        for (label, gamma, clusters, forcing) in variants() {
+            for mild in [false, true] {
+                let c = case(clusters, mild);
+                let f = forcing.as_ref();
+                let portable = step::<L>(SimdLevel::Portable, &c, all, gamma, clusters, f);
+                let avx2 = step::<L>(SimdLevel::Avx2Fma, &c, all, gamma, clusters, f);
+                assert!(
+                    portable == avx2,
+                    "{label}, mild {mild}: AVX2 and portable differ"
+                );
+                // Both ends of the step ran: the certified projection, the energy (a bonded
+                // gap goes through the fix-up, which the certificate leaves out).
+                assert_eq!(
+                    portable.2.iter().all(|r| r.certified),
+                    mild && !clusters,
+                    "{label}, mild {mild}"
+                );
+            }
+        }
+    }
+
+    /// A lane's result does not depend on the block it sits in or its place there: each lane of
+    /// a block of 8 equals the same member stepped alone (L = 1), bit for bit.
+    #[test]
+    fn lanes_are_independent_of_their_block() {
+        for (label, gamma, clusters, forcing) in variants() {
+            let c = case(clusters, false);
+            let all = std::array::from_fn(|l| l);
+            let block = step::<L>(
+                SimdLevel::detect(),
+                &c,
+                all,
+                gamma,
+                clusters,
+                forcing.as_ref(),
+            );
+            for l in 0..L {
+                let alone_gamma = gamma.map(|g| {
+                    Gamma::Uniform(match g {
+                        Gamma::PerLane(gs) => Power::of(gs[l]),
+                        Gamma::Uniform(p) => p,
+                    })
+                });
+                let alone = step::<1>(
+                    SimdLevel::Portable,
+                    &c,
+                    [l],
+                    alone_gamma,
+                    clusters,
+                    forcing.as_ref(),
+                );
+                let gaps: Vec<u64> = block.0.iter().skip(l).step_by(L).copied().collect();
+                let vel: Vec<u64> = block.1.iter().skip(l).step_by(L).copied().collect();
+                assert_eq!(gaps, alone.0, "{label}: gaps of lane {l}");
+                assert_eq!(vel, alone.1, "{label}: velocities of lane {l}");
+                // A block computes every lane's energy when one lane needs it, so only the
+                // energy's value (where both have it) must agree, not whether it was computed.
+                let (b, a) = (block.2[l], alone.2[0]);
+                assert_eq!(
+                    (b.admissible, b.hard, b.work),
+                    (a.admissible, a.hard, a.work),
+                    "{label}: report of lane {l}"
+                );
+                if b.energy >= 0.0 && a.energy >= 0.0 {
+                    assert_eq!(b.energy.to_bits(), a.energy.to_bits(), "{label}: lane {l}");
+                }
+            }
+        }
     }
 }
