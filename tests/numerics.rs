@@ -108,6 +108,7 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
                 repulsion: Some((&dstar, Gamma::PerLane(gammas))),
                 bonded: with_clusters.then_some(bonded.as_slice()),
                 forcing: Some(&forcing),
+                forcing_params: [&[]; L],
             };
             let mut gaps_out = vec![0.0; gaps.len()];
             let mut vel_out = vec![0.0; vel.len()];

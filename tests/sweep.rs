@@ -438,3 +438,72 @@ fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
     assert!(err.contains("sweep.points") && err.contains("--allow-large"), "{err}");
     assert!(!out_dir.exists());
 }
+
+// ---------------------------------------------------------------------------------------------
+// 5. A swept forcing parameter: per member, one batch for many points.
+
+fn forcing_study(sweep: &str) -> String {
+    BASE.replace(
+        "gamma = 2.0\n",
+        "gamma = 2.0\nforcing = \"F*sin(2*pi*x)*exp(-t)\"\n",
+    )
+    .replace("level = 0.7\n", "level = 0.7\nF = 0.3\n")
+    .replace("members = 6", "members = 4")
+    .replace("chunk = 4", "chunk = 12")
+        + sweep
+}
+
+#[test]
+fn a_swept_forcing_parameter_is_read_per_member_in_one_batch() {
+    let tmp = tempfile::tempdir().unwrap();
+    let swept = write(
+        tmp.path(),
+        "forced.toml",
+        &forcing_study("\n[sweep]\nF = [0.1, 0.4, 0.7]\n"),
+    );
+    let cpu = tmp.path().join("forced_cpu");
+    run(&swept, &cpu, &[], &[]);
+    // Point 2 equals the study of its own scene (F = 0.7, substituted while parsing).
+    let alone = write(
+        tmp.path(),
+        "alone.toml",
+        &forcing_study("").replace("F = 0.3", "F = 0.7"),
+    );
+    let alone_dir = tmp.path().join("alone");
+    run(&alone, &alone_dir, &[], &[]);
+    for name in EXACT {
+        let (shape, got) = stat(&cpu, name);
+        assert!(
+            identical(&point_slice(&shape, &got, 2), &stat(&alone_dir, name).1),
+            "{name}: point F = 0.7 differs from its own study"
+        );
+    }
+    let (head, rows) = csv_rows(&cpu.join("members.csv"));
+    let c_peak = head.iter().position(|h| h == "peak_density").unwrap();
+    let peaks: Vec<f64> = rows.iter().map(|r| r[c_peak].parse().unwrap()).collect();
+    assert!(
+        peaks[0] != peaks[8],
+        "the forcing amplitude must change the flow: {peaks:?}"
+    );
+    if common::gpu::acquire_for_tests(true).is_none() {
+        return;
+    }
+    let gpu = tmp.path().join("forced_gpu");
+    run(&swept, &gpu, &["--backend", "gpu"], &[]);
+    let (_, gpu_rows) = csv_rows(&gpu.join("members.csv"));
+    for (i, (a, b)) in rows.iter().zip(&gpu_rows).enumerate() {
+        let (x, y): (f64, f64) = (a[c_peak].parse().unwrap(), b[c_peak].parse().unwrap());
+        assert!((x - y).abs() <= 1e-10 * x.abs(), "member {i}: cpu {x}, gpu {y}");
+    }
+    // One batch for the three points: as many submissions as a study without the sweep.
+    let plain = write(tmp.path(), "plain.toml", &forcing_study("").replace("members = 4", "members = 12"));
+    let plain_gpu = tmp.path().join("plain_gpu");
+    run(&plain, &plain_gpu, &["--backend", "gpu"], &[]);
+    let submits = |dir: &Path| -> u64 {
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap())
+                .unwrap();
+        m["gpu_stats"]["submits"].as_u64().unwrap()
+    };
+    assert_eq!(submits(&gpu), submits(&plain_gpu), "the sweep split its batch");
+}

@@ -32,6 +32,8 @@ struct LaneModel<const L: usize> {
     total_gap: [f64; L],
     /// See `Terms::contact_repulsion`.
     contact_repulsion: [f64; L],
+    /// Each lane's member (for its forcing parameters).
+    members: [Option<usize>; L],
 }
 
 impl<const L: usize> LaneModel<L> {
@@ -44,6 +46,10 @@ impl<const L: usize> LaneModel<L> {
             repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
             bonded: self.bonded.as_deref(),
             forcing: plan.forcing.as_ref(),
+            forcing_params: std::array::from_fn(|l| match (plan.forcing.as_ref(), self.members[l]) {
+                (Some(f), Some(m)) => f.member_params(m),
+                _ => &[],
+            }),
         }
     }
 }
@@ -121,6 +127,7 @@ impl<const L: usize> Block<L> {
                 bonded,
                 total_gap,
                 contact_repulsion,
+                members,
             },
             cand_gaps: gaps.clone(),
             cand_vel: vel.clone(),

@@ -118,6 +118,8 @@ pub struct Terms<'a, const L: usize> {
     /// Bonded gaps (interleaved, length N·L): present iff some member has clusters.
     pub bonded: Option<&'a [bool]>,
     pub forcing: Option<&'a Forcing>,
+    /// Each lane's values of the forcing's symbolic parameters (empty without).
+    pub forcing_params: [&'a [f64]; L],
 }
 
 /// gamma for a block: uniform across lanes (integer → multiplications), or per lane.
@@ -465,10 +467,10 @@ where
 
 /// F_i = ∫_{q_i - eps}^{q_i + eps} f(t, x) dx by Gauss–Legendre.
 #[inline(always)]
-fn particle_force(forcing: &Forcing, eps: f64, t: f64, q: f64) -> f64 {
+fn particle_force(forcing: &Forcing, params: &[f64], eps: f64, t: f64, q: f64) -> f64 {
     let mut s = 0.0;
     for (xi, w) in forcing.rule.nodes.iter().zip(&forcing.rule.weights) {
-        s += w * forcing.expr.eval(q + eps * xi, t);
+        s += w * forcing.expr.eval_with(q + eps * xi, t, params);
     }
     eps * s
 }
@@ -638,7 +640,7 @@ where
                 let force = lanes_mut::<L, f64>(&mut scratch.force, row);
                 for l in 0..L {
                     q[l] += stored_gap::decode(prev[l]) + mass;
-                    f[l] = particle_force(forcing, eps, t[l], q[l]);
+                    f[l] = particle_force(forcing, terms.forcing_params[l], eps, t[l], q[l]);
                     force[l] = f[l];
                 }
             }
@@ -943,7 +945,7 @@ where
         if i > 0 {
             if let Some(forcing) = terms.forcing {
                 q += stored_gap::decode(gaps_in[(i - 1) * L + l]) + 2.0 * eps;
-                if !particle_force(forcing, eps, t, q).is_finite() {
+                if !particle_force(forcing, terms.forcing_params[l], eps, t, q).is_finite() {
                     return Some(HardFailure::Forcing { particle: i, x: q });
                 }
             }
@@ -1259,6 +1261,7 @@ mod tests {
             repulsion: gamma.map(|g| (dstar.as_slice(), g)),
             bonded: clusters.then_some(bonded.as_slice()),
             forcing,
+            forcing_params: [&[]; M],
         };
         let h = lanes.map(|l| c.h[l]);
         let t = [0.25; M];
@@ -1305,6 +1308,7 @@ mod tests {
                     let forcing = forced.then(|| Forcing {
                         expr: Expr::parse("0.3*sin(2*pi*(x - t))").unwrap(),
                         rule: GaussLegendre::new(3),
+                        params: Vec::new(),
                     });
                     let label = format!("gamma {name}, clusters {clusters}, forcing {forced}");
                     out.push((label, gamma, clusters, forcing));
