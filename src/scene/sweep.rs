@@ -440,7 +440,7 @@ fn axis(field: &str, value: &toml::Value, target: &SweepTarget) -> Result<Axis> 
                     ))
                 }
             };
-            if !(min < max) {
+            if min >= max {
                 return Err(Error::invalid(
                     field,
                     format!("{{ min = {min}, max = {max} }}"),

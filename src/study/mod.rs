@@ -253,10 +253,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     }
     progress.finish();
     csv_out.finish()?;
-    let state = match total {
-        Some(state) => state,
-        None => StudyState::new(),
-    };
+    let state = total.unwrap_or_default();
     write_json_atomic(
         &dir.join("partial.json"),
         &PartialFile {

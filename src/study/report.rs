@@ -360,7 +360,7 @@ fn write_point_plots(
     for field in ["rho", "u"] {
         let bands = &state.fields[field];
         let mean: Vec<Vec<f64>> = shown.iter().map(|&k| bands[k].mean_row()).collect();
-        let row = |k: usize, q: f64| bands[k].quantile_row(q).map_err(|e| stats_error(&plots, e));
+        let row = |k: usize, q: f64| bands[k].quantile_row(q).map_err(|e| stats_error(plots, e));
         let lower = shown
             .iter()
             .map(|&k| row(k, q_lo))
@@ -439,7 +439,7 @@ fn write_point_plots(
     let last = t - 1;
     let hist = state.scalars["max_density"][last]
         .range_histogram(SCALAR_BINS)
-        .map_err(|e| stats_error(&plots, e))?;
+        .map_err(|e| stats_error(plots, e))?;
     crate::plot::plot_histogram(
         &plots.join(format!("{prefix}max_density_hist.png")),
         &format!(
@@ -455,7 +455,7 @@ fn write_point_plots(
         let hist = state
             .first_hit
             .range_histogram(SCALAR_BINS)
-            .map_err(|e| stats_error(&plots, e))?;
+            .map_err(|e| stats_error(plots, e))?;
         let note = format!("{} members never reached the threshold", state.never_hit);
         crate::plot::plot_histogram(
             &plots.join(format!("{prefix}first_hit_hist.png")),
