@@ -299,9 +299,12 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         }
 //@END REPULSION
         let rhs = m_over_h * vel_sets[vi + row] + g_prev - next.g + f;
+        // The pivot excess·d + a grouped as in the CPU twin (one multiply-add on the chain).
         let excess = m_over_h + a_prev * ls_prev;
         let delta = rhs + a_prev * ys_prev;
-        let inv = 1.0 / (excess * next.d + next.a);
+        let pivot_base = m_over_h * next.d + next.a;
+        let coupling = a_prev * next.d;
+        let inv = 1.0 / (pivot_base + coupling * ls_prev);
         let ls = excess * inv;
         let ys = delta * inv;
         scratch[row] = next.a * inv;

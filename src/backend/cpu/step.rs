@@ -658,9 +658,14 @@ where
             );
             nonfinite[l] |= !(g_next + f[l]).is_finite() as u64;
             let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
+            // The pivot excess·d + a, grouped as (m/h·d + a) + (a_prev·d)·ls_prev so that only
+            // one multiplication and one addition wait for the previous row (a single member's
+            // sweep is this chain's latency; batches hide it).
             let excess = m_over_h[l] + a_prev[l] * ls_prev[l];
             let delta = rhs + a_prev[l] * ys_prev[l];
-            let inv = 1.0 / (excess * d_next + a_next);
+            let pivot_base = m_over_h[l] * d_next + a_next;
+            let coupling = a_prev[l] * d_next;
+            let inv = 1.0 / (pivot_base + coupling * ls_prev[l]);
             let ls = excess * inv;
             let ys = delta * inv;
             w[l] = a_next * inv;
