@@ -1084,3 +1084,24 @@ fn many_output_times_are_thinned_in_plots_only() {
     assert_eq!(read_npy(&out_dir.join("times.npy")).shape, vec![5001]);
     assert_png(&out_dir.join("plots").join("member_0000.png"));
 }
+
+/// `--out .` cannot be swapped in whole by a rename: refused with exit 2, nothing written.
+#[test]
+fn out_dot_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("s.toml");
+    std::fs::write(&scene, BASE).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
+        .current_dir(tmp.path())
+        .args(["run", "s.toml", "--out", ".", "--quiet"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("--out must name a directory of its own"), "{stderr}");
+    let names: Vec<String> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["s.toml"], "a refused run wrote {names:?}");
+}

@@ -100,6 +100,14 @@ fn leftovers(target: &Path) -> Result<Vec<(PathBuf, bool)>> {
 
 impl StagedDir {
     pub fn begin(target: &Path, force: bool) -> Result<StagedDir> {
+        // The directory is replaced by a rename, so it must have a name of its own (not `.`,
+        // `..` or `/`, which cannot be swapped).
+        if target.file_name().is_none() {
+            return Err(Error::Output {
+                path: target.to_path_buf(),
+                message: "--out must name a directory of its own (not ., .. or /): the run is swapped in whole by renaming it".into(),
+            });
+        }
         if target.exists() {
             if !target.is_dir() {
                 return Err(Error::Output {
