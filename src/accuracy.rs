@@ -147,7 +147,8 @@ struct Run {
 fn first_members(scene: &Scene, count: usize) -> Result<(Scene, Vec<Chain>, Vec<MemberParams>)> {
     if let Some(spec) = &scene.ensemble {
         let members = EnsembleMembers::new(scene, spec)?;
-        let count = (count as u64).min(members.total()).max(1);
+        // Only the first sweep point's members: one plan (one N, one forcing) holds them.
+        let count = (count as u64).min(members.per_point).max(1);
         let mut chains = Vec::new();
         let mut params = Vec::new();
         for m in 0..count {
@@ -370,11 +371,20 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     }
     for &(backend, precision) in &options.backends {
         for order in [1u8, 2] {
+            let mut previous: Option<f64> = None;
             for k in 0..=MAX_HALVINGS {
                 let error = measure(fixed_setting(&scene, order, k, backend, precision))?;
                 if error.is_some_and(|e| e <= options.target / 10.0) {
                     break;
                 }
+                // An error that no longer falls (f32 rounding, or the reference's own error)
+                // is a floor: halving further only costs time.
+                if let (Some(e), Some(p)) = (error, previous) {
+                    if e * 1.5 > p {
+                        break;
+                    }
+                }
+                previous = error;
             }
         }
     }

@@ -151,3 +151,28 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
     let reported = manifest["recommended"]["errors"]["rho"].as_f64().unwrap();
     assert!(reported <= TARGET);
 }
+
+/// On a parameter study, the trade is measured on the first sweep point's members only (one
+/// plan holds them): --members beyond a point's count is cut to it, with no mixing of points
+/// that differ in N.
+#[test]
+fn accuracy_of_a_parameter_study_uses_the_first_point() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("sw.toml");
+    let text = SCENE
+        .replace("end = 0.1", "end = 0.01")
+        .replace("outputs = 5", "outputs = 2")
+        + "\n[ensemble]\nmembers = 3\nseed = 1\nroughness = { kind = \"lognormal\", spread = 0.1 }\n\n[sweep]\nparticles = [20, 30]\n";
+    std::fs::write(&scene, text).unwrap();
+    let out = tmp.path().join("sw_out");
+    let o = Command::new(BIN)
+        .args(["accuracy", scene.to_str().unwrap(), "--target", "1e-3", "--members", "5"])
+        .args(["--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(stderr.contains("first 3 member(s), N = 20"), "{stderr}");
+    let (shape, _) = npy(&out.join("reference_gaps.npy"));
+    assert_eq!(shape, [2, 3, 20]);
+}

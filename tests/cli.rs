@@ -1105,3 +1105,55 @@ fn out_dot_is_refused() {
         .collect();
     assert_eq!(names, ["s.toml"], "a refused run wrote {names:?}");
 }
+
+/// Leftovers beside --out are removed only when they are roughlub's: a directory named like a
+/// leftover but holding someone's files stays. A commit killed between its two renames (the
+/// earlier run moved aside, the new one not yet in place) is repaired by the next run: the
+/// earlier run is put back before anything else happens.
+#[test]
+fn leftovers_are_roughlubs_only_and_an_interrupted_commit_is_repaired() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("s.toml");
+    std::fs::write(&scene, BASE).unwrap();
+    let out_dir = tmp.path().join("out");
+    // A dead PID: larger than any Linux pid_max.
+    let foreign = tmp.path().join(".out.old-99999999");
+    std::fs::create_dir_all(&foreign).unwrap();
+    std::fs::write(foreign.join("notes.txt"), "mine").unwrap();
+    assert_success(&run(&scene, &out_dir, &["--quiet"]));
+    assert!(foreign.join("notes.txt").exists(), "someone's directory was removed");
+
+    // Simulate the kill between the renames: the run moved aside, no target.
+    let moved = tmp.path().join(".out.old-99999998");
+    std::fs::rename(&out_dir, &moved).unwrap();
+    let before = files_of(&moved);
+    let again = run(&scene, &tmp.path().join("other"), &["--quiet"]);
+    assert_success(&again);
+    assert!(moved.exists(), "a run into another --out touched this one's leftovers");
+    let repaired = run(&scene, &out_dir, &[]);
+    assert_success(&repaired);
+    let stderr = String::from_utf8_lossy(&repaired.stderr);
+    assert!(
+        stderr.contains("interrupted while being replaced") && stderr.contains("the earlier run"),
+        "the repair is not reported: {stderr}"
+    );
+    assert!(!moved.exists(), "the moved-aside run stayed beside --out");
+    assert!(out_dir.join("manifest.json").exists());
+    assert_eq!(before.len(), files_of(&out_dir).len());
+}
+
+/// A symbolic link as --out is refused (the run would replace the link, not its directory).
+#[test]
+fn a_symlinked_out_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("s.toml");
+    std::fs::write(&scene, BASE).unwrap();
+    let real = tmp.path().join("real");
+    std::fs::create_dir_all(&real).unwrap();
+    let link = tmp.path().join("link");
+    std::os::unix::fs::symlink(&real, &link).unwrap();
+    let out = run(&scene, &link, &["--quiet"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("symbolic link"));
+    assert!(link.is_symlink() && std::fs::read_dir(&real).unwrap().next().is_none());
+}

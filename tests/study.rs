@@ -983,3 +983,62 @@ fn failed_members_are_counted_and_listed_never_averaged() {
         "at the end only ok members are counted"
     );
 }
+
+/// `store_members = true`: the per-member arrays land in --out (they are written into the
+/// staging directory that becomes --out), with one row per member.
+#[test]
+fn stored_member_arrays_land_in_out() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = scene_variant(
+        "study_basic.toml",
+        &[("plots = false", "plots = false"), ("jitter = 0.05", "jitter = 0.05\nstore_members = true")],
+        tmp.path(),
+        "store.toml",
+    );
+    let dir = tmp.path().join("stored");
+    assert_success(&run(&scene, &dir, &[]), "store_members run");
+    let mut total = 0;
+    for e in std::fs::read_dir(dir.join("members")).unwrap() {
+        let p = e.unwrap().path();
+        if p.to_string_lossy().ends_with("_gaps.npy") {
+            let (shape, _) = npy(&p);
+            assert_eq!(shape[1..], [3, 40], "[member, T, N] of {p:?}");
+            total += shape[0];
+        }
+    }
+    assert_eq!(total, 96, "one stored row per member");
+}
+
+/// A rerun into a directory that holds a complete study, killed, is finished by --resume from
+/// its own chunks (not refused as "a different study" because of the earlier one).
+#[test]
+fn resume_finishes_an_interrupted_rerun_over_an_earlier_study() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("o");
+    assert_success(&run(&data("study_basic.toml"), &dir, &[]), "earlier study");
+    let scene = data("study_resume.toml");
+    let mut child = Command::new(BIN)
+        .arg("run")
+        .arg(&scene)
+        .arg("--out")
+        .arg(&dir)
+        .args(["--backend", "cpu", "--quiet"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let staging = tmp.path().join(format!(".o.partial-{}", child.id()));
+    let started = Instant::now();
+    while chunk_files(&staging).len() < 2 {
+        assert!(child.try_wait().unwrap().is_none(), "the rerun ended early");
+        assert!(started.elapsed() < Duration::from_secs(60));
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert_eq!(manifest(&dir)["kind"], "ensemble", "the earlier study stays until the rerun is done");
+    let resumed = run(&scene, &dir, &["--resume"]);
+    assert_success(&resumed, "resume of the rerun");
+    assert!(manifest(&dir)["chunks_reused"].as_u64().unwrap() >= 2);
+    assert_eq!(manifest(&dir)["members_total"], 2000);
+}

@@ -358,7 +358,17 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
 #[test]
 fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [(&str, String, &[&str]); 9] = [
+    let cases: [(&str, String, &[&str]); 11] = [
+        (
+            "a repeated grid value",
+            format!("{BASE}\n[sweep]\nA = [0.3, 0.5, 0.3]\n"),
+            &["sweep.A[2]", "same value as sweep.A[0]"],
+        ),
+        (
+            "a parameter named like a members.csv column",
+            BASE.replace("A = 0.5", "A = 0.5\nmember = 1.0"),
+            &["parameters.member", "members.csv"],
+        ),
         (
             "unknown name in an expression",
             BASE.replace("A*sin(2*pi*x)", "B*sin(2*pi*x)"),

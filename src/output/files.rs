@@ -41,6 +41,17 @@ pub struct StagedDir {
 
 const STAGING_TAG: &str = ".partial-";
 const OLD_TAG: &str = ".old-";
+/// Written into a staging directory when it is made (removed at the commit): what marks a
+/// leftover as roughlub's before anything deletes it.
+const STAGING_MARKER: &str = ".roughlub-staging";
+
+/// Whether a directory holds a roughlub run or staging directory (so it may be removed as a
+/// leftover).
+fn is_roughlub_dir(dir: &Path) -> bool {
+    [STAGING_MARKER, MANIFEST, "study.json"]
+        .iter()
+        .any(|f| dir.join(f).exists())
+}
 
 /// (parent, name) of a target directory; the staging directories live in `parent`.
 fn split_target(target: &Path) -> (PathBuf, String) {
@@ -67,7 +78,8 @@ fn process_alive(pid: u32) -> Option<bool> {
 }
 
 /// Staging (`.NAME.partial-PID`) and swap (`.NAME.old-PID`) directories of `target` whose
-/// process is dead: what a killed run left behind.
+/// process is dead (or is this one: a PID reused after a restart, as in containers), and that
+/// hold roughlub's files: what a killed run left behind.
 fn leftovers(target: &Path) -> Result<Vec<(PathBuf, bool)>> {
     let (parent, name) = split_target(target);
     let mut found = Vec::new();
@@ -89,8 +101,8 @@ fn leftovers(target: &Path) -> Result<Vec<(PathBuf, bool)>> {
         let Ok(pid) = pid.parse::<u32>() else {
             continue;
         };
-        if pid != std::process::id() && process_alive(pid) == Some(false) && entry.path().is_dir()
-        {
+        let dead = pid == std::process::id() || process_alive(pid) == Some(false);
+        if dead && entry.path().is_dir() && is_roughlub_dir(&entry.path()) {
             found.push((entry.path(), is_staging));
         }
     }
@@ -108,6 +120,13 @@ impl StagedDir {
                 message: "--out must name a directory of its own (not ., .. or /): the run is swapped in whole by renaming it".into(),
             });
         }
+        if target.is_symlink() {
+            return Err(Error::Output {
+                path: target.to_path_buf(),
+                message: "is a symbolic link; give the directory it points to as --out (a run replaces its directory whole)".into(),
+            });
+        }
+        Self::recover_interrupted_commit(target)?;
         if target.exists() {
             if !target.is_dir() {
                 return Err(Error::Output {
@@ -140,12 +159,44 @@ impl StagedDir {
             std::fs::remove_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
         }
         std::fs::create_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
+        let marker = staging.join(STAGING_MARKER);
+        std::fs::write(&marker, b"").map_err(|e| Error::io(&marker, e))?;
         Ok(StagedDir {
             target: target.to_path_buf(),
             staging,
             keep_on_failure: false,
             committed: false,
         })
+    }
+
+    /// A run killed between the two renames of its commit leaves the earlier run as
+    /// `.NAME.old-PID` and no `target`: the finished new run (`.NAME.partial-PID` with its
+    /// manifest) is put in place, or else the earlier run is put back.
+    fn recover_interrupted_commit(target: &Path) -> Result<()> {
+        if target.exists() {
+            return Ok(());
+        }
+        for (old, is_staging) in leftovers(target)? {
+            if is_staging {
+                continue;
+            }
+            let name = old.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let partial = old.with_file_name(name.replace(OLD_TAG, STAGING_TAG));
+            let (restore, note) = if partial.join(MANIFEST).exists() {
+                (&partial, "the finished run")
+            } else {
+                (&old, "the earlier run")
+            };
+            eprintln!(
+                "note: {} was interrupted while being replaced; putting {note} ({}) back in place",
+                target.display(),
+                restore.display()
+            );
+            std::fs::rename(restore, target).map_err(|e| Error::io(restore, e))?;
+            let _ = std::fs::remove_file(target.join(STAGING_MARKER));
+            return Ok(());
+        }
+        Ok(())
     }
 
     /// This process's staging directory for `target` (its parent is created).
@@ -158,19 +209,28 @@ impl StagedDir {
     /// The staging directory of a study run into `target` that was killed (it holds a
     /// `study.json`), renamed to this process's staging directory; `None` when there is none.
     /// When several are left, the one with the most finished chunks is taken.
-    pub fn adopt_interrupted_study(target: &Path) -> Result<Option<StagedDir>> {
+    /// Only directories for which `same_study` (given the path of its `study.json`) holds are
+    /// taken.
+    pub fn adopt_interrupted_study(
+        target: &Path,
+        same_study: impl Fn(&Path) -> bool,
+    ) -> Result<Option<StagedDir>> {
         let chunk_count = |dir: &Path| {
             std::fs::read_dir(dir.join("chunks")).map_or(0, |entries| entries.count())
         };
         let best = leftovers(target)?
             .into_iter()
-            .filter(|(dir, is_staging)| *is_staging && dir.join("study.json").exists())
+            .filter(|(dir, is_staging)| {
+                *is_staging && dir.join("study.json").exists() && same_study(&dir.join("study.json"))
+            })
             .max_by_key(|(dir, _)| chunk_count(dir));
         let Some((found, _)) = best else {
             return Ok(None);
         };
         let staging = Self::own_staging(target)?;
-        std::fs::rename(&found, &staging).map_err(|e| Error::io(&found, e))?;
+        if found != staging {
+            std::fs::rename(&found, &staging).map_err(|e| Error::io(&found, e))?;
+        }
         Ok(Some(StagedDir {
             target: target.to_path_buf(),
             staging,
@@ -194,11 +254,18 @@ impl StagedDir {
                 .map(|n| n.to_string_lossy().replace(STAGING_TAG, OLD_TAG))
                 .unwrap_or_default(),
         );
+        let _ = std::fs::remove_file(self.staging.join(STAGING_MARKER));
         let had_old = self.target.exists();
         if had_old {
             std::fs::rename(&self.target, &old).map_err(|e| Error::io(&self.target, e))?;
         }
-        std::fs::rename(&self.staging, &self.target).map_err(|e| Error::io(&self.target, e))?;
+        if let Err(e) = std::fs::rename(&self.staging, &self.target) {
+            // Put the earlier run back: the target is never left missing.
+            if had_old {
+                let _ = std::fs::rename(&old, &self.target);
+            }
+            return Err(Error::io(&self.target, e));
+        }
         self.committed = true;
         if had_old {
             std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))?;

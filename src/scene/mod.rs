@@ -122,6 +122,7 @@ impl Scene {
             file.batch.as_ref(),
             &parameters,
             ensemble.as_ref(),
+            &initial,
         )?;
 
         Ok(Scene {

@@ -79,6 +79,28 @@ impl SweepTarget {
     }
 }
 
+/// The columns of members.csv besides the swept keys' (a parameter may not take one's name).
+pub const MEMBER_TABLE_COLUMNS: [&str; 18] = [
+    "member",
+    "sweep_point",
+    "status",
+    "failure_time",
+    "velocity_factor",
+    "velocity_phase",
+    "mean_dstar",
+    "min_rho_star",
+    "peak_density",
+    "peak_time",
+    "min_gap",
+    "final_energy",
+    "first_hit_time",
+    "steps_accepted",
+    "steps_rejected",
+    "point",
+    "completed",
+    "failed",
+];
+
 /// The validated `[sweep]`: the design and what each of its axes sets.
 #[derive(Debug, Clone)]
 pub struct SweepSpec {
@@ -124,6 +146,14 @@ pub(super) fn validate_parameters(table: Option<&toml::Table>) -> Result<Vec<(St
                 name,
                 format!("'{name}' is a variable, constant or function of the expressions, so a parameter of that name would shadow it"),
                 "a name other than x, t, pi, e and the function names",
+            ));
+        }
+        if MEMBER_TABLE_COLUMNS.contains(&name.as_str()) {
+            return Err(Error::invalid(
+                field,
+                name,
+                format!("'{name}' names a column of members.csv, where every parameter gets a column of its own name"),
+                "a name that is not a members.csv column",
             ));
         }
         if SWEEPABLE_SETTINGS.contains(&name.as_str()) {
@@ -184,6 +214,7 @@ pub(super) fn validate_sweep(
     batch: Option<&BatchSection>,
     parameters: &[(String, f64)],
     ensemble: Option<&EnsembleSpec>,
+    initial: &InitialSpec,
 ) -> Result<Option<SweepSpec>> {
     let Some(ensemble) = ensemble else {
         if table.is_some() {
@@ -214,6 +245,20 @@ pub(super) fn validate_sweep(
         }
         if targets.is_empty() {
             return Ok(None);
+        }
+        for (name, axis) in names.iter().zip(&axes) {
+            if let Axis::Values(v) = axis {
+                for (j, x) in v.iter().enumerate() {
+                    if let Some(k) = v[..j].iter().position(|y| y == x) {
+                        return Err(Error::invalid(
+                            format!("batch.{name}[{j}]"),
+                            x,
+                            format!("the same value as batch.{name}[{k}]: in an ensemble each value is a sweep point"),
+                            "distinct values",
+                        ));
+                    }
+                }
+            }
         }
         let design = Design::new("batch", DesignKind::Grid, names, axes, None, ensemble.seed)?;
         return Ok(Some(SweepSpec {
@@ -361,6 +406,13 @@ pub(super) fn validate_sweep(
             ));
         }
     }
+    if targets.contains(&SweepTarget::Particles) && matches!(initial, InitialSpec::Particles { .. })
+    {
+        return Err(Error::missing(
+            "sweep.particles",
+            "a particle file fixes N (its rows); sweeping N needs profile initial data (initial.rho, ...)",
+        ));
+    }
     if ensemble.store_members && targets.contains(&SweepTarget::Particles) {
         return Err(Error::missing(
             "ensemble.store_members",
@@ -402,11 +454,24 @@ fn axis(field: &str, value: &toml::Value, target: &SweepTarget) -> Result<Axis> 
                     "a non-empty list of values",
                 ));
             }
-            let mut values = Vec::with_capacity(list.len());
+            let mut values: Vec<f64> = Vec::with_capacity(list.len());
             for (j, v) in list.iter().enumerate() {
                 let f = format!("{field}[{j}]");
-                let x = number(&f, v)?;
+                let mut x = number(&f, v)?;
                 check_value(&f, target, x)?;
+                if *target == SweepTarget::Particles {
+                    x = x.round();
+                }
+                // A repeated value would be two points with one meaning (and one cell of a
+                // response map for two points).
+                if let Some(k) = values.iter().position(|&y| y == x) {
+                    return Err(Error::invalid(
+                        &f,
+                        x,
+                        format!("the same value as {field}[{k}]"),
+                        "distinct values",
+                    ));
+                }
                 values.push(x);
             }
             Ok(Axis::Values(values))

@@ -2,7 +2,7 @@
 //! ([`solve_chunk`]) and turning its snapshots into the chunk's statistics and `members.csv`
 //! rows.
 
-use std::path::PathBuf;
+use std::path::Path;
 use std::time::Instant;
 
 use super::files::{ChunkFile, MemberRow, StudyHeader};
@@ -83,6 +83,7 @@ fn batch_groups(inputs: &[MemberInputs], members: &EnsembleMembers) -> Result<Ve
 /// statistics, per sweep point, and `members.csv` rows.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn solve_chunk(
+    dir: &Path,
     spec: &EnsembleSpec,
     members: &EnsembleMembers,
     header: &StudyHeader,
@@ -266,7 +267,8 @@ pub(super) fn solve_chunk(
                 kept_rho.extend(pad(&s.rho, grid));
             }
         }
-        let members_dir = header_dir(header).join("members");
+        // Into the directory being written (the staging directory of a fresh study).
+        let members_dir = dir.join("members");
         std::fs::create_dir_all(&members_dir).map_err(|e| Error::io(&members_dir, e))?;
         let (c, t, n) = (count as u64, t_count as u64, n as u64);
         let name = |what: &str| members_dir.join(format!("chunk_{first:012}_{end:012}_{what}.npy"));
@@ -318,9 +320,6 @@ pub(super) fn solve_chunk(
     })
 }
 
-fn header_dir(header: &StudyHeader) -> PathBuf {
-    PathBuf::from(&header.out_dir)
-}
 
 /// Centre of mass of the density peak: the centroid of the excess of rho over its spatial mean
 /// (NaN when the profile is flat).

@@ -186,19 +186,24 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let target = &options.out_dir;
     let mut staged: Option<StagedDir> = None;
     let dir: PathBuf = if options.resume {
-        if target.join("study.json").exists() {
-            target.clone()
-        } else if let Some(found) = StagedDir::adopt_interrupted_study(target)? {
+        // An interrupted run of this very study beside --out first (a rerun into a directory
+        // that holds a complete study), else the study in --out itself.
+        let same_study = |path: &Path| {
+            read_json::<StudyHeader>(path).is_ok_and(|old| check_resume(&old, &header, path).is_ok())
+        };
+        if let Some(found) = StagedDir::adopt_interrupted_study(target, same_study)? {
             if !options.quiet {
                 eprintln!("resuming the interrupted run into {}", target.display());
             }
             let dir = found.staging.clone();
             staged = Some(found);
             dir
+        } else if target.join("study.json").exists() {
+            target.clone()
         } else {
             return Err(Error::Output {
                 path: target.clone(),
-                message: "nothing to resume: no study.json there and no interrupted run beside it; run without --resume".into(),
+                message: "nothing to resume: no study.json there and no interrupted run of this study beside it; run without --resume".into(),
             });
         }
     } else {
@@ -236,7 +241,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             read_json(&path)?
         } else {
             let c = solve_chunk(
-                spec, &members, &header, &engine, a, b, &mut costs, &progress,
+                dir, spec, &members, &header, &engine, a, b, &mut costs, &progress,
             )?;
             write_json_atomic(&path, &c)?;
             c
