@@ -160,7 +160,11 @@ fn first_members(scene: &Scene, count: usize) -> Result<(Scene, Vec<Chain>, Vec<
         return Ok((scene, chains, params));
     }
     let chain = scene.initial_chain()?;
-    let params: Vec<MemberParams> = scene.member_parameters().into_iter().take(count.max(1)).collect();
+    let params: Vec<MemberParams> = scene
+        .member_parameters()
+        .into_iter()
+        .take(count.max(1))
+        .collect();
     Ok((scene.clone(), vec![chain; params.len()], params))
 }
 
@@ -198,16 +202,27 @@ pub fn errors(run: &[Vec<Snapshot>], reference: &[Vec<Snapshot>]) -> Errors {
     for (at, ref_at) in run.iter().zip(reference) {
         for (s, r) in at.iter().zip(ref_at) {
             for (&d, &dr) in s.gaps.iter().zip(&r.gaps) {
-                let diff = if d == dr { 0.0 } else { (d.ln() - dr.ln()).abs() };
+                let diff = if d == dr {
+                    0.0
+                } else {
+                    (d.ln() - dr.ln()).abs()
+                };
                 e.gaps = e.gaps.max(if diff.is_nan() { f64::INFINITY } else { diff });
             }
             let scale = r.velocities.iter().fold(0.0f64, |m, u| m.max(u.abs()));
             for (&u, &ur) in s.velocities.iter().zip(&r.velocities) {
                 let diff = (u - ur).abs() / scale.max(f64::MIN_POSITIVE);
-                e.velocities = e.velocities.max(if diff.is_nan() { f64::INFINITY } else { diff });
+                e.velocities = e
+                    .velocities
+                    .max(if diff.is_nan() { f64::INFINITY } else { diff });
             }
             if !r.rho.is_empty() {
-                let l1 = s.rho.iter().zip(&r.rho).map(|(a, b)| (a - b).abs()).sum::<f64>()
+                let l1 = s
+                    .rho
+                    .iter()
+                    .zip(&r.rho)
+                    .map(|(a, b)| (a - b).abs())
+                    .sum::<f64>()
                     / r.rho.len() as f64;
                 e.rho = e.rho.max(if l1.is_nan() { f64::INFINITY } else { l1 });
             }
@@ -250,7 +265,13 @@ fn adaptive_ladder(
 
 /// The fixed-step rung k of an order: dt = end/25 · 2^-k. The ladder halves dt until the error
 /// is below a tenth of the target (or k = 16).
-fn fixed_setting(scene: &Scene, order: u8, k: u32, backend: Backend, precision: Precision) -> Setting {
+fn fixed_setting(
+    scene: &Scene,
+    order: u8,
+    k: u32,
+    backend: Backend,
+    precision: Precision,
+) -> Setting {
     let dt = scene.end / 25.0 / f64::from(1u32 << k);
     Setting {
         order,
@@ -320,7 +341,11 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         precision: Precision::F64,
     };
     let reference = solve(&base, &chains, &reference_setting(reference_tolerance))?;
-    let check = solve(&base, &chains, &reference_setting(reference_tolerance / 10.0))?;
+    let check = solve(
+        &base,
+        &chains,
+        &reference_setting(reference_tolerance / 10.0),
+    )?;
     if reference.failed || check.failed {
         return Err(Error::missing(
             "accuracy",
@@ -359,14 +384,20 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         say(format!(
             "  {:<40} error {:>9}  {:>8.3} s  {:>8} steps",
             setting.label(),
-            m.errors.map_or("failed".to_string(), |e| format!("{:.2e}", e.worst())),
+            m.errors
+                .map_or("failed".to_string(), |e| format!("{:.2e}", e.worst())),
             m.wall_seconds,
             m.steps_accepted
         ));
         measurements.push(m);
         Ok(errors.map(|e| e.worst()))
     };
-    for setting in adaptive_ladder(&scene, options.target, reference_tolerance, &options.backends) {
+    for setting in adaptive_ladder(
+        &scene,
+        options.target,
+        reference_tolerance,
+        &options.backends,
+    ) {
         measure(setting)?;
     }
     for &(backend, precision) in &options.backends {
@@ -410,7 +441,11 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     }
     crate::plot::plot_work_precision(
         &dir.join("work_precision.png"),
-        &format!("{}: error against wall time ({} member(s))", scene.name, chains.len()),
+        &format!(
+            "{}: error against wall time ({} member(s))",
+            scene.name,
+            chains.len()
+        ),
         &lines,
         Some(options.target),
     )?;
@@ -520,15 +555,27 @@ fn write_reference(dir: &Path, plan: &Plan, snapshots: &[Vec<Snapshot>]) -> Resu
     let (t, b) = (snapshots.len() as u64, plan.members.len() as u64);
     let (n, g) = (plan.particles as u64, plan.grid as u64);
     let flat = |f: &dyn Fn(&Snapshot) -> &Vec<f64>| -> Vec<f64> {
-        snapshots.iter().flatten().flat_map(|s| f(s).iter().copied()).collect()
+        snapshots
+            .iter()
+            .flatten()
+            .flat_map(|s| f(s).iter().copied())
+            .collect()
     };
-    write_npy(dir.join("reference_gaps.npy"), &[t, b, n], &flat(&|s| &s.gaps))?;
+    write_npy(
+        dir.join("reference_gaps.npy"),
+        &[t, b, n],
+        &flat(&|s| &s.gaps),
+    )?;
     write_npy(
         dir.join("reference_velocities.npy"),
         &[t, b, n - 1],
         &flat(&|s| &s.velocities),
     )?;
-    write_npy(dir.join("reference_rho.npy"), &[t, b, g], &flat(&|s| &s.rho))?;
+    write_npy(
+        dir.join("reference_rho.npy"),
+        &[t, b, g],
+        &flat(&|s| &s.rho),
+    )?;
     write_npy(dir.join("times.npy"), &[t], &plan.output_times)?;
     Ok(())
 }

@@ -266,8 +266,8 @@ fn main() -> ExitCode {
         } => (|| {
             let scene = Scene::from_file(&scene)?;
             let backends = parse_backends(&backends)?;
-            let out_dir =
-                out.unwrap_or_else(|| PathBuf::from("out").join(format!("{}_accuracy", scene.name)));
+            let out_dir = out
+                .unwrap_or_else(|| PathBuf::from("out").join(format!("{}_accuracy", scene.name)));
             roughlub::accuracy::run_accuracy(
                 &scene,
                 &roughlub::accuracy::AccuracyOptions {

@@ -237,10 +237,8 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let mut profiles: Vec<PlottedProfiles> = (0..plotted).map(|_| Default::default()).collect();
 
     let drawn_times = plotted_times(plan.output_times.len());
-    let map_times = crate::plot::thinned_indices(
-        plan.output_times.len(),
-        crate::plot::MAX_XT_CELLS.0,
-    );
+    let map_times =
+        crate::plot::thinned_indices(plan.output_times.len(), crate::plot::MAX_XT_CELLS.0);
     let mut time_index = 0;
     let progress = ProgressReporter::new(b * t_count, "member-intervals", options.quiet);
     while let Some(snaps) = solver.next_output(&|n| progress.inc(n))? {

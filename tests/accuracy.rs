@@ -92,7 +92,12 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
     std::fs::write(&scene, SCENE).unwrap();
     let out = tmp.path().join("acc_out");
     let o = Command::new(BIN)
-        .args(["accuracy", scene.to_str().unwrap(), "--target", &TARGET.to_string()])
+        .args([
+            "accuracy",
+            scene.to_str().unwrap(),
+            "--target",
+            &TARGET.to_string(),
+        ])
         .args(["--out", out.to_str().unwrap(), "--backends", "cpu"])
         .output()
         .unwrap();
@@ -102,7 +107,12 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
     assert_eq!(png_size(&out.join("work_precision.png")), (1000, 800));
 
     let mut reader = csv::Reader::from_path(out.join("work_precision.csv")).unwrap();
-    let head: Vec<String> = reader.headers().unwrap().iter().map(str::to_string).collect();
+    let head: Vec<String> = reader
+        .headers()
+        .unwrap()
+        .iter()
+        .map(str::to_string)
+        .collect();
     let col = |name: &str| head.iter().position(|h| h == name).unwrap();
     let rows: Vec<csv::StringRecord> = reader.records().map(|r| r.unwrap()).collect();
     assert!(rows.len() >= 15, "{} rungs", rows.len());
@@ -141,13 +151,22 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
     std::fs::write(&rerun_path, rerun_scene).unwrap();
     let rerun = tmp.path().join("rerun_out");
     let o = Command::new(BIN)
-        .args(["run", rerun_path.to_str().unwrap(), "--out", rerun.to_str().unwrap(), "--quiet"])
+        .args([
+            "run",
+            rerun_path.to_str().unwrap(),
+            "--out",
+            rerun.to_str().unwrap(),
+            "--quiet",
+        ])
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let e = error(&rerun, &out, 24, 24);
     eprintln!("recommended: order {order}, {step_line}: error {e:.2e} (target {TARGET:e})");
-    assert!(e <= TARGET, "the recommended setting misses the target: {e:e} > {TARGET:e}");
+    assert!(
+        e <= TARGET,
+        "the recommended setting misses the target: {e:e} > {TARGET:e}"
+    );
     let reported = manifest["recommended"]["errors"]["rho"].as_f64().unwrap();
     assert!(reported <= TARGET);
 }
@@ -166,7 +185,14 @@ fn accuracy_of_a_parameter_study_uses_the_first_point() {
     std::fs::write(&scene, text).unwrap();
     let out = tmp.path().join("sw_out");
     let o = Command::new(BIN)
-        .args(["accuracy", scene.to_str().unwrap(), "--target", "1e-3", "--members", "5"])
+        .args([
+            "accuracy",
+            scene.to_str().unwrap(),
+            "--target",
+            "1e-3",
+            "--members",
+            "5",
+        ])
         .args(["--out", out.to_str().unwrap()])
         .output()
         .unwrap();

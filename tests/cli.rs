@@ -1098,7 +1098,10 @@ fn out_dot_is_refused() {
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
-    assert!(stderr.contains("--out must name a directory of its own"), "{stderr}");
+    assert!(
+        stderr.contains("--out must name a directory of its own"),
+        "{stderr}"
+    );
     let names: Vec<String> = std::fs::read_dir(tmp.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
@@ -1121,7 +1124,10 @@ fn leftovers_are_roughlubs_only_and_an_interrupted_commit_is_repaired() {
     std::fs::create_dir_all(&foreign).unwrap();
     std::fs::write(foreign.join("notes.txt"), "mine").unwrap();
     assert_success(&run(&scene, &out_dir, &["--quiet"]));
-    assert!(foreign.join("notes.txt").exists(), "someone's directory was removed");
+    assert!(
+        foreign.join("notes.txt").exists(),
+        "someone's directory was removed"
+    );
 
     // Simulate the kill between the renames: the run moved aside, no target.
     let moved = tmp.path().join(".out.old-99999998");
@@ -1129,7 +1135,10 @@ fn leftovers_are_roughlubs_only_and_an_interrupted_commit_is_repaired() {
     let before = files_of(&moved);
     let again = run(&scene, &tmp.path().join("other"), &["--quiet"]);
     assert_success(&again);
-    assert!(moved.exists(), "a run into another --out touched this one's leftovers");
+    assert!(
+        moved.exists(),
+        "a run into another --out touched this one's leftovers"
+    );
     let repaired = run(&scene, &out_dir, &[]);
     assert_success(&repaired);
     let stderr = String::from_utf8_lossy(&repaired.stderr);

@@ -41,8 +41,27 @@ impl Rng {
 /// Values a number in a scene or particle file is replaced by: out of range, non-finite,
 /// subnormal, huge, fractional where an integer is expected, and not a number at all.
 const REPLACEMENTS: &[&str] = &[
-    "0", "-1", "-0.0", "1", "2.5", "0.999999", "1e308", "-1e308", "1e-320", "nan", "inf", "-inf",
-    "1000000000", "99999999999999999999", "1e3", "\"x\"", "[]", "", "0x10", "1e", "--1",
+    "0",
+    "-1",
+    "-0.0",
+    "1",
+    "2.5",
+    "0.999999",
+    "1e308",
+    "-1e308",
+    "1e-320",
+    "nan",
+    "inf",
+    "-inf",
+    "1000000000",
+    "99999999999999999999",
+    "1e3",
+    "\"x\"",
+    "[]",
+    "",
+    "0x10",
+    "1e",
+    "--1",
 ];
 
 /// Bytes a random byte is replaced by: TOML and CSV syntax, digits, letters, and invalid UTF-8.
@@ -197,7 +216,11 @@ fn check_one(scene: &Path, out_dir: &Path) -> Result<&'static str, String> {
                 Err(format!(
                     "refused ({}), but it left {}",
                     stderr.trim(),
-                    if manifest { "a manifest" } else { "an output directory" }
+                    if manifest {
+                        "a manifest"
+                    } else {
+                        "an output directory"
+                    }
                 ))
             } else {
                 Ok("refused")
@@ -287,37 +310,78 @@ fn fuzz(
 /// The refusals must be a real share of the mutants (else the mutations miss the input), and
 /// some mutants must still be accepted (else every run fails for a reason unrelated to them).
 fn assert_mixed(tally: &[(&str, usize)], what: &str) {
-    let count = |kind: &str| tally.iter().find(|(n, _)| *n == kind).map_or(0, |(_, c)| *c);
-    assert!(count("refused") >= 10, "{what}: too few refusals: {tally:?}");
-    assert!(count("accepted") >= 5, "{what}: too few accepted: {tally:?}");
+    let count = |kind: &str| {
+        tally
+            .iter()
+            .find(|(n, _)| *n == kind)
+            .map_or(0, |(_, c)| *c)
+    };
+    assert!(
+        count("refused") >= 10,
+        "{what}: too few refusals: {tally:?}"
+    );
+    assert!(
+        count("accepted") >= 5,
+        "{what}: too few accepted: {tally:?}"
+    );
 }
 
 #[test]
 fn mutated_scenes_are_refused_cleanly_or_run() {
-    let tally = fuzz("validation_base.toml", "validation_base.toml", &[], MUTANTS_PER_BASE, SEED);
+    let tally = fuzz(
+        "validation_base.toml",
+        "validation_base.toml",
+        &[],
+        MUTANTS_PER_BASE,
+        SEED,
+    );
     assert_mixed(&tally, "validation_base.toml");
 }
 
 #[test]
 fn mutated_particle_scenes_are_refused_cleanly_or_run() {
-    let tally = fuzz("cluster.toml", "cluster.toml", &["cluster.csv"], MUTANTS_PER_BASE, SEED ^ 1);
+    let tally = fuzz(
+        "cluster.toml",
+        "cluster.toml",
+        &["cluster.csv"],
+        MUTANTS_PER_BASE,
+        SEED ^ 1,
+    );
     assert_mixed(&tally, "cluster.toml");
 }
 
 #[test]
 fn mutated_particle_files_are_refused_cleanly_or_run() {
-    let tally = fuzz("cluster.toml", "cluster.csv", &[], MUTANTS_PER_BASE, SEED ^ 2);
+    let tally = fuzz(
+        "cluster.toml",
+        "cluster.csv",
+        &[],
+        MUTANTS_PER_BASE,
+        SEED ^ 2,
+    );
     assert_mixed(&tally, "cluster.csv");
 }
 
 #[test]
 fn mutated_ensemble_scenes_are_refused_cleanly_or_run() {
-    let tally = fuzz("study_basic.toml", "study_basic.toml", &[], MUTANTS_PER_BASE, SEED ^ 3);
+    let tally = fuzz(
+        "study_basic.toml",
+        "study_basic.toml",
+        &[],
+        MUTANTS_PER_BASE,
+        SEED ^ 3,
+    );
     assert_mixed(&tally, "study_basic.toml");
 }
 
 #[test]
 fn mutated_parameter_studies_are_refused_cleanly_or_run() {
-    let tally = fuzz("study_sweep.toml", "study_sweep.toml", &[], MUTANTS_PER_BASE, SEED ^ 4);
+    let tally = fuzz(
+        "study_sweep.toml",
+        "study_sweep.toml",
+        &[],
+        MUTANTS_PER_BASE,
+        SEED ^ 4,
+    );
     assert_mixed(&tally, "study_sweep.toml");
 }

@@ -199,16 +199,30 @@ fn merge_output_is_replaced_whole_and_foreign_files_need_force() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("--force"), "{err}");
-    assert_eq!(std::fs::read_to_string(merged.join("notes.txt")).unwrap(), "mine");
+    assert_eq!(
+        std::fs::read_to_string(merged.join("notes.txt")).unwrap(),
+        "mine"
+    );
     assert!(!merged.join("manifest.json").exists());
 
     let out = merge(&inputs, &merged, &["--force"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(!merged.join("notes.txt").exists(), "a foreign file stayed beside the merge");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        !merged.join("notes.txt").exists(),
+        "a foreign file stayed beside the merge"
+    );
     // A second merge (of two shards) replaces the first whole.
     std::fs::write(merged.join("stats").join("extra.npy"), b"x").unwrap();
     let out = merge(&inputs[..2], &merged, &["--allow-partial"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(!merged.join("stats").join("extra.npy").exists());
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(merged.join("manifest.json")).unwrap())
@@ -220,7 +234,10 @@ fn merge_output_is_replaced_whole_and_foreign_files_need_force() {
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .filter(|n| n.starts_with('.'))
         .collect();
-    assert!(leftovers.is_empty(), "staging directories left: {leftovers:?}");
+    assert!(
+        leftovers.is_empty(),
+        "staging directories left: {leftovers:?}"
+    );
 }
 
 /// Shards computed with two versions of the roughness file are two studies: merge refuses them
@@ -235,7 +252,11 @@ fn merge_refuses_shards_from_two_roughness_files() {
         std::fs::write(tmp.path().join("radii.csv"), radii(r)).unwrap();
         let dir = tmp.path().join(name);
         let out = run_text(&scene, &dir, &["--shard", &format!("{k}/2")]);
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         dir
     };
     let a = shard_with(0, 0.001, "a0");
@@ -249,5 +270,9 @@ fn merge_refuses_shards_from_two_roughness_files() {
     assert!(!tmp.path().join("mixed").exists());
 
     let out = merge(&[&a, &b_same], &tmp.path().join("same"), &[]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

@@ -556,10 +556,7 @@ fn png_pixels(path: &Path) -> (Vec<u8>, usize) {
 /// Green channel at a fraction (fx, fy) of the picture (fy from the top).
 fn green_at(pixels: &[u8], width: usize, fx: f64, fy: f64) -> u8 {
     let height = pixels.len() / (3 * width);
-    let (x, y) = (
-        (fx * width as f64) as usize,
-        (fy * height as f64) as usize,
-    );
+    let (x, y) = ((fx * width as f64) as usize, (fy * height as f64) as usize);
     pixels[3 * (y * width + x) + 1]
 }
 
@@ -609,7 +606,9 @@ fn xt_map_pixels_match_the_field() {
     let times = [0.0, 0.5, 1.0];
     // Distinct values: 0.1 (x index) + 0.02 (t index), in [0.5, 0.84].
     let value = |i: usize, k: usize| 0.5 + 0.1 * i as f64 + 0.02 * k as f64;
-    let rows: Vec<Vec<f64>> = (0..3).map(|k| (0..4).map(|i| value(i, k)).collect()).collect();
+    let rows: Vec<Vec<f64>> = (0..3)
+        .map(|k| (0..4).map(|i| value(i, k)).collect())
+        .collect();
     let path = dir.path().join("xt_cells.png");
     roughlub::plot::plot_xt(&path, "cells", "rho", &x, &times, &rows).unwrap();
     keep(&path, "xt_cells.png");
@@ -637,12 +636,18 @@ fn xt_map_pixels_match_the_field() {
     }
     for k in 0..3 {
         for i in 1..4 {
-            assert!(centres[k][i].0 > centres[k][i - 1].0 + 50.0, "x order, row {k}: {centres:?}");
+            assert!(
+                centres[k][i].0 > centres[k][i - 1].0 + 50.0,
+                "x order, row {k}: {centres:?}"
+            );
         }
     }
     for i in 0..4 {
         for k in 1..3 {
-            assert!(centres[k][i].1 + 50.0 < centres[k - 1][i].1, "t upwards, column {i}: {centres:?}");
+            assert!(
+                centres[k][i].1 + 50.0 < centres[k - 1][i].1,
+                "t upwards, column {i}: {centres:?}"
+            );
         }
     }
 }

@@ -435,7 +435,11 @@ fn statistics_match_direct_computation_over_members() {
             1e-13 * scale * scale,
         );
         let (shape, got_q) = stat(&out, &format!("{field}_quantiles"));
-        assert_eq!(shape, [1, t as u64, nq as u64, g as u64], "{field}_quantiles");
+        assert_eq!(
+            shape,
+            [1, t as u64, nq as u64, g as u64],
+            "{field}_quantiles"
+        );
         let half_bin = (hi - lo) / (2.0 * bins);
         let mut worst = 0.0f64;
         for (k, per_member) in samples.iter().enumerate() {
@@ -776,7 +780,10 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
         "reused chunks were rewritten"
     );
     assert_eq!(chunk_files(&dir).len(), 20);
-    assert!(!staging.exists(), "the adopted staging directory is left behind");
+    assert!(
+        !staging.exists(),
+        "the adopted staging directory is left behind"
+    );
 
     let (header, rows) = members_csv(&dir);
     let c_member = column(&header, "member");
@@ -810,10 +817,7 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
 fn a_study_replaces_an_earlier_run_whole() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("out");
-    assert_success(
-        &run(&data("small.toml"), &dir, &[]),
-        "single run",
-    );
+    assert_success(&run(&data("small.toml"), &dir, &[]), "single run");
     let single_manifest = std::fs::read(dir.join("manifest.json")).unwrap();
     assert!(dir.join("gaps.npy").is_file());
 
@@ -832,7 +836,10 @@ fn a_study_replaces_an_earlier_run_whole() {
     let started = Instant::now();
     while chunk_files(&staging).is_empty() {
         assert!(child.try_wait().unwrap().is_none(), "the study ended early");
-        assert!(started.elapsed() < Duration::from_secs(60), "no chunk after 60 s");
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "no chunk after 60 s"
+        );
         std::thread::sleep(Duration::from_millis(2));
     }
     child.kill().unwrap();
@@ -842,15 +849,24 @@ fn a_study_replaces_an_earlier_run_whole() {
         single_manifest,
         "the killed study changed the earlier run's manifest"
     );
-    assert!(!dir.join("study.json").exists(), "the killed study wrote into --out");
+    assert!(
+        !dir.join("study.json").exists(),
+        "the killed study wrote into --out"
+    );
 
     let small_study = data("study_basic.toml");
     assert_success(&run(&small_study, &dir, &[]), "fresh study");
     for stale in ["gaps.npy", "velocities.npy", "rho.npy", "energy.npy"] {
-        assert!(!dir.join(stale).exists(), "{stale} of the single run stayed");
+        assert!(
+            !dir.join(stale).exists(),
+            "{stale} of the single run stayed"
+        );
     }
     assert_eq!(manifest(&dir)["kind"], "ensemble");
-    assert!(!staging.exists(), "the killed study's staging directory stayed");
+    assert!(
+        !staging.exists(),
+        "the killed study's staging directory stayed"
+    );
 }
 
 #[test]
@@ -954,7 +970,10 @@ fn failed_members_are_counted_and_listed_never_averaged() {
                 .map(|i| r.max_density[k][i])
                 .collect();
             let at = p * t_count + k;
-            assert_eq!(count[at], alive as f64, "max_density_count, point {p}, t = {t}");
+            assert_eq!(
+                count[at], alive as f64,
+                "max_density_count, point {p}, t = {t}"
+            );
             assert!(
                 close(got_mean[at], mean(&finite), 1e-12, 0.0),
                 "max_density_mean, point {p}, t = {t}: {} vs {}",
@@ -991,7 +1010,10 @@ fn stored_member_arrays_land_in_out() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = scene_variant(
         "study_basic.toml",
-        &[("plots = false", "plots = false"), ("jitter = 0.05", "jitter = 0.05\nstore_members = true")],
+        &[
+            ("plots = false", "plots = false"),
+            ("jitter = 0.05", "jitter = 0.05\nstore_members = true"),
+        ],
         tmp.path(),
         "store.toml",
     );
@@ -1036,7 +1058,11 @@ fn resume_finishes_an_interrupted_rerun_over_an_earlier_study() {
     }
     child.kill().unwrap();
     child.wait().unwrap();
-    assert_eq!(manifest(&dir)["kind"], "ensemble", "the earlier study stays until the rerun is done");
+    assert_eq!(
+        manifest(&dir)["kind"],
+        "ensemble",
+        "the earlier study stays until the rerun is done"
+    );
     let resumed = run(&scene, &dir, &["--resume"]);
     assert_success(&resumed, "resume of the rerun");
     assert!(manifest(&dir)["chunks_reused"].as_u64().unwrap() >= 2);

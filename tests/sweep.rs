@@ -164,9 +164,15 @@ fn per_point_statistics_equal_separate_studies() {
     let (head, rows) = csv_rows(&swept.join("members.csv"));
     assert_eq!(rows.len(), 24);
     let fixed = head.iter().position(|h| h == "mu").unwrap();
-    assert_eq!(&head[..fixed], ["member", "sweep_point", "A", "roughness_spread"]);
+    assert_eq!(
+        &head[..fixed],
+        ["member", "sweep_point", "A", "roughness_spread"]
+    );
 
-    for (p, (a, spread)) in [(0.3, 0.1), (0.3, 0.3), (0.6, 0.1), (0.6, 0.3)].iter().enumerate() {
+    for (p, (a, spread)) in [(0.3, 0.1), (0.3, 0.3), (0.6, 0.1), (0.6, 0.3)]
+        .iter()
+        .enumerate()
+    {
         assert_eq!(points[p][1].parse::<f64>().unwrap(), *a);
         assert_eq!(points[p][2].parse::<f64>().unwrap(), *spread);
         let alone = BASE
@@ -293,7 +299,11 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
         let reference = tmp.path().join(format!("{design}_ref"));
         let scene = write(tmp.path(), &format!("{design}.toml"), &sampled(design, 15));
         run(&scene, &reference, &[], &[]);
-        let small_chunks = write(tmp.path(), &format!("{design}_c2.toml"), &sampled(design, 2));
+        let small_chunks = write(
+            tmp.path(),
+            &format!("{design}_c2.toml"),
+            &sampled(design, 2),
+        );
         let chunked = tmp.path().join(format!("{design}_c2"));
         run(&small_chunks, &chunked, &[], &[("RAYON_NUM_THREADS", "1")]);
         let shards: Vec<PathBuf> = (0..2)
@@ -326,7 +336,10 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
         for r in &rows {
             let a: f64 = r[c_a].parse().unwrap();
             let mu: f64 = r[c_mu].parse().unwrap();
-            assert!((0.2..0.8).contains(&a) && (0.005..0.05).contains(&mu), "{r:?}");
+            assert!(
+                (0.2..0.8).contains(&a) && (0.005..0.05).contains(&mu),
+                "{r:?}"
+            );
         }
         for other in [&chunked, &merged] {
             for file in ["members.csv", "points.csv"] {
@@ -422,7 +435,12 @@ fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
         let scene = write(tmp.path(), "bad.toml", &text);
         let out_dir = tmp.path().join("bad_out");
         let o = roughlub(
-            &["run", scene.to_str().unwrap(), "--out", out_dir.to_str().unwrap()],
+            &[
+                "run",
+                scene.to_str().unwrap(),
+                "--out",
+                out_dir.to_str().unwrap(),
+            ],
             &[],
         );
         let err = String::from_utf8_lossy(&o.stderr);
@@ -430,7 +448,10 @@ fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
         for n in needles {
             assert!(err.contains(n), "{what}: the message lacks {n:?}: {err}");
         }
-        assert!(!out_dir.exists(), "{what}: a refused scene wrote {out_dir:?}");
+        assert!(
+            !out_dir.exists(),
+            "{what}: a refused scene wrote {out_dir:?}"
+        );
     }
     // A design beyond the stated limit needs --allow-large.
     let big = format!(
@@ -440,12 +461,20 @@ fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
     let scene = write(tmp.path(), "big.toml", &big);
     let out_dir = tmp.path().join("big_out");
     let o = roughlub(
-        &["run", scene.to_str().unwrap(), "--out", out_dir.to_str().unwrap()],
+        &[
+            "run",
+            scene.to_str().unwrap(),
+            "--out",
+            out_dir.to_str().unwrap(),
+        ],
         &[],
     );
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("sweep.points") && err.contains("--allow-large"), "{err}");
+    assert!(
+        err.contains("sweep.points") && err.contains("--allow-large"),
+        "{err}"
+    );
     assert!(!out_dir.exists());
 }
 
@@ -503,10 +532,17 @@ fn a_swept_forcing_parameter_is_read_per_member_in_one_batch() {
     let (_, gpu_rows) = csv_rows(&gpu.join("members.csv"));
     for (i, (a, b)) in rows.iter().zip(&gpu_rows).enumerate() {
         let (x, y): (f64, f64) = (a[c_peak].parse().unwrap(), b[c_peak].parse().unwrap());
-        assert!((x - y).abs() <= 1e-10 * x.abs(), "member {i}: cpu {x}, gpu {y}");
+        assert!(
+            (x - y).abs() <= 1e-10 * x.abs(),
+            "member {i}: cpu {x}, gpu {y}"
+        );
     }
     // One batch for the three points: as many submissions as a study without the sweep.
-    let plain = write(tmp.path(), "plain.toml", &forcing_study("").replace("members = 4", "members = 12"));
+    let plain = write(
+        tmp.path(),
+        "plain.toml",
+        &forcing_study("").replace("members = 4", "members = 12"),
+    );
     let plain_gpu = tmp.path().join("plain_gpu");
     run(&plain, &plain_gpu, &["--backend", "gpu"], &[]);
     let submits = |dir: &Path| -> u64 {
@@ -515,5 +551,9 @@ fn a_swept_forcing_parameter_is_read_per_member_in_one_batch() {
                 .unwrap();
         m["gpu_stats"]["submits"].as_u64().unwrap()
     };
-    assert_eq!(submits(&gpu), submits(&plain_gpu), "the sweep split its batch");
+    assert_eq!(
+        submits(&gpu),
+        submits(&plain_gpu),
+        "the sweep split its batch"
+    );
 }

@@ -446,9 +446,15 @@ mod symbolic_tests {
             let a = sym.eval_with(x, t, &[0.37, 3.0]);
             assert_eq!(a.to_bits(), lit.eval(x, t).to_bits(), "x = {x}, t = {t}");
         }
-        assert!(sym.eval(0.5, 0.0).is_nan(), "a missing parameter is NaN, never 0");
+        assert!(
+            sym.eval(0.5, 0.0).is_nan(),
+            "a missing parameter is NaN, never 0"
+        );
         assert!(sym.constant_value().is_none());
         let wgsl = sym.to_wgsl(WgslFloat::F64, "forcing");
-        assert!(wgsl.contains("forcing_param(0u)") && wgsl.contains("forcing_param(1u)"), "{wgsl}");
+        assert!(
+            wgsl.contains("forcing_param(0u)") && wgsl.contains("forcing_param(1u)"),
+            "{wgsl}"
+        );
     }
 }

@@ -180,7 +180,10 @@ impl StagedDir {
             if is_staging {
                 continue;
             }
-            let name = old.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let name = old
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
             let partial = old.with_file_name(name.replace(OLD_TAG, STAGING_TAG));
             let (restore, note) = if partial.join(MANIFEST).exists() {
                 (&partial, "the finished run")
@@ -215,13 +218,14 @@ impl StagedDir {
         target: &Path,
         same_study: impl Fn(&Path) -> bool,
     ) -> Result<Option<StagedDir>> {
-        let chunk_count = |dir: &Path| {
-            std::fs::read_dir(dir.join("chunks")).map_or(0, |entries| entries.count())
-        };
+        let chunk_count =
+            |dir: &Path| std::fs::read_dir(dir.join("chunks")).map_or(0, |entries| entries.count());
         let best = leftovers(target)?
             .into_iter()
             .filter(|(dir, is_staging)| {
-                *is_staging && dir.join("study.json").exists() && same_study(&dir.join("study.json"))
+                *is_staging
+                    && dir.join("study.json").exists()
+                    && same_study(&dir.join("study.json"))
             })
             .max_by_key(|(dir, _)| chunk_count(dir));
         let Some((found, _)) = best else {

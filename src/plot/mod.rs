@@ -292,7 +292,12 @@ pub fn plot_xt(
         .iter()
         .map(|&k| {
             xi.iter()
-                .map(|&i| rows.get(k).and_then(|r| r.get(i)).copied().unwrap_or(f64::NAN))
+                .map(|&i| {
+                    rows.get(k)
+                        .and_then(|r| r.get(i))
+                        .copied()
+                        .unwrap_or(f64::NAN)
+                })
                 .collect()
         })
         .collect();

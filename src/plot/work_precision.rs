@@ -27,8 +27,14 @@ pub(super) fn draw(
         }
     };
     let log = |v: f64| if v > 0.0 { v.log10() } else { f64::NAN };
-    let xs: Vec<Vec<f64>> = lines.iter().map(|(_, p)| p.iter().map(|q| log(q.0)).collect()).collect();
-    let ys: Vec<Vec<f64>> = lines.iter().map(|(_, p)| p.iter().map(|q| log(q.1)).collect()).collect();
+    let xs: Vec<Vec<f64>> = lines
+        .iter()
+        .map(|(_, p)| p.iter().map(|q| log(q.0)).collect())
+        .collect();
+    let ys: Vec<Vec<f64>> = lines
+        .iter()
+        .map(|(_, p)| p.iter().map(|q| log(q.1)).collect())
+        .collect();
     let x_range = padded_range(finite_min_max(xs.iter().flatten()), "the wall times")?;
     let mut y_values: Vec<f64> = ys.iter().flatten().copied().collect();
     if let Some(t) = target {

@@ -106,8 +106,13 @@ impl Scene {
         let name = validate_name(&file.name)?;
         let parameters = sweep::validate_parameters(file.parameters.as_ref())?;
         let model = validate_model(&file.model, &parameters)?;
-        let initial =
-            validate_initial(&file.initial, &file.model, model.particles, path, &parameters)?;
+        let initial = validate_initial(
+            &file.initial,
+            &file.model,
+            model.particles,
+            path,
+            &parameters,
+        )?;
         let time = time::validate_time(&file.time)?;
         let (order, backend, precision) = validate_solver(&file.solver)?;
         let (mu, gamma) = validate_batch(file.batch.as_ref(), file.model.mu, model.gamma)?;
@@ -303,7 +308,12 @@ fn validate_initial(
 /// The range checks of the initial profiles (run again at each sweep point).
 fn check_profiles(rho: &Expr, velocity: &Expr, rho_star: Option<&Expr>) -> Result<()> {
     check_profile("initial.rho", rho, "(0, 1)", |v| v > 0.0 && v < 1.0)?;
-    check_profile("initial.velocity", velocity, "finite values", f64::is_finite)?;
+    check_profile(
+        "initial.velocity",
+        velocity,
+        "finite values",
+        f64::is_finite,
+    )?;
     check_velocity_magnitude(velocity)?;
     if let Some(rs) = rho_star {
         check_profile("initial.rho_star", rs, "(0, 1]", |v| v > 0.0 && v <= 1.0)?;

@@ -160,7 +160,9 @@ pub(super) fn validate_parameters(table: Option<&toml::Table>) -> Result<Vec<(St
             return Err(Error::invalid(
                 field,
                 name,
-                format!("'{name}' is a setting of the scene; sweep it in [sweep] under its own name"),
+                format!(
+                    "'{name}' is a setting of the scene; sweep it in [sweep] under its own name"
+                ),
                 "a name that is not a setting",
             ));
         }
@@ -289,14 +291,12 @@ pub(super) fn validate_sweep(
                     Some("random") => DesignKind::Random,
                     Some("latin_hypercube") => DesignKind::LatinHypercube,
                     Some("sobol") => DesignKind::Sobol,
-                    _ => {
-                        return Err(Error::invalid(
-                            field,
-                            value,
-                            "unknown design",
-                            "\"grid\" (lists), \"random\", \"latin_hypercube\" or \"sobol\" (ranges)",
-                        ))
-                    }
+                    _ => return Err(Error::invalid(
+                        field,
+                        value,
+                        "unknown design",
+                        "\"grid\" (lists), \"random\", \"latin_hypercube\" or \"sobol\" (ranges)",
+                    )),
                 }
             }
             "points" => {
@@ -317,9 +317,10 @@ pub(super) fn validate_sweep(
                 seed = s as u64;
             }
             "independent_draws" => {
-                independent_draws = Some(value.as_bool().ok_or_else(|| {
-                    Error::invalid(&field, value, "a switch", "true or false")
-                })?);
+                independent_draws =
+                    Some(value.as_bool().ok_or_else(|| {
+                        Error::invalid(&field, value, "a switch", "true or false")
+                    })?);
             }
             name => {
                 let target = SweepTarget::of(name, parameters).ok_or_else(|| {
@@ -489,7 +490,9 @@ fn axis(field: &str, value: &toml::Value, target: &SweepTarget) -> Result<Axis> 
             }
             let get = |k: &str| {
                 t.get(k)
-                    .ok_or_else(|| Error::missing(format!("{field}.{k}"), "a range needs min and max"))
+                    .ok_or_else(|| {
+                        Error::missing(format!("{field}.{k}"), "a range needs min and max")
+                    })
                     .and_then(|v| number(&format!("{field}.{k}"), v))
             };
             let (min, max) = (get("min")?, get("max")?);
@@ -540,19 +543,33 @@ fn check_value(field: &str, target: &SweepTarget, v: f64) -> Result<()> {
         if (lo..=hi).contains(&v) {
             Ok(())
         } else {
-            Err(Error::invalid(field, v, what, format!("{lo} <= value <= {hi}")))
+            Err(Error::invalid(
+                field,
+                v,
+                what,
+                format!("{lo} <= value <= {hi}"),
+            ))
         }
     };
     match target {
         SweepTarget::Mu => check_mu(field, v).map(|_| ()),
         SweepTarget::Gamma => check_gamma(field, v).map(|_| ()),
-        SweepTarget::Particles => within(2.0, MAX_PARTICLES as f64, "the number N of particle intervals"),
+        SweepTarget::Particles => within(
+            2.0,
+            MAX_PARTICLES as f64,
+            "the number N of particle intervals",
+        ),
         SweepTarget::RoughnessSpread => within(0.0, 10.0, "relative spread of the roughness radii"),
         SweepTarget::CorrelationLength => {
             if v > 0.0 {
                 Ok(())
             } else {
-                Err(Error::invalid(field, v, "correlation length in x", "length > 0"))
+                Err(Error::invalid(
+                    field,
+                    v,
+                    "correlation length in x",
+                    "length > 0",
+                ))
             }
         }
         SweepTarget::VelocityAmplitudeSpread => within(0.0, 10.0, "relative spread"),

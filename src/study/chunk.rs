@@ -19,7 +19,6 @@ use crate::model::plan::Plan;
 use crate::output::{write_npy, ProgressReporter};
 use crate::scene::{EnsembleSpec, Scene};
 
-
 /// The plan of a chunk: the scene's, with these members, and the fields the statistics need.
 pub(super) fn chunk_plan(scene: &Scene, first_chain: &Chain, members: Vec<MemberParams>) -> Plan {
     let mut plan = Plan::new(scene, first_chain);
@@ -319,7 +318,6 @@ pub(super) fn solve_chunk(
         rows,
     })
 }
-
 
 /// Centre of mass of the density peak: the centroid of the excess of rho over its spatial mean
 /// (NaN when the profile is flat).

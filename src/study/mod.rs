@@ -119,7 +119,11 @@ fn select_for_study(
     let inputs = members.member(first)?;
     let largest_chunk = (spec.chunk as u64).min(end.saturating_sub(first)).max(1) as usize;
     let setup = members.setup(inputs.point)?;
-    let plan = chunk_plan(&setup.scene, &inputs.chain, vec![inputs.params; largest_chunk]);
+    let plan = chunk_plan(
+        &setup.scene,
+        &inputs.chain,
+        vec![inputs.params; largest_chunk],
+    );
     select(
         options.backend.unwrap_or(scene.backend),
         options.precision.unwrap_or(scene.precision),
@@ -189,7 +193,8 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         // An interrupted run of this very study beside --out first (a rerun into a directory
         // that holds a complete study), else the study in --out itself.
         let same_study = |path: &Path| {
-            read_json::<StudyHeader>(path).is_ok_and(|old| check_resume(&old, &header, path).is_ok())
+            read_json::<StudyHeader>(path)
+                .is_ok_and(|old| check_resume(&old, &header, path).is_ok())
         };
         if let Some(found) = StagedDir::adopt_interrupted_study(target, same_study)? {
             if !options.quiet {

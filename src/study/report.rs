@@ -55,17 +55,41 @@ pub(super) fn finalize(
                 .collect()
         };
         let shape = [p_count, t];
-        write_npy(stats.join(format!("{name}_count.npy")), &shape, &per_point(&|s| s.stats().count() as f64))?;
-        write_npy(stats.join(format!("{name}_mean.npy")), &shape, &per_point(&|s| s.stats().mean()))?;
-        write_npy(stats.join(format!("{name}_var.npy")), &shape, &per_point(&|s| s.stats().variance()))?;
-        write_npy(stats.join(format!("{name}_min.npy")), &shape, &per_point(&|s| s.stats().min()))?;
-        write_npy(stats.join(format!("{name}_max.npy")), &shape, &per_point(&|s| s.stats().max()))?;
+        write_npy(
+            stats.join(format!("{name}_count.npy")),
+            &shape,
+            &per_point(&|s| s.stats().count() as f64),
+        )?;
+        write_npy(
+            stats.join(format!("{name}_mean.npy")),
+            &shape,
+            &per_point(&|s| s.stats().mean()),
+        )?;
+        write_npy(
+            stats.join(format!("{name}_var.npy")),
+            &shape,
+            &per_point(&|s| s.stats().variance()),
+        )?;
+        write_npy(
+            stats.join(format!("{name}_min.npy")),
+            &shape,
+            &per_point(&|s| s.stats().min()),
+        )?;
+        write_npy(
+            stats.join(format!("{name}_max.npy")),
+            &shape,
+            &per_point(&|s| s.stats().max()),
+        )?;
         let quant: Vec<f64> = points
             .iter()
             .flat_map(|&p| point(p).scalars[name].iter())
             .flat_map(|s| qs.iter().map(|&q| s.quantile(q).unwrap_or(f64::NAN)))
             .collect();
-        write_npy(stats.join(format!("{name}_quantiles.npy")), &[p_count, t, nq], &quant)?;
+        write_npy(
+            stats.join(format!("{name}_quantiles.npy")),
+            &[p_count, t, nq],
+            &quant,
+        )?;
         let (mut edges, mut counts) = (Vec::new(), Vec::new());
         for &p in &points {
             let (e, c) = scalar_histograms(&point(p).scalars[name], &stats)?;
@@ -113,8 +137,16 @@ pub(super) fn finalize(
         peak_q.extend(qs.iter().map(|&q| s.quantile(q).unwrap_or(f64::NAN)));
     }
     write_npy(stats.join("peak_density.npy"), &[p_count, 5], &peak)?;
-    write_npy(stats.join("peak_density_quantiles.npy"), &[p_count, nq], &peak_q)?;
-    write_npy(stats.join("first_hit_quantiles.npy"), &[p_count, nq], &first_hit_q)?;
+    write_npy(
+        stats.join("peak_density_quantiles.npy"),
+        &[p_count, nq],
+        &peak_q,
+    )?;
+    write_npy(
+        stats.join("first_hit_quantiles.npy"),
+        &[p_count, nq],
+        &first_hit_q,
+    )?;
     for name in FIELDS {
         let mut mean: Vec<f64> = Vec::new();
         let mut var: Vec<f64> = Vec::new();
@@ -128,8 +160,16 @@ pub(super) fn finalize(
                 }
             }
         }
-        write_npy(stats.join(format!("{name}_mean.npy")), &[p_count, t, g], &mean)?;
-        write_npy(stats.join(format!("{name}_var.npy")), &[p_count, t, g], &var)?;
+        write_npy(
+            stats.join(format!("{name}_mean.npy")),
+            &[p_count, t, g],
+            &mean,
+        )?;
+        write_npy(
+            stats.join(format!("{name}_var.npy")),
+            &[p_count, t, g],
+            &var,
+        )?;
         write_npy(
             stats.join(format!("{name}_quantiles.npy")),
             &[p_count, t, nq, g],
@@ -155,7 +195,12 @@ pub(super) fn finalize(
 
 /// The per-member responses drawn against the swept keys: (file stem, axis label, members.csv
 /// column, the point's summary of it).
-type Response = (&'static str, &'static str, &'static str, fn(&PointStats) -> &ScalarSummary);
+type Response = (
+    &'static str,
+    &'static str,
+    &'static str,
+    fn(&PointStats) -> &ScalarSummary,
+);
 const RESPONSES: [Response; 2] = [
     (
         "peak_density",
@@ -416,7 +461,10 @@ fn write_point_plots(
         }
         crate::plot::plot_xt(
             &plots.join(format!("{prefix}{field}_xt_mean.png")),
-            &format!("{}: mean {field}(x, t) over {} members", header.scene_name, state.completed),
+            &format!(
+                "{}: mean {field}(x, t) over {} members",
+                header.scene_name, state.completed
+            ),
             &format!("mean {field}"),
             &header.x,
             &header.times,

@@ -138,7 +138,8 @@ impl StudyState {
         u_range: (f64, f64),
     ) -> Result<&mut PointStats> {
         if !self.points.contains_key(&p) {
-            self.points.insert(p, PointStats::with_u_range(header, u_range)?);
+            self.points
+                .insert(p, PointStats::with_u_range(header, u_range)?);
         }
         Ok(self.points.get_mut(&p).expect("inserted"))
     }

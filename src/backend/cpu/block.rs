@@ -46,9 +46,11 @@ impl<const L: usize> LaneModel<L> {
             repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
             bonded: self.bonded.as_deref(),
             forcing: plan.forcing.as_ref(),
-            forcing_params: std::array::from_fn(|l| match (plan.forcing.as_ref(), self.members[l]) {
-                (Some(f), Some(m)) => f.member_params(m),
-                _ => &[],
+            forcing_params: std::array::from_fn(|l| {
+                match (plan.forcing.as_ref(), self.members[l]) {
+                    (Some(f), Some(m)) => f.member_params(m),
+                    _ => &[],
+                }
             }),
         }
     }
