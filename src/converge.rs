@@ -389,14 +389,7 @@ fn scene_at(scene: &Scene, n: usize) -> Scene {
 /// Output indices shown in the profile figures: up to [`PLOTTED_TIMES`], evenly spaced, the
 /// last one included.
 fn shown_times(count: usize) -> Vec<usize> {
-    if count <= PLOTTED_TIMES {
-        return (0..count).collect();
-    }
-    let mut v: Vec<usize> = (0..PLOTTED_TIMES)
-        .map(|j| j * (count - 1) / (PLOTTED_TIMES - 1))
-        .collect();
-    v.dedup();
-    v
+    crate::plot::thinned_indices(count, PLOTTED_TIMES)
 }
 
 /// Least-squares slope of ln e against ln n over the pairs with e > 0 (negated: the rate), and

@@ -50,14 +50,7 @@ pub fn output_bytes(plan: &Plan) -> u64 {
 
 /// The output indices whose profiles are plotted: all, or MAX_PLOTTED_TIMES evenly spaced.
 fn plotted_times(count: usize) -> Vec<usize> {
-    if count <= MAX_PLOTTED_TIMES {
-        return (0..count).collect();
-    }
-    let mut v: Vec<usize> = (0..MAX_PLOTTED_TIMES)
-        .map(|k| k * (count - 1) / (MAX_PLOTTED_TIMES - 1))
-        .collect();
-    v.dedup();
-    v
+    crate::plot::thinned_indices(count, MAX_PLOTTED_TIMES)
 }
 
 #[derive(Debug, Clone)]
@@ -122,24 +115,16 @@ impl FieldStreams {
     }
 }
 
-/// Per-member profiles over time, kept for the plots of the first members (the plots need the
-/// fields even when they are not written): at the profile plot's times, and at the x–t map's.
+/// A plotted member's fields at some output times, kept for its plots (the plots need the
+/// fields even when they are not written).
 #[derive(Default)]
-struct PlottedProfiles {
-    rho: Vec<Vec<f64>>,
-    u: Vec<Vec<f64>>,
-    rho_star: Vec<Vec<f64>>,
-    map: PlottedMaps,
-}
-
-#[derive(Default)]
-struct PlottedMaps {
+struct FieldRows {
     rho: Vec<Vec<f64>>,
     u: Vec<Vec<f64>>,
     rho_star: Vec<Vec<f64>>,
 }
 
-impl PlottedProfiles {
+impl FieldRows {
     fn record(&mut self, s: &Snapshot, grid: usize) {
         let or_nan = |v: &Vec<f64>| {
             if v.is_empty() {
@@ -152,19 +137,13 @@ impl PlottedProfiles {
         self.u.push(or_nan(&s.u));
         self.rho_star.push(or_nan(&s.rho_star));
     }
+}
 
-    fn record_map(&mut self, s: &Snapshot, grid: usize) {
-        let or_nan = |v: &Vec<f64>| {
-            if v.is_empty() {
-                vec![f64::NAN; grid]
-            } else {
-                v.clone()
-            }
-        };
-        self.map.rho.push(or_nan(&s.rho));
-        self.map.u.push(or_nan(&s.u));
-        self.map.rho_star.push(or_nan(&s.rho_star));
-    }
+/// A plotted member's fields at the profile plot's times and at the x–t map's.
+#[derive(Default)]
+struct PlottedProfiles {
+    profiles: FieldRows,
+    map: FieldRows,
 }
 
 pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
@@ -253,10 +232,10 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
             log_min_gap.push(s.log_min_gap);
             max_density.push(s.max_density);
             if m < plotted && drawn {
-                profiles[m].record(s, plan.grid);
+                profiles[m].profiles.record(s, plan.grid);
             }
             if m < plotted && mapped {
-                profiles[m].record_map(s, plan.grid);
+                profiles[m].map.record(s, plan.grid);
             }
         }
     }
@@ -308,9 +287,9 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
                         .iter()
                         .map(|&k| plan.output_times[k])
                         .collect::<Vec<f64>>(),
-                    rho: &p.rho,
-                    u: &p.u,
-                    rho_star: plan.repulsion.then_some(p.rho_star.as_slice()),
+                    rho: &p.profiles.rho,
+                    u: &p.profiles.u,
+                    rho_star: plan.repulsion.then_some(p.profiles.rho_star.as_slice()),
                 },
             )?;
             files.push(path);

@@ -715,40 +715,46 @@ fn mtimes(dir: &Path, names: &[String]) -> Vec<SystemTime> {
         .collect()
 }
 
-#[test]
-fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
-    let tmp = tempfile::tempdir().unwrap();
-    let scene = data("study_resume.toml");
-    let dir = tmp.path().join("killed");
+/// Starts a fresh `roughlub run` of `scene` into `dir` (CPU), kills it (SIGKILL) once its
+/// staging directory beside `dir` holds `chunks` finished chunk files, and returns that
+/// staging directory.
+fn kill_after_chunks(scene: &Path, dir: &Path, chunks: usize) -> PathBuf {
     let mut child = Command::new(BIN)
         .arg("run")
-        .arg(&scene)
+        .arg(scene)
         .arg("--out")
-        .arg(&dir)
+        .arg(dir)
         .args(["--backend", "cpu", "--quiet"])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
     // A fresh study is built beside --out and swapped in when complete.
-    let staging = tmp.path().join(format!(".killed.partial-{}", child.id()));
+    let name = dir.file_name().unwrap().to_string_lossy();
+    let staging = dir.with_file_name(format!(".{name}.partial-{}", child.id()));
     let started = Instant::now();
-    loop {
-        if chunk_files(&staging).len() >= 2 {
-            break;
-        }
+    while chunk_files(&staging).len() < chunks {
         assert!(
             child.try_wait().unwrap().is_none(),
-            "the run ended before two chunks were seen"
+            "the run ended before {chunks} chunks were seen"
         );
         assert!(
             started.elapsed() < Duration::from_secs(60),
-            "no two chunk files after 60 s"
+            "no {chunks} chunk files after 60 s"
         );
         std::thread::sleep(Duration::from_millis(2));
     }
     child.kill().unwrap();
     child.wait().unwrap();
+    staging
+}
+
+#[test]
+fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = data("study_resume.toml");
+    let dir = tmp.path().join("killed");
+    let staging = kill_after_chunks(&scene, &dir, 2);
     let kept = chunk_files(&staging);
     let kept_times = mtimes(&staging, &kept);
     assert!(kept.len() >= 2);
@@ -821,29 +827,7 @@ fn a_study_replaces_an_earlier_run_whole() {
     let single_manifest = std::fs::read(dir.join("manifest.json")).unwrap();
     assert!(dir.join("gaps.npy").is_file());
 
-    let scene = data("study_resume.toml");
-    let mut child = Command::new(BIN)
-        .arg("run")
-        .arg(&scene)
-        .arg("--out")
-        .arg(&dir)
-        .args(["--backend", "cpu", "--quiet"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let staging = tmp.path().join(format!(".out.partial-{}", child.id()));
-    let started = Instant::now();
-    while chunk_files(&staging).is_empty() {
-        assert!(child.try_wait().unwrap().is_none(), "the study ended early");
-        assert!(
-            started.elapsed() < Duration::from_secs(60),
-            "no chunk after 60 s"
-        );
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    child.kill().unwrap();
-    child.wait().unwrap();
+    let staging = kill_after_chunks(&data("study_resume.toml"), &dir, 1);
     assert_eq!(
         std::fs::read(dir.join("manifest.json")).unwrap(),
         single_manifest,
@@ -1039,25 +1023,7 @@ fn resume_finishes_an_interrupted_rerun_over_an_earlier_study() {
     let dir = tmp.path().join("o");
     assert_success(&run(&data("study_basic.toml"), &dir, &[]), "earlier study");
     let scene = data("study_resume.toml");
-    let mut child = Command::new(BIN)
-        .arg("run")
-        .arg(&scene)
-        .arg("--out")
-        .arg(&dir)
-        .args(["--backend", "cpu", "--quiet"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let staging = tmp.path().join(format!(".o.partial-{}", child.id()));
-    let started = Instant::now();
-    while chunk_files(&staging).len() < 2 {
-        assert!(child.try_wait().unwrap().is_none(), "the rerun ended early");
-        assert!(started.elapsed() < Duration::from_secs(60));
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    child.kill().unwrap();
-    child.wait().unwrap();
+    kill_after_chunks(&scene, &dir, 2);
     assert_eq!(
         manifest(&dir)["kind"],
         "ensemble",

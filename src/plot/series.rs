@@ -2,14 +2,12 @@
 
 use std::path::Path;
 
-use plotters::prelude::*;
-
 use super::chart::{build_chart, draw_line, figure, msg};
 use super::legend::{
     draw_legend, legend_indices, legend_width, LegendEntry, LegendMark, LEGEND_ROW,
 };
 use super::ranges::{finite_min_max, padded_range};
-use super::style::{indexed_color, shorten, TAB10};
+use super::style::{series_color, shorten};
 
 /// Draws the figure of [`plot_series`](super::plot_series) on input that passed its check.
 pub(super) fn draw(
@@ -20,14 +18,7 @@ pub(super) fn draw(
     series: &[(String, Vec<f64>)],
 ) -> Result<(), String> {
     let n = series.len();
-    let color = |i: usize| {
-        if n <= TAB10.len() {
-            let (r, g, b) = TAB10[i];
-            RGBColor(r, g, b)
-        } else {
-            indexed_color(i, n)
-        }
-    };
+    let color = |i: usize| series_color(i, n);
 
     let x_range = match finite_min_max(times) {
         None => 0.0..1.0,

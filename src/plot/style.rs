@@ -65,6 +65,17 @@ pub(super) fn indexed_color(i: usize, n: usize) -> RGBColor {
     }
 }
 
+/// Colour of series `i` out of `n` unrelated series: the categorical palette while it has
+/// enough colours, else the sequential colormap.
+pub(super) fn series_color(i: usize, n: usize) -> RGBColor {
+    if n <= TAB10.len() {
+        let (r, g, b) = TAB10[i];
+        RGBColor(r, g, b)
+    } else {
+        indexed_color(i, n)
+    }
+}
+
 /// Categorical palette (matplotlib's tab10) for a few unrelated series.
 pub(super) const TAB10: [(u8, u8, u8); 10] = [
     (31, 119, 180),

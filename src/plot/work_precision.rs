@@ -8,7 +8,7 @@ use plotters::prelude::*;
 use super::chart::{build_chart, draw_line, figure, msg};
 use super::legend::{draw_legend, legend_width, LegendEntry, LegendMark};
 use super::ranges::{finite_min_max, padded_range};
-use super::style::{indexed_color, shorten, TAB10};
+use super::style::{series_color, shorten};
 
 /// Draws the figure of [`plot_work_precision`](super::plot_work_precision) on checked input.
 pub(super) fn draw(
@@ -18,14 +18,7 @@ pub(super) fn draw(
     target: Option<f64>,
 ) -> Result<(), String> {
     let n = lines.len();
-    let color = |i: usize| {
-        if n <= TAB10.len() {
-            let (r, g, b) = TAB10[i];
-            RGBColor(r, g, b)
-        } else {
-            indexed_color(i, n)
-        }
-    };
+    let color = |i: usize| series_color(i, n);
     let log = |v: f64| if v > 0.0 { v.log10() } else { f64::NAN };
     let xs: Vec<Vec<f64>> = lines
         .iter()

@@ -79,27 +79,19 @@ impl SweepTarget {
     }
 }
 
-/// The columns of members.csv besides the swept keys' (a parameter may not take one's name).
-pub const MEMBER_TABLE_COLUMNS: [&str; 18] = [
-    "member",
-    "sweep_point",
-    "status",
-    "failure_time",
-    "velocity_factor",
-    "velocity_phase",
-    "mean_dstar",
-    "min_rho_star",
-    "peak_density",
-    "peak_time",
-    "min_gap",
-    "final_energy",
-    "first_hit_time",
-    "steps_accepted",
-    "steps_rejected",
-    "point",
-    "completed",
-    "failed",
-];
+/// Whether `name` is a column of members.csv or points.csv other than the swept keys' (where a
+/// parameter gets a column of its own name).
+fn is_table_column(name: &str) -> bool {
+    use crate::study::{
+        MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS, POINT_INDEX_COLUMN,
+    };
+    MEMBER_KEY_COLUMNS
+        .iter()
+        .chain(&MEMBER_COLUMNS)
+        .chain(&POINT_COUNT_COLUMNS)
+        .any(|c| *c == name)
+        || name == POINT_INDEX_COLUMN
+}
 
 /// The validated `[sweep]`: the design and what each of its axes sets.
 #[derive(Debug, Clone)]
@@ -148,7 +140,7 @@ pub(super) fn validate_parameters(table: Option<&toml::Table>) -> Result<Vec<(St
                 "a name other than x, t, pi, e and the function names",
             ));
         }
-        if MEMBER_TABLE_COLUMNS.contains(&name.as_str()) {
+        if is_table_column(name) {
             return Err(Error::invalid(
                 field,
                 name,

@@ -151,8 +151,10 @@ pub(super) struct CsvOut {
     writer: csv::Writer<std::fs::File>,
 }
 
-/// Columns of members.csv after `member, sweep_point` and the swept keys.
-const MEMBER_COLUMNS: [&str; 17] = [
+/// The first columns of members.csv, before the swept keys'.
+pub const MEMBER_KEY_COLUMNS: [&str; 2] = ["member", "sweep_point"];
+/// The columns of members.csv after the swept keys'.
+pub const MEMBER_COLUMNS: [&str; 16] = [
     "mu",
     "gamma",
     "particles",
@@ -169,8 +171,10 @@ const MEMBER_COLUMNS: [&str; 17] = [
     "first_hit_time",
     "steps_accepted",
     "steps_rejected",
-    "",
 ];
+/// points.csv: this column, the swept keys', then [`POINT_COUNT_COLUMNS`].
+pub const POINT_INDEX_COLUMN: &str = "point";
+pub const POINT_COUNT_COLUMNS: [&str; 2] = ["completed", "failed"];
 
 /// A number as members.csv writes it: the shortest text that reads back to the same f64; NaN
 /// and infinities as "NaN", "inf", "-inf".
@@ -223,9 +227,9 @@ impl CsvOut {
             partial,
             writer,
         };
-        let mut header: Vec<&str> = vec!["member", "sweep_point"];
+        let mut header: Vec<&str> = MEMBER_KEY_COLUMNS.to_vec();
         header.extend(sweep_names.iter().map(String::as_str));
-        header.extend(MEMBER_COLUMNS.iter().filter(|c| !c.is_empty()));
+        header.extend(MEMBER_COLUMNS);
         out.write(&header)?;
         Ok(out)
     }

@@ -47,7 +47,10 @@ use files::{check_resume, chunk_path, header_for, shard_range, ChunkFile, CsvOut
 use report::{finalize, quantile_method};
 
 pub use chunk::peak_centre;
-pub use files::{MemberRow, StudyHeader};
+pub use files::{
+    MemberRow, StudyHeader, MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS,
+    POINT_INDEX_COLUMN,
+};
 pub use merge::merge_studies;
 pub use state::StudyState;
 

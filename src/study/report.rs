@@ -347,9 +347,9 @@ fn write_points_csv(path: &Path, header: &StudyHeader, state: &StudyState) -> Re
         message: e.to_string(),
     };
     let mut w = csv::Writer::from_path(path).map_err(err)?;
-    let mut head = vec!["point".to_string()];
+    let mut head = vec![super::files::POINT_INDEX_COLUMN.to_string()];
     head.extend(header.sweep_names.iter().cloned());
-    head.extend(["completed".to_string(), "failed".to_string()]);
+    head.extend(super::files::POINT_COUNT_COLUMNS.map(String::from));
     w.write_record(&head).map_err(err)?;
     for (p, values) in header.points.iter().enumerate() {
         let stats = state.points.get(&(p as u64));
