@@ -42,9 +42,19 @@ pub(super) fn finalize(
     write_npy(stats.join("x.npy"), &[g], &header.x)?;
     write_npy(stats.join("quantile_levels.npy"), &[nq], qs)?;
     write_points_csv(&dir.join("points.csv"), header, state)?;
-    // A point without members (a partial merge) reports the statistics of no member.
-    let empty = PointStats::for_header(header)?;
-    let point = |p: u64| state.points.get(&p).unwrap_or(&empty);
+    // A point without members (a partial merge) reports the statistics of no member; the empty
+    // statistics (as large as a point's) are built only when some point has none.
+    let empty = match (0..p_count).all(|p| state.points.contains_key(&p)) {
+        true => None,
+        false => Some(PointStats::for_header(header)?),
+    };
+    let point = |p: u64| -> &PointStats {
+        state
+            .points
+            .get(&p)
+            .or(empty.as_ref())
+            .expect("built when a point has no statistics")
+    };
     let points: Vec<u64> = (0..p_count).collect();
 
     for name in SCALARS {
@@ -182,7 +192,7 @@ pub(super) fn finalize(
         if p_count == 1 {
             write_point_plots(&plots_dir, "", header, point(0))?;
         } else {
-            write_response_plots(dir, &plots_dir, header, state)?;
+            write_response_plots(dir, &plots_dir, header, &point)?;
             for &p in points.iter().take(MAX_POINT_PLOTS) {
                 if state.points.contains_key(&p) {
                     write_point_plots(&plots_dir, &format!("point{p}_"), header, point(p))?;
@@ -220,12 +230,13 @@ const RESPONSES: [Response; 2] = [
 /// quantile band against it (`{response}_vs_{key}.png`); over two keys, a heat map of the mean
 /// (`{response}_map.png`); for sampled designs, every member's response against each key
 /// (`{response}_vs_{key}.png`, read back from members.csv). Grids over three or more keys get
-/// no response plot (the statistics and points.csv hold them).
-fn write_response_plots(
+/// no response plot (the statistics and points.csv hold them). `point(p)` gives a point's
+/// statistics.
+fn write_response_plots<'a>(
     dir: &Path,
     plots: &Path,
     header: &StudyHeader,
-    state: &StudyState,
+    point: &dyn Fn(u64) -> &'a PointStats,
 ) -> Result<()> {
     let names = &header.sweep_names;
     let (q_lo, q_hi) = (
@@ -270,8 +281,7 @@ fn write_response_plots(
         }
         return Ok(());
     }
-    let empty = PointStats::for_header(header)?;
-    let point = |p: usize| state.points.get(&(p as u64)).unwrap_or(&empty);
+    let point = |p: usize| point(p as u64);
     match names.len() {
         1 => {
             let x: Vec<f64> = header.points.iter().map(|v| v[0]).collect();
