@@ -65,6 +65,24 @@ pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 /// the rejections).
 pub const MAX_OPENING: f64 = 5.0;
 
+/// gap_exp of a row of W values: the polynomial for the whole row when every |x| is small
+/// (`small` != 0; the loop then stays branch-free), else value by value. Either way each value
+/// gets gap_exp(x).
+#[inline(always)]
+fn exp_row<const W: usize>(x: &[f64; W], small: u64) -> [f64; W] {
+    let mut e = [0.0; W];
+    if small != 0 {
+        for j in 0..W {
+            e[j] = gap_exp_taylor(x[j]);
+        }
+    } else {
+        for j in 0..W {
+            e[j] = gap_exp(x[j]);
+        }
+    }
+    e
+}
+
 /// e^x as the gap update computes it: for |x| < 1/16 (every gap of a mild step) the Taylor
 /// polynomial to x^8, whose truncation error x^9/9! < 2e-16 is at rounding; else the kernel's
 /// exp. The GPU kernel computes the same (`gap_exp` in shaders/step.wgsl).
@@ -737,16 +755,7 @@ where
                 x[j] = h0 * rates[j];
                 small &= (x[j].abs() < GAP_EXP_TAYLOR) as u64;
             }
-            let mut e = [0.0; W];
-            if small != 0 {
-                for j in 0..W {
-                    e[j] = gap_exp_taylor(x[j]);
-                }
-            } else {
-                for j in 0..W {
-                    e[j] = gap_exp(x[j]);
-                }
-            }
+            let e = exp_row(&x, small);
             let mut grown = [0.0; W];
             for j in 0..W {
                 grown[j] = old[j] * e[j];
@@ -801,18 +810,7 @@ where
         }
         *lanes_mut::<L, f64>(vel_out, row) = u_next;
         *lanes_mut::<L, f64>(&mut scratch.ls, row) = rates;
-        // e^x: the polynomial for the whole row when every lane's |x| is small (so the lane
-        // loop stays branch-free), else lane by lane. Either way each lane gets gap_exp(x).
-        let mut e = [0.0; L];
-        if small != 0 {
-            for l in 0..L {
-                e[l] = gap_exp_taylor(x[l]);
-            }
-        } else {
-            for l in 0..L {
-                e[l] = gap_exp(x[l]);
-            }
-        }
+        let e = exp_row(&x, small);
         let mut grown_row = [0.0; L];
         for l in 0..L {
             let grown = old[l] * e[l];
