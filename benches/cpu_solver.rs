@@ -25,7 +25,7 @@ fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver 
         repulsion: true,
         clusters: false,
         forcing: None,
-        order: 1,
+        order: 1.into(),
         stepping: Stepping::Fixed { dt, dt_min: 1e-14 },
         members: vec![
             MemberParams {

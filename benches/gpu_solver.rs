@@ -119,7 +119,7 @@ fn plan(case: &Case, eps: f64) -> Plan {
             rule: GaussLegendre::new(3),
             params: Vec::new(),
         }),
-        order: 1,
+        order: 1.into(),
         stepping: Stepping::Fixed {
             dt: DT,
             dt_min: 1e-14,

@@ -21,7 +21,7 @@ use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
 use crate::model::chain::Chain;
 use crate::model::observables::Snapshot;
-use crate::model::params::{MemberParams, OutputFields, Stepping};
+use crate::model::params::{MemberParams, Order, OutputFields, Stepping};
 use crate::model::plan::Plan;
 use crate::output::manifest::VERSION;
 use crate::output::{write_json_atomic, write_npy, StagedDir, MANIFEST};
@@ -44,7 +44,7 @@ pub struct AccuracyOptions {
 /// One rung of the ladder.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Setting {
-    pub order: u8,
+    pub order: Order,
     pub stepping: Stepping,
     pub backend: Backend,
     pub precision: Precision,
@@ -59,7 +59,7 @@ impl Setting {
         };
         format!(
             "order {}, {step}, {} {}",
-            self.order,
+            self.order.label(),
             backend_name(self.backend),
             precision_name(self.precision)
         )
@@ -73,7 +73,7 @@ impl Setting {
         };
         format!(
             "order {} {kind}, {} {}",
-            self.order,
+            self.order.label(),
             backend_name(self.backend),
             precision_name(self.precision)
         )
@@ -241,7 +241,7 @@ fn adaptive_ladder(
 ) -> Vec<Setting> {
     let mut out = Vec::new();
     for &(backend, precision) in backends {
-        for order in [1u8, 2] {
+        for order in [Order::Fixed(1), Order::Fixed(2)] {
             for k in 2..=14 {
                 let tolerance = format!("1e-{k}").parse::<f64>().expect("a number");
                 if tolerance < (target / 100.0).max(reference_tolerance * 10.0) * 0.999 {
@@ -267,7 +267,7 @@ fn adaptive_ladder(
 /// is below a tenth of the target (or k = 16).
 fn fixed_setting(
     scene: &Scene,
-    order: u8,
+    order: Order,
     k: u32,
     backend: Backend,
     precision: Precision,
@@ -331,7 +331,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     // The reference, and its own check ten times tighter.
     let reference_tolerance = (options.target * 1e-3).clamp(1e-11, 1e-8);
     let reference_setting = |tolerance: f64| Setting {
-        order: 2,
+        order: Order::Fixed(2),
         stepping: Stepping::Adaptive {
             tolerance,
             dt_initial: 1e-6 * scene.end,
@@ -401,7 +401,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         measure(setting)?;
     }
     for &(backend, precision) in &options.backends {
-        for order in [1u8, 2] {
+        for order in [Order::Fixed(1), Order::Fixed(2)] {
             let mut previous: Option<f64> = None;
             for k in 0..=MAX_HALVINGS {
                 let error = measure(fixed_setting(&scene, order, k, backend, precision))?;
@@ -532,7 +532,7 @@ fn write_csv(path: &Path, measurements: &[Measurement]) -> Result<()> {
         w.write_record([
             backend_name(s.backend).to_string(),
             precision_name(s.precision).to_string(),
-            s.order.to_string(),
+            s.order.label(),
             kind.to_string(),
             format!("{value:e}"),
             num(e.map(|e| e.worst())),

@@ -19,6 +19,31 @@ pub struct MemberReport {
     pub steps_accepted: u64,
     pub steps_rejected: u64,
     pub last_dt: f64,
+    /// The tableau column (order) of the member's last step: the fixed order, or auto's choice.
+    pub last_order: u8,
+    /// Estimated error of the member's state at each output time (see [`error_estimate_method`]);
+    /// `None` where the scheme has no estimate (order 1, fixed steps).
+    pub error_estimate: Option<Vec<f64>>,
+}
+
+/// How the error estimates of a run with this plan are made, or `None` when it has none.
+pub fn error_estimate_method(plan: &crate::model::plan::Plan) -> Option<&'static str> {
+    use crate::model::params::{Order, Stepping};
+    match (plan.order, plan.stepping) {
+        (Order::Fixed(1), Stepping::Fixed { .. }) => None,
+        (_, Stepping::Adaptive { .. }) => Some(
+            "sum over accepted steps of the controller's local estimate |T_kk - T_k,k-1| of the \
+             extrapolation tableau (order 1: one step against two half steps), as a max-norm: \
+             relative on gaps (the error of ln d), |du|/(1 + |u|) on velocities; local errors \
+             added without their propagation",
+        ),
+        (_, Stepping::Fixed { .. }) => Some(
+            "sum over steps of |T_pp - T_p,p-1|, the difference from the next lower order of the \
+             extrapolation tableau (an estimate of that lower order's local error, so an \
+             overestimate of order p's), as a max-norm: relative on gaps (the error of ln d), \
+             |du|/(1 + |u|) on velocities; local errors added without their propagation",
+        ),
+    }
 }
 
 /// Why a member stopped (a code, so the GPU can store it in a u32).

@@ -33,6 +33,63 @@ impl Stepping {
     }
 }
 
+/// The highest order the extrapolation tableau reaches (`order = 1..=MAX_ORDER`).
+pub const MAX_ORDER: u8 = 6;
+
+/// The order of the time scheme: the linearly implicit Euler step (1) or its extrapolation from
+/// 1, 2, …, p substeps (Aitken–Neville; order p), fixed for the run; or chosen per member and
+/// step by the work per unit step (`Auto`, adaptive steps only, orders 2..=MAX_ORDER).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Order {
+    Fixed(u8),
+    Auto,
+}
+
+impl Order {
+    /// Rows of the tableau a step may need: the fixed order, or MAX_ORDER.
+    pub fn columns(self) -> u8 {
+        match self {
+            Order::Fixed(p) => p,
+            Order::Auto => MAX_ORDER,
+        }
+    }
+
+    /// The order a member starts with (auto: 3, a middle order the controller moves from).
+    pub fn initial(self) -> u8 {
+        match self {
+            Order::Fixed(p) => p,
+            Order::Auto => AUTO_INITIAL_ORDER,
+        }
+    }
+
+    /// "1".."6" or "auto", as a scene writes it.
+    pub fn label(self) -> String {
+        match self {
+            Order::Fixed(p) => p.to_string(),
+            Order::Auto => "auto".into(),
+        }
+    }
+}
+
+/// A fixed order.
+impl From<u8> for Order {
+    fn from(p: u8) -> Order {
+        Order::Fixed(p)
+    }
+}
+
+/// Where `order = "auto"` starts.
+pub const AUTO_INITIAL_ORDER: u8 = 3;
+
+impl serde::Serialize for Order {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Order::Fixed(p) => s.serialize_u8(*p),
+            Order::Auto => s.serialize_str("auto"),
+        }
+    }
+}
+
 /// Which observables are written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct OutputFields {

@@ -4,7 +4,7 @@
 
 use crate::expr::Expr;
 use crate::model::chain::Chain;
-use crate::model::params::{MemberParams, OutputFields, Stepping};
+use crate::model::params::{MemberParams, Order, OutputFields, Stepping};
 use crate::model::quadrature::GaussLegendre;
 use crate::scene::Scene;
 
@@ -85,7 +85,7 @@ pub struct Plan {
     pub repulsion: bool,
     pub clusters: bool,
     pub forcing: Option<Forcing>,
-    pub order: u8,
+    pub order: Order,
     pub stepping: Stepping,
     pub members: Vec<MemberParams>,
     pub output_times: Vec<f64>,

@@ -34,7 +34,7 @@ pub struct RunManifest {
     pub wall_seconds: f64,
     pub particles: usize,
     pub eps: f64,
-    pub order: u8,
+    pub order: crate::model::params::Order,
     pub stepping: Stepping,
     pub plan: PlanSummary,
     pub output_times: Vec<f64>,

@@ -93,10 +93,18 @@ pub(super) struct TimeSection {
     pub dt_min: Option<f64>,
 }
 
+/// `order = 3` or `order = "auto"`: either, so that a wrong value is reported with the field.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub(super) enum OrderValue {
+    Number(i64),
+    Word(String),
+}
+
 #[derive(Debug, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 pub(super) struct SolverSection {
-    pub order: Option<i64>,
+    pub order: Option<OrderValue>,
     /// Strings, not the enums, so that an unknown name is reported with the field and the
     /// allowed names like every other scene error.
     pub backend: Option<String>,

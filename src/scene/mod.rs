@@ -24,13 +24,15 @@ pub use sweep::{SweepSpec, SweepTarget, MAX_SWEEP_POINTS};
 use crate::backend::{Backend, Precision};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
-use crate::model::params::{MemberParams, OutputFields, Stepping, FIELD_NAMES};
+use crate::model::params::{MemberParams, Order, OutputFields, Stepping, FIELD_NAMES, MAX_ORDER};
 pub(crate) use checks::number_text;
 use checks::{
     approx_text, check_gamma, check_mu, check_non_empty, check_profile, check_range,
     first_violation, parse_expr, Range,
 };
-use file::{BatchSection, InitialSection, ModelSection, OutputSection, SceneFile, SolverSection};
+use file::{
+    BatchSection, InitialSection, ModelSection, OrderValue, OutputSection, SceneFile, SolverSection,
+};
 
 #[derive(Debug, Clone)]
 pub enum InitialSpec {
@@ -64,7 +66,7 @@ pub struct Scene {
     pub end: f64,
     pub output_times: Vec<f64>,
     pub stepping: Stepping,
-    pub order: u8,
+    pub order: Order,
     pub backend: Backend,
     pub precision: Precision,
     pub grid: usize,
@@ -114,7 +116,7 @@ impl Scene {
             &parameters,
         )?;
         let time = time::validate_time(&file.time)?;
-        let (order, backend, precision) = validate_solver(&file.solver)?;
+        let (order, backend, precision) = validate_solver(&file.solver, &time.stepping)?;
         let (mu, gamma) = validate_batch(file.batch.as_ref(), file.model.mu, model.gamma)?;
         let output = validate_output(&file.output)?;
         let ensemble = file
@@ -335,16 +337,38 @@ fn check_velocity_magnitude(velocity: &Expr) -> Result<()> {
 }
 
 /// `[solver]`: scheme order, backend and precision.
-fn validate_solver(s: &SolverSection) -> Result<(u8, Backend, Precision)> {
-    let order = match s.order.unwrap_or(1) {
-        1 => 1,
-        2 => 2,
-        o => {
+fn validate_solver(s: &SolverSection, stepping: &Stepping) -> Result<(Order, Backend, Precision)> {
+    let allowed = format!(
+        "1 (linearly implicit Euler), 2..={MAX_ORDER} (its extrapolation from 1, 2, …, p substeps) or \"auto\" (per member and step, adaptive steps only)"
+    );
+    let order = match &s.order {
+        None => Order::Fixed(1),
+        Some(OrderValue::Number(p)) if (1..=MAX_ORDER as i64).contains(p) => Order::Fixed(*p as u8),
+        Some(OrderValue::Word(w)) if w == "auto" => {
+            if !matches!(stepping, Stepping::Adaptive { .. }) {
+                return Err(Error::invalid(
+                    "solver.order",
+                    "\"auto\"",
+                    "order of the time scheme (\"auto\" chooses it from the error estimates of adaptive steps; this scene has fixed steps: set time.tolerance instead of time.dt)",
+                    allowed,
+                ));
+            }
+            Order::Auto
+        }
+        Some(OrderValue::Number(p)) => {
             return Err(Error::invalid(
                 "solver.order",
-                o,
+                p,
                 "order of the time scheme",
-                "1 (linearly implicit Euler) or 2 (Richardson-extrapolated)",
+                allowed,
+            ))
+        }
+        Some(OrderValue::Word(w)) => {
+            return Err(Error::invalid(
+                "solver.order",
+                format!("\"{w}\""),
+                "order of the time scheme",
+                allowed,
             ))
         }
     };

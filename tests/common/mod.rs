@@ -20,7 +20,7 @@ pub fn all_fields() -> OutputFields {
 pub fn plan_for(
     chain: &Chain,
     members: Vec<MemberParams>,
-    order: u8,
+    order: impl Into<roughlub::model::params::Order>,
     stepping: Stepping,
     output_times: Vec<f64>,
     forcing: Option<(&str, usize)>,
@@ -35,7 +35,7 @@ pub fn plan_for(
             rule: GaussLegendre::new(points),
             params: Vec::new(),
         }),
-        order,
+        order: order.into(),
         stepping,
         members,
         output_times,

@@ -149,6 +149,9 @@ pub fn rk4_reference(
         out
     };
     let h = t_end / steps as f64;
+    // Compensated (Kahan) accumulation of the state: over 10^4+ steps the plain sums' rounding
+    // (~1e-13) would hide the errors of high-order schemes.
+    let mut carry = vec![0.0; state.len()];
     for k in 0..steps {
         let t = k as f64 * h;
         let k1 = rhs(t, &state);
@@ -167,7 +170,10 @@ pub fn rk4_reference(
         let s4: Vec<f64> = state.iter().zip(&k3).map(|(s, k)| s + h * k).collect();
         let k4 = rhs(t + h, &s4);
         for i in 0..state.len() {
-            state[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+            let increment = h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) - carry[i];
+            let sum = state[i] + increment;
+            carry[i] = (sum - state[i]) - increment;
+            state[i] = sum;
         }
     }
     let m = n - 1;

@@ -1,24 +1,71 @@
 //! A block of L members advanced together: the CPU twin of one GPU invocation per member, with
-//! the L lanes' sweeps side by side (`step::euler_step`), the Richardson extrapolation and error
-//! norm (`error_norm`, `extrapolate`: twins of the same functions in `shaders/step.wgsl`), and
-//! per-lane step control (`control`).
+//! the L lanes' sweeps side by side (`step::euler_step`), the extrapolation tableau and its
+//! error estimates (`extrapolate`: twin of the same function in `shaders/step.wgsl`), and
+//! per-lane step and order control (`control`).
 
-use super::control::{energy_acceptable, Outcome, Rules, StepControl, ENERGY_RTOL_F64};
+use super::control::{
+    energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl, ENERGY_RTOL_F64,
+};
 use super::step::{
-    conclude, encode_ln_gap, euler_step, state_energy, stored_ln, Gamma, HardFailure, Scratch,
-    StepReport, Terms, GAP_FLOOR,
+    conclude, encode_ln_gap, euler_step, gap_exp, ln_ratio, state_energy, stored_ln, Gamma,
+    HardFailure, Scratch, StepReport, Terms, GAP_FLOOR,
 };
 use crate::backend::layout::interleave;
-use crate::backend::report::{Failure, FailureRecord, MemberReport, MemberStatus};
+use crate::backend::report::{
+    error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
+};
 use crate::model::chain::{stored_gap, Chain};
 use crate::model::observables::{observe, Snapshot};
-use crate::model::params::{MemberParams, Stepping};
+use crate::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
 use crate::model::plan::{Plan, Power};
 
 #[derive(Debug, Clone)]
 pub(super) struct Lane {
     pub(super) member: Option<usize>,
     control: StepControl,
+    /// `control.error_sum` at each output time so far.
+    error_estimates: Vec<f64>,
+}
+
+/// How a trial step is made: one Euler step (order 1, fixed steps), or rows of the
+/// extrapolation tableau (row j: j Euler substeps of H/j) combined into the lane's column k
+/// (order 1 adaptive: the two rows' difference is the error estimate, the result is row 2).
+#[derive(Debug, Clone, Copy)]
+struct Scheme {
+    order: Order,
+    adaptive_tol: Option<f64>,
+}
+
+impl Scheme {
+    fn of(plan: &Plan) -> Scheme {
+        Scheme {
+            order: plan.order,
+            adaptive_tol: match plan.stepping {
+                Stepping::Fixed { .. } => None,
+                Stepping::Adaptive { tolerance, .. } => Some(tolerance),
+            },
+        }
+    }
+
+    fn plain_euler(&self) -> bool {
+        self.order == Order::Fixed(1) && self.adaptive_tol.is_none()
+    }
+
+    /// Rows of the tableau a step of column k computes.
+    fn rows(&self, k: u8) -> usize {
+        (k as usize).max(2)
+    }
+
+    /// Whether the result is the extrapolated T_kk (else row k itself: order 1).
+    fn extrapolates(&self) -> bool {
+        self.order != Order::Fixed(1)
+    }
+
+    /// The power of h the scaled estimate grows with: k (order 1: 2, the estimate is that of
+    /// a single Euler step).
+    fn estimate_order(&self, k: u8) -> u8 {
+        k.max(2)
+    }
 }
 
 /// What the lanes' model is made of: the owned data behind a step's [`Terms`]. Kept apart from
@@ -64,11 +111,12 @@ pub(super) struct Block<const L: usize> {
     vel: Vec<f64>,
     cand_gaps: Vec<f64>,
     cand_vel: Vec<f64>,
-    /// Richardson / error estimate buffers: one full step and the half step.
-    full_gaps: Vec<f64>,
-    full_vel: Vec<f64>,
-    half_gaps: Vec<f64>,
-    half_vel: Vec<f64>,
+    /// The tableau's rows: row j's result (j substeps of H/j) at index j - 1 ...
+    row_gaps: Vec<Vec<f64>>,
+    row_vel: Vec<Vec<f64>>,
+    /// ... and the states between a row's substeps (two, used in turn).
+    sub_gaps: [Vec<f64>; 2],
+    sub_vel: [Vec<f64>; 2],
     scratch: Scratch,
 }
 
@@ -115,11 +163,19 @@ impl<const L: usize> Block<L> {
         };
         let lane = |member| Lane {
             member,
-            control: StepControl::new(dt0),
+            control: StepControl::new(dt0, plan.order.initial()),
+            error_estimates: Vec::new(),
         };
-        let richardson = plan.order == 2 || matches!(plan.stepping, Stepping::Adaptive { .. });
-        let extra = if richardson { gaps.len() } else { 0 };
-        let extra_v = if richardson { vel.len() } else { 0 };
+        let scheme = Scheme::of(plan);
+        let (rows, subs) = if scheme.plain_euler() {
+            (0, 0)
+        } else {
+            let rows = scheme.rows(plan.order.columns());
+            (rows, if rows > 1 { 2 } else { 0 })
+        };
+        let states = |count: usize, len: usize| vec![vec![0.0; len]; count];
+        let mut sub_g = states(subs, gaps.len()).into_iter();
+        let mut sub_v = states(subs, vel.len()).into_iter();
         let mut block = Block {
             lanes: members.map(lane),
             model: LaneModel {
@@ -133,10 +189,10 @@ impl<const L: usize> Block<L> {
             },
             cand_gaps: gaps.clone(),
             cand_vel: vel.clone(),
-            full_gaps: vec![0.0; extra],
-            full_vel: vec![0.0; extra_v],
-            half_gaps: vec![0.0; extra],
-            half_vel: vec![0.0; extra_v],
+            row_gaps: states(rows, gaps.len()),
+            row_vel: states(rows, vel.len()),
+            sub_gaps: std::array::from_fn(|_| sub_g.next().unwrap_or_default()),
+            sub_vel: std::array::from_fn(|_| sub_v.next().unwrap_or_default()),
             gaps,
             vel,
             scratch: Scratch::new(n, L),
@@ -150,15 +206,15 @@ impl<const L: usize> Block<L> {
 
     /// Advances every running lane to `t_end`.
     pub(super) fn advance(&mut self, plan: &Plan, t_start: f64, t_end: f64) {
-        let (fixed_dt, adaptive_tol) = match plan.stepping {
-            Stepping::Fixed { dt, .. } => (Some(dt), None),
-            Stepping::Adaptive { tolerance, .. } => (None, Some(tolerance)),
+        let scheme = Scheme::of(plan);
+        let fixed_dt = match plan.stepping {
+            Stepping::Fixed { dt, .. } => Some(dt),
+            Stepping::Adaptive { .. } => None,
         };
         let rules = Rules::new(t_start, t_end, fixed_dt, plan.stepping.dt_min());
         for lane in self.lanes.iter_mut() {
             lane.control.begin_interval(&rules);
         }
-        let richardson = plan.order == 2 || adaptive_tol.is_some();
         loop {
             let mut active = [false; L];
             let mut h = [0.0; L];
@@ -176,7 +232,11 @@ impl<const L: usize> Block<L> {
             if !active.iter().any(|&a| a) {
                 break;
             }
-            let (outcome, hard, energy) = self.attempt(plan, &t, &h, adaptive_tol, richardson);
+            let (outcome, hard, energy) = if scheme.plain_euler() {
+                self.euler_attempt(plan, &t, &h)
+            } else {
+                self.extrapolated_attempt(plan, &t, &h, &active, scheme)
+            };
             let mut keep_old = [false; L];
             for l in 0..L {
                 if !active[l] {
@@ -226,153 +286,215 @@ impl<const L: usize> Block<L> {
         }
     }
 
-    /// One trial step of every lane into the candidate buffers: one Euler step, or (Richardson)
-    /// one full and two half steps with the error estimate and/or the extrapolation. Returns each
-    /// lane's outcome, any hard failure found in the current state, and the candidate's energy.
+    /// Records each lane's error estimate at an output time.
+    pub(super) fn record_error_estimates(&mut self) {
+        for lane in self.lanes.iter_mut() {
+            lane.error_estimates.push(lane.control.error_sum);
+        }
+    }
+
+    /// The energy the step started from, where the previous step was certified and did not
+    /// compute it.
+    fn start_energy(&self, terms: &Terms<L>, n: usize) -> [f64; L] {
+        let known: [f64; L] = std::array::from_fn(|l| self.lanes[l].control.energy);
+        if known.iter().all(|&e| e >= 0.0) {
+            return known;
+        }
+        let computed = state_energy(terms, n, &self.gaps, &self.vel);
+        std::array::from_fn(|l| {
+            if known[l] >= 0.0 {
+                known[l]
+            } else {
+                computed[l]
+            }
+        })
+    }
+
+    /// Order 1, fixed steps: one Euler step of every lane into the candidate buffers. Returns
+    /// each lane's outcome, any hard failure found in the current state, and the candidate's
+    /// energy.
     #[allow(clippy::type_complexity)]
-    fn attempt(
+    fn euler_attempt(
         &mut self,
         plan: &Plan,
         t: &[f64; L],
         h: &[f64; L],
-        adaptive_tol: Option<f64>,
-        richardson: bool,
     ) -> ([Outcome; L], [Option<HardFailure>; L], [f64; L]) {
         let n = plan.particles;
         let terms = self.model.terms(plan);
-        let mut err = [0.0; L];
-        let (candidate, hard, work): ([StepReport; L], _, [f64; L]) = if !richardson {
-            let r = euler_step(
-                &terms,
-                n,
-                t,
-                h,
-                &self.gaps,
-                &self.vel,
-                &mut self.cand_gaps,
-                &mut self.cand_vel,
-                &mut self.scratch,
-            );
-            (r, r.map(|x| x.hard), r.map(|x| x.work))
+        let r = euler_step(
+            &terms,
+            n,
+            t,
+            h,
+            &self.gaps,
+            &self.vel,
+            &mut self.cand_gaps,
+            &mut self.cand_vel,
+            &mut self.scratch,
+        );
+        let before = if r.iter().all(|x| x.certified) {
+            [0.0; L]
         } else {
-            let full = euler_step(
-                &terms,
-                n,
-                t,
-                h,
-                &self.gaps,
-                &self.vel,
-                &mut self.full_gaps,
-                &mut self.full_vel,
-                &mut self.scratch,
-            );
-            let half = h.map(|x| 0.5 * x);
-            let first = euler_step(
-                &terms,
-                n,
-                t,
-                &half,
-                &self.gaps,
-                &self.vel,
-                &mut self.half_gaps,
-                &mut self.half_vel,
-                &mut self.scratch,
-            );
-            let mut t_mid = *t;
-            for l in 0..L {
-                t_mid[l] += half[l];
-            }
-            let mut second = euler_step(
-                &terms,
-                n,
-                &t_mid,
-                &half,
-                &self.half_gaps,
-                &self.half_vel,
-                &mut self.cand_gaps,
-                &mut self.cand_vel,
-                &mut self.scratch,
-            );
-            let mut work = [0.0; L];
-            for l in 0..L {
-                second[l].admissible &= full[l].admissible && first[l].admissible;
-                // Two certified halves are a certified step; else E' was computed.
-                second[l].certified &= first[l].certified;
-                work[l] = first[l].work + second[l].work;
-            }
-            if let Some(tol) = adaptive_tol {
-                err = self.error_norm(tol);
-            }
-            if plan.order == 2 {
-                second = extrapolate(
-                    &terms,
-                    n,
-                    &mut self.cand_gaps,
-                    &mut self.cand_vel,
-                    &self.full_gaps,
-                    &self.full_vel,
-                    second,
-                );
-            }
-            (second, full.map(|x| x.hard), work)
+            self.start_energy(&terms, n)
         };
-        let mut outcome = [Outcome {
-            admissible: false,
-            energy_ok: false,
+        let outcome = std::array::from_fn(|l| Outcome {
+            admissible: r[l].admissible,
+            energy_ok: r[l].certified
+                || energy_acceptable(before[l], r[l].energy, r[l].work, ENERGY_RTOL_F64),
             err: 0.0,
-        }; L];
-        // The energy the step started from, where a lane needs it and it was not computed (the
-        // previous step was certified).
-        let unknown = (0..L).any(|l| !candidate[l].certified && self.lanes[l].control.energy < 0.0);
-        let current = unknown.then(|| state_energy(&terms, n, &self.gaps, &self.vel));
-        for l in 0..L {
-            let mut before = self.lanes[l].control.energy;
-            if before < 0.0 {
-                if let Some(e) = current {
-                    before = e[l];
-                }
-            }
-            outcome[l] = Outcome {
-                admissible: candidate[l].admissible,
-                energy_ok: candidate[l].certified
-                    || energy_acceptable(before, candidate[l].energy, work[l], ENERGY_RTOL_F64),
-                err: err[l],
-            };
-        }
-        (outcome, hard, candidate.map(|x| x.energy))
+            factor: 1.0,
+            order_next: 1,
+            estimate: 0.0,
+        });
+        (outcome, r.map(|x| x.hard), r.map(|x| x.energy))
     }
 
-    /// Scaled max-norm of (two half steps − one full step): on gaps the error of ln d (a gap's
-    /// error measured against the gap itself, at any size), mixed absolute/relative on
-    /// velocities.
-    fn error_norm(&self, tol: f64) -> [f64; L] {
-        let mut err = [0.0f64; L];
-        for (i, (&a, &b)) in self.cand_gaps.iter().zip(&self.full_gaps).enumerate() {
-            let l = i % L;
-            if self.model.bonded.as_ref().is_some_and(|bd| bd[i]) {
-                continue;
+    /// One extrapolated trial step of every lane into the candidate buffers: rows 1..=k of the
+    /// tableau (row j: j Euler substeps of H/j), each substep held to the safeguards (finite,
+    /// no gap opening beyond MAX_OPENING, energy not above the start's plus the forcing's work
+    /// at every computed energy), then the tableau (`extrapolate`), the projection and energy
+    /// of the extrapolated state (which must not rise either), the error estimates and, for
+    /// auto, the order of the next step. Lanes of one block may use different columns.
+    #[allow(clippy::type_complexity)]
+    fn extrapolated_attempt(
+        &mut self,
+        plan: &Plan,
+        t: &[f64; L],
+        h: &[f64; L],
+        active: &[bool; L],
+        scheme: Scheme,
+    ) -> ([Outcome; L], [Option<HardFailure>; L], [f64; L]) {
+        let n = plan.particles;
+        let columns: [u8; L] = std::array::from_fn(|l| self.lanes[l].control.order);
+        let lane_rows: [usize; L] = columns.map(|k| scheme.rows(k));
+        let rows = (0..L)
+            .filter(|&l| active[l])
+            .map(|l| lane_rows[l])
+            .max()
+            .unwrap_or(1);
+        let mut start: Option<[f64; L]> = None;
+        let mut admissible = [true; L];
+        let mut energy_ok = [true; L];
+        let mut hard = [None; L];
+        // Forcing work and last substep's energy (-1: certified, not computed) of each row.
+        let mut row_work = [[0.0; L]; MAX_ORDER as usize + 1];
+        let mut row_energy = [[0.0; L]; MAX_ORDER as usize + 1];
+        for j in 1..=rows {
+            let hj: [f64; L] = std::array::from_fn(|l| h[l] / j as f64);
+            // The last energy computed along the row, and the work done since.
+            let mut known: [f64; L] = std::array::from_fn(|l| self.lanes[l].control.energy);
+            let mut since = [0.0; L];
+            for s in 0..j {
+                let ts: [f64; L] = std::array::from_fn(|l| t[l] + s as f64 * hj[l]);
+                let terms = self.model.terms(plan);
+                let (src_g, src_v, dst_g, dst_v) = substep_buffers(
+                    (&self.gaps, &self.vel),
+                    (&mut self.sub_gaps, &mut self.sub_vel),
+                    (&mut self.row_gaps[j - 1], &mut self.row_vel[j - 1]),
+                    s,
+                    j,
+                );
+                let r = euler_step(
+                    &terms,
+                    n,
+                    &ts,
+                    &hj,
+                    src_g,
+                    src_v,
+                    dst_g,
+                    dst_v,
+                    &mut self.scratch,
+                );
+                for l in 0..L {
+                    if j > lane_rows[l] {
+                        continue;
+                    }
+                    if j == 1 && s == 0 {
+                        hard[l] = r[l].hard;
+                    } else if r[l].hard.is_some() {
+                        // Met in a substep's state: a smaller step may avoid it.
+                        admissible[l] = false;
+                    }
+                    admissible[l] &= r[l].admissible;
+                    row_work[j][l] += r[l].work;
+                    since[l] += r[l].work;
+                    if !r[l].certified {
+                        if known[l] < 0.0 {
+                            let e = *start.get_or_insert_with(|| self.start_energy(&terms, n));
+                            known[l] = e[l];
+                        }
+                        energy_ok[l] &=
+                            energy_acceptable(known[l], r[l].energy, since[l], ENERGY_RTOL_F64);
+                        known[l] = r[l].energy;
+                        since[l] = 0.0;
+                    }
+                    row_energy[j][l] = r[l].energy;
+                }
             }
-            let e = if a > 0.0 && b > 0.0 {
-                (a - b).abs() / (tol * a)
-            } else {
-                (stored_ln(a) - stored_ln(b)).abs() / tol
-            };
-            err[l] = if e.is_nan() {
-                f64::INFINITY
-            } else {
-                err[l].max(e)
-            };
         }
-        for (i, (a, b)) in self.cand_vel.iter().zip(&self.full_vel).enumerate() {
-            let l = i % L;
-            let e = (a - b).abs() / (tol * (1.0 + a.abs()));
-            err[l] = if e.is_nan() {
-                f64::INFINITY
-            } else {
-                err[l].max(e)
-            };
+        let lane_columns: [usize; L] = std::array::from_fn(|l| lane_rows[l].min(rows));
+        let estimates = extrapolate(
+            &lane_columns,
+            scheme.extrapolates(),
+            &self.row_gaps,
+            &self.row_vel,
+            &mut self.cand_gaps,
+            &mut self.cand_vel,
+            self.model.bonded.as_deref(),
+        );
+        let mut energy: [f64; L] = std::array::from_fn(|l| row_energy[lane_columns[l]][l]);
+        let terms = self.model.terms(plan);
+        if scheme.extrapolates() {
+            // The Euler substeps' certificates do not cover their extrapolation: the
+            // projection computes its energy, which must not exceed the start's plus the
+            // finest row's work.
+            let mut report = [StepReport::START; L];
+            let unit = [1.0; L];
+            conclude::<L>(
+                &terms,
+                n,
+                &unit,
+                &mut self.cand_gaps,
+                &self.cand_vel,
+                &mut report,
+            );
+            let before = *start.get_or_insert_with(|| self.start_energy(&terms, n));
+            for l in 0..L {
+                let k = lane_columns[l];
+                admissible[l] &= report[l].admissible;
+                energy_ok[l] &=
+                    energy_acceptable(before[l], report[l].energy, row_work[k][l], ENERGY_RTOL_F64);
+                energy[l] = report[l].energy;
+            }
         }
-        err
+        let outcome = std::array::from_fn(|l| {
+            let k = columns[l];
+            let estimate = estimates[l][lane_columns[l]];
+            let (err, factor, order_next) = match scheme.adaptive_tol {
+                None => (0.0, 1.0, k),
+                Some(tol) => {
+                    let scaled = estimates[l].map(|e| e / tol);
+                    let err = scaled[lane_columns[l]];
+                    let (order_next, factor) = match scheme.order {
+                        Order::Auto => {
+                            select_order(k, &scaled, admissible[l] && energy_ok[l] && err <= 1.0)
+                        }
+                        Order::Fixed(_) => (k, step_factor(err, scheme.estimate_order(k))),
+                    };
+                    (err, factor, order_next)
+                }
+            };
+            Outcome {
+                admissible: admissible[l],
+                energy_ok: energy_ok[l],
+                err,
+                factor,
+                order_next,
+                estimate,
+            }
+        });
+        (outcome, hard, energy)
     }
 
     pub(super) fn snapshot(
@@ -410,7 +532,9 @@ impl<const L: usize> Block<L> {
         out
     }
 
-    pub(super) fn reports(&self, params: &[MemberParams], dt_min: f64) -> Vec<MemberReport> {
+    pub(super) fn reports(&self, plan: &Plan, dt_min: f64) -> Vec<MemberReport> {
+        let params = &plan.members;
+        let has_estimates = error_estimate_method(plan).is_some();
         self.lanes
             .iter()
             .filter_map(|lane| {
@@ -435,6 +559,8 @@ impl<const L: usize> Block<L> {
                     steps_accepted: lane.control.accepted,
                     steps_rejected: lane.control.rejected,
                     last_dt: lane.control.dt,
+                    last_order: lane.control.order,
+                    error_estimate: has_estimates.then(|| lane.error_estimates.clone()),
                 })
             })
             .collect()
@@ -456,40 +582,137 @@ fn smallest_gap<const L: usize>(gaps: &[f64], bonded: Option<&[bool]>, l: usize)
     best
 }
 
-/// Order 2: cand ← the Richardson extrapolation of (two half steps, one full step), in ln d
-/// for gaps (ln d' = 2 ln a − ln b: positive by construction) and linear for velocities, then
-/// the projection and the energy of the result.
+/// The source and destination of substep s (0-based) of tableau row j: the current state for
+/// the first, row j's slot for the last, the two substep buffers in turn between.
+#[allow(clippy::type_complexity)]
+fn substep_buffers<'a>(
+    current: (&'a [f64], &'a [f64]),
+    subs: (&'a mut [Vec<f64>; 2], &'a mut [Vec<f64>; 2]),
+    row: (&'a mut [f64], &'a mut [f64]),
+    s: usize,
+    j: usize,
+) -> (&'a [f64], &'a [f64], &'a mut [f64], &'a mut [f64]) {
+    let (sub_g, sub_v) = subs;
+    let [g0, g1] = sub_g;
+    let [v0, v1] = sub_v;
+    // Substep s writes buffer s % 2 (or the row) and reads buffer (s - 1) % 2.
+    let (read_g, write_g, read_v, write_v) = if s % 2 == 1 {
+        (&*g0, g1, &*v0, v1)
+    } else {
+        (&*g1, g0, &*v1, v0)
+    };
+    let (src_g, src_v) = if s == 0 {
+        current
+    } else {
+        (read_g.as_slice(), read_v.as_slice())
+    };
+    if s + 1 == j {
+        (src_g, src_v, row.0, row.1)
+    } else {
+        (src_g, src_v, write_g.as_mut_slice(), write_v.as_mut_slice())
+    }
+}
+
+/// Tableau rows a lane may use at most (index by column).
+type Estimates = [f64; MAX_ORDER as usize + 1];
+
+/// The Aitken–Neville tableau of the rows (harmonic sequence n_j = j), element by element:
+/// T_{j,c+1} = T_{j,c} + (T_{j,c} - T_{j-1,c}) · (j - c)/c. cand ← T_kk of each lane's column k
+/// (or row k itself when not `extrapolating`: order 1). Gaps are extrapolated in ln d (near
+/// contact the accuracy that matters is that of ln d, and the result is a positive gap by
+/// construction), velocities linearly. Returns per lane, for j = 2..=k, the max-norm of
+/// T_jj - T_{j,j-1}: on gaps of ln d (a relative error), on velocities over 1 + |T_{j,j-1}|;
+/// a NaN counts as infinite.
 fn extrapolate<const L: usize>(
-    terms: &Terms<L>,
-    n: usize,
+    columns: &[usize; L],
+    extrapolating: bool,
+    row_gaps: &[Vec<f64>],
+    row_vel: &[Vec<f64>],
     cand_gaps: &mut [f64],
     cand_vel: &mut [f64],
-    full_gaps: &[f64],
-    full_vel: &[f64],
-    mut report: [StepReport; L],
-) -> [StepReport; L] {
-    for (i, (a, &b)) in cand_gaps.iter_mut().zip(full_gaps).enumerate() {
-        if terms.bonded.is_some_and(|bd| bd[i]) {
+    bonded: Option<&[bool]>,
+) -> [Estimates; L] {
+    const M: usize = MAX_ORDER as usize;
+    let mut err = [[0.0f64; M + 1]; L];
+    let note = |err: &mut Estimates, j: usize, e: f64| {
+        err[j] = if e.is_nan() {
+            f64::INFINITY
+        } else {
+            err[j].max(e)
+        };
+    };
+    for (i, out) in cand_gaps.iter_mut().enumerate() {
+        let l = i % L;
+        let k = columns[l];
+        let mut y = [0.0f64; M];
+        for j in 0..k {
+            y[j] = row_gaps[j][i];
+        }
+        if bonded.is_some_and(|b| b[i]) {
+            *out = y[k - 1];
             continue;
         }
-        let linear = *a * (*a / b);
-        // The linear form where both are stored as d and the result stays a normal gap; else in
-        // logs (it may leave the range).
-        *a = if *a > 0.0 && b > 0.0 && linear >= GAP_FLOOR && linear < f64::INFINITY {
-            linear
+        // rho_j = ln(Y_j / Y_k): the tableau in ln d, shifted by ln Y_k (the extrapolation's
+        // weights sum to 1, so the shift passes through, and the rows' ratios are near 1).
+        let last = y[k - 1];
+        let plain = y[..k].iter().all(|&v| v > 0.0);
+        let mut rho = [0.0f64; M];
+        for j in 0..k {
+            rho[j] = if plain {
+                ln_ratio(y[j] / last)
+            } else {
+                stored_ln(y[j]) - stored_ln(last)
+            };
+        }
+        let mut e = [0.0f64; M + 1];
+        neville(&mut rho, k, &mut e);
+        let x = if extrapolating { rho[k - 1] } else { 0.0 };
+        let grown = last * gap_exp(x);
+        *out = if plain && (GAP_FLOOR..f64::INFINITY).contains(&grown) {
+            grown
         } else {
-            encode_ln_gap(2.0 * stored_ln(*a) - stored_ln(b))
+            encode_ln_gap(stored_ln(last) + x)
         };
+        for j in 2..=k {
+            note(&mut err[l], j, e[j]);
+        }
     }
-    for (a, b) in cand_vel.iter_mut().zip(full_vel) {
-        *a = 2.0 * *a - b;
+    for (i, out) in cand_vel.iter_mut().enumerate() {
+        let l = i % L;
+        let k = columns[l];
+        let mut t = [0.0f64; M];
+        for j in 0..k {
+            t[j] = row_vel[j][i];
+        }
+        let last = t[k - 1];
+        let mut e = [0.0f64; M + 1];
+        for c in 1..k {
+            for j in (c..k).rev() {
+                let delta = (t[j] - t[j - 1]) * ((j + 1 - c) as f64 / c as f64);
+                if j == c {
+                    e[c + 1] = delta.abs() / (1.0 + t[j].abs());
+                }
+                t[j] += delta;
+            }
+        }
+        *out = if extrapolating { t[k - 1] } else { last };
+        for j in 2..=k {
+            note(&mut err[l], j, e[j]);
+        }
     }
-    // The certificate covers Euler steps, not their extrapolation: its energy is computed.
-    for r in report.iter_mut() {
-        r.certified = false;
+    err
+}
+
+/// The tableau in place (t[j] ends as T_{j+1,j+1}), with e[j] = |T_jj - T_{j,j-1}| (on ln d:
+/// the relative error of d).
+fn neville(t: &mut [f64; MAX_ORDER as usize], k: usize, e: &mut Estimates) {
+    for c in 1..k {
+        for j in (c..k).rev() {
+            let delta = (t[j] - t[j - 1]) * ((j + 1 - c) as f64 / c as f64);
+            if j == c {
+                e[c + 1] = delta.abs();
+            }
+            t[j] += delta;
+        }
     }
-    // The work stays that of the two half steps (the caller's).
-    let h = [1.0; L];
-    conclude::<L>(terms, n, &h, cand_gaps, cand_vel, &mut report);
-    report
 }

@@ -3,9 +3,12 @@
 //! and the error estimate is within the tolerance).
 //! CPU twin of the control functions in `shaders/step.wgsl` (`trial_step`, `conclude_attempt`);
 //! keep the two in sync. (err^-1/2 is written 1/sqrt(err): sqrt is exact on every backend, pow
-//! is not, and the GPU must take the same accepted steps.)
+//! is not, and the GPU must take the same accepted steps; other roots go through the twin exp
+//! and ln of `twin_math`, which the f64 kernel computes operation for operation.)
 
+use super::twin_math;
 use crate::backend::report::Failure;
+use crate::model::params::MAX_ORDER;
 
 /// How steps are chosen within one output interval [t_start, t_end].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -55,6 +58,10 @@ pub struct StepControl {
     pub failure_index: u32,
     /// Discrete energy of the current state.
     pub energy: f64,
+    /// The tableau column the next step ends in (its order; the fixed order, or auto's choice).
+    pub order: u8,
+    /// Sum of the accepted steps' local error estimates (see [`Outcome::estimate`]).
+    pub error_sum: f64,
 }
 
 /// Why a trial step was not accepted (or that it was).
@@ -64,13 +71,22 @@ pub struct Outcome {
     pub admissible: bool,
     /// Energy not above the previous one plus the forcing's work (to rounding).
     pub energy_ok: bool,
-    /// Scaled error estimate (0 for fixed steps).
+    /// Scaled error estimate that decides acceptance (0 for fixed steps).
     pub err: f64,
+    /// The step factor the estimates ask for (`step_factor`, or auto's choice); adaptive only.
+    pub factor: f64,
+    /// The tableau column the next step should use.
+    pub order_next: u8,
+    /// Unscaled local error estimate of the step (relative on gaps, mixed on velocities), added
+    /// to `error_sum` when accepted; 0 where none exists (order 1, fixed steps).
+    pub estimate: f64,
 }
 
 impl StepControl {
-    pub fn new(dt: f64) -> StepControl {
+    pub fn new(dt: f64, order: u8) -> StepControl {
         StepControl {
+            order,
+            error_sum: 0.0,
             t: 0.0,
             dt,
             accepted: 0,
@@ -119,9 +135,13 @@ impl StepControl {
             admissible,
             energy_ok,
             err,
+            factor,
+            order_next,
+            estimate,
         } = outcome;
         if admissible && energy_ok && err <= 1.0 {
             self.accepted += 1;
+            self.error_sum += estimate;
             let landed = h == rules.t_end - self.t;
             self.regular_steps += 1;
             self.t = if landed {
@@ -134,7 +154,7 @@ impl StepControl {
             if let Some(hf) = rules.fixed_h {
                 self.dt = (2.0 * self.dt).min(hf);
             } else {
-                let factor = (SAFETY / err.max(1e-10).sqrt()).clamp(MAX_SHRINK, MAX_GROWTH);
+                self.order = order_next;
                 // A step shortened to land on an output time says little about dt.
                 self.dt = if landed {
                     self.dt.max(h * factor)
@@ -147,7 +167,8 @@ impl StepControl {
             self.rejected += 1;
             self.regular = false;
             self.dt = if admissible && energy_ok {
-                h * (SAFETY / err.sqrt()).clamp(MAX_SHRINK, 1.0)
+                self.order = order_next;
+                h * factor.min(1.0)
             } else {
                 h * REJECT_SHRINK
             };
@@ -171,6 +192,52 @@ impl StepControl {
         self.failure_time = self.t;
         self.failure_index = index;
         self.failure_detail = detail;
+    }
+}
+
+/// The factor by which a step whose scaled error estimate grows like h^q may change:
+/// SAFETY·err^(-1/q), within [MAX_SHRINK, MAX_GROWTH].
+#[inline]
+pub fn step_factor(err: f64, q: u8) -> f64 {
+    let err = err.max(1e-10);
+    let root = match q {
+        1 => err,
+        2 => err.sqrt(),
+        _ => twin_math::exp(twin_math::ln(err) / q as f64),
+    };
+    (SAFETY / root).clamp(MAX_SHRINK, MAX_GROWTH)
+}
+
+/// Substeps of the tableau's first k rows (harmonic sequence 1, 2, …, k): its cost.
+#[inline]
+pub fn tableau_work(k: u8) -> f64 {
+    (k as u32 * (k as u32 + 1) / 2) as f64
+}
+
+/// Auto order: the column for the next step and its step factor, from the scaled estimates
+/// `errs[j]` of columns j = 2..=k (Hairer–Wanner II §IV.9, the order selection of SEULEX: the
+/// least work per unit step, W_j = A_j / H_j). A column is dropped when the one below costs
+/// less per unit step by a margin, added when the current one beats the one below (at k = 2,
+/// when its step is held back only by MAX_GROWTH); a rejected step never raises the order.
+pub fn select_order(k: u8, errs: &[f64; MAX_ORDER as usize + 1], accepted: bool) -> (u8, f64) {
+    let factor = |j: u8| step_factor(errs[j as usize], j);
+    let work = |j: u8| tableau_work(j) / factor(j);
+    let lower = k > 2 && work(k - 1) < 0.8 * work(k);
+    if lower {
+        return (k - 1, factor(k - 1));
+    }
+    let raise = accepted
+        && k < MAX_ORDER
+        && if k == 2 {
+            SAFETY / errs[2].max(1e-10).sqrt() >= MAX_GROWTH
+        } else {
+            work(k) < 0.9 * work(k - 1)
+        };
+    if raise {
+        let f = (factor(k) * tableau_work(k + 1) / tableau_work(k)).min(MAX_GROWTH);
+        (k + 1, f)
+    } else {
+        (k, factor(k))
     }
 }
 

@@ -151,7 +151,7 @@ impl CpuSolver {
         let dt_min = self.plan.stepping.dt_min();
         let mut r: Vec<MemberReport> = with_blocks!(&self.blocks, bs => bs
             .iter()
-            .flat_map(|b| b.reports(&self.plan.members, dt_min))
+            .flat_map(|b| b.reports(&self.plan, dt_min))
             .collect());
         r.sort_by_key(|m| m.index);
         r
@@ -172,6 +172,7 @@ fn advance_all<const L: usize>(
             if t_end > t_start {
                 b.advance(plan, t_start, t_end);
             }
+            b.record_error_estimates();
             progress(b.lanes.iter().filter(|l| l.member.is_some()).count() as u64);
             b.snapshot(plan, &plan.members, grid)
         })

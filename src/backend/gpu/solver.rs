@@ -124,7 +124,7 @@ fn invalid(message: String) -> GpuError {
 /// The time scheme the kernel compiles for `plan`.
 fn scheme_of(plan: &Plan) -> SchemeSpec {
     SchemeSpec {
-        order2: plan.order == 2,
+        order2: plan.order == crate::model::params::Order::Fixed(2),
         adaptive: matches!(plan.stepping, Stepping::Adaptive { .. }),
     }
 }
@@ -555,6 +555,8 @@ impl<'a> GpuSolver<'a> {
                 steps_accepted: c.accepted as u64,
                 steps_rejected: c.rejected as u64,
                 last_dt: c.dt,
+                last_order: 0,
+                error_estimate: None,
             })
             .collect()
     }
