@@ -2,15 +2,17 @@
 // `i * batch + b`), each member with its own time, step size and status. WGSL twin of
 // src/backend/cpu/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas
 // solve, the gap update exact in ln d, the projection onto sum d and the energy; read its header
-// for the equations), of `Block::error_norm` / `extrapolate` in src/backend/cpu/block.rs and of
-// `StepControl` in src/backend/cpu/control.rs. Keep them in sync, loop for loop.
+// for the equations), of the attempts and `extrapolate` in src/backend/cpu/block.rs and of
+// `StepControl`, `step_factor` and `select_order` in src/backend/cpu/control.rs. Keep them in
+// sync, loop for loop.
 // Gaps are stored as in `crate::model::chain::stored_gap`: d, or ln d (< 0) below GAP_FLOOR, or 0
 // when bonded.
 //
 // Entry points: `begin_interval` (StepControl::begin_interval), `advance` (up to
 // config.max_attempts trial steps per member per dispatch, as the lane loop of Block::advance:
-// one Euler step for order 1 with fixed steps, else one full and two half steps, the error
-// estimate and/or the extrapolation, then accept or reject), `gather` (copies each member's
+// one Euler step for order 1 with fixed steps, else rows 1..=k of the extrapolation tableau
+// (row j: j substeps of h/j), the extrapolation and its error estimates, then accept or reject
+// and, for auto, the next order), `gather` (copies each member's
 // current state into the output buffers for read-back at output times).
 // A member's state lives in one of two buffer sets (its `parity`); the candidate goes to the
 // other set and an accepted step only flips the parity, so nothing is copied.
@@ -19,10 +21,12 @@
 //  - the line declaring the alias `real` is replaced by the element type (f32 or f64);
 //  - blocks between the marker lines BEGIN NAME and END NAME (comment lines starting with
 //    slash-slash-at) are kept or removed: REPULSION, CLUSTERS, FREE (= no clusters), FORCING,
-//    EULER (order 1, fixed steps), RICHARDSON (else), ADAPTIVE, ORDER2;
+//    EULER (order 1, fixed steps), TABLEAU (else), ADAPTIVE, AUTO (order "auto"), FIXEDORDER
+//    (adaptive with a fixed order);
 //    terms the plan leaves out are not compiled at all;
 //  - the marker line GENERATED is replaced by the generated code: REAL_MAX, GAP_FLOOR,
-//    LN_GAP_FLOOR, ENERGY_RTOL, `exp_real`, `ln_real`, `power(r, gamma)`
+//    LN_GAP_FLOOR, ENERGY_RTOL, LN_RATIO_SERIES, EXTRAPOLATES (order >= 2: the result is the
+//    tableau's T_kk, else row k), `exp_real`, `ln_real`, `power(r, gamma)`
 //    (integer gamma: a fixed square-and-multiply chain, the sequence of `powi_by_squaring`;
 //    per-member gamma: the same chain when gamma is an integer <= 1000 as `Power::of` does, else
 //    exp/pow), `gamma_of(gamma)`, the forcing function `forcing(x, t)` and the unrolled
@@ -71,6 +75,8 @@ struct Control {
     failure_detail: real,
     // Discrete energy of the current state (< 0: not computed yet).
     energy: real,
+    // Sum of the accepted steps' local error estimates.
+    error_sum: real,
     accepted: u32,
     rejected: u32,
     regular_steps: u32,
@@ -78,7 +84,8 @@ struct Control {
     failure: u32,
     parity: u32,
     failure_index: u32,
-    padding: u32,
+    // The tableau column (order) of the next step.
+    order: u32,
 }
 
 // (a, G, effective d) of one gap (`gap_terms`).
@@ -98,11 +105,14 @@ struct StepReport {
     work: real,
 }
 
-// What `attempt` found out (the outcome and hard failure per lane of Block::attempt).
+// What `try_step` found out (the `Outcome` and hard failure per lane of Block's attempts).
 struct Attempt {
     admissible: bool,
     energy_ok: bool,
     err: real,
+    factor: real,
+    order_next: u32,
+    estimate: real,
     hard: u32,
     hard_index: u32,
     hard_detail: real,
@@ -125,10 +135,12 @@ struct Attempt {
 @group(0) @binding(9) var<storage, read> bonded: array<u32>;
 //@END CLUSTERS
 
-// Buffer sets: 0 and 1 hold a member's state and candidate (by parity); 2 and 3 the full and
-// half steps of Richardson extrapolation.
-const FULL_SET: u32 = 2u;
-const HALF_SET: u32 = 3u;
+// Buffer sets: 0 and 1 hold a member's state and candidate (by parity); 2 and 3 the states
+// between a tableau row's substeps; from 4 the rows' results (row j in set ROW_SET + j - 1).
+const SUB_SET: u32 = 2u;
+const ROW_SET: u32 = 4u;
+// `MAX_ORDER` of src/model/params.rs: the tableau's largest column.
+const MAX_ORDER: u32 = 6u;
 
 // Step control constants of src/backend/cpu/control.rs.
 const REJECT_SHRINK: real = 0.25;
@@ -492,64 +504,106 @@ fn state_energy(b: u32, which: u32, p: Param) -> real {
     return potential_sum + config.eps * kinetic;
 }
 
-// Block::error_norm: scaled max-norm of (two half steps - one full step), on ln d for free gaps,
-// mixed absolute/relative on velocities; a NaN counts as REAL_MAX (the CPU's infinity: both
-// reject with the largest shrink).
-fn error_norm(b: u32, two_halves: u32, full: u32) -> real {
-    let batch = config.batch;
-    let n = config.particles;
-    let rows = (n - 1u) * batch;
-    let tol = config.tolerance;
-    var err: real = 0.0;
-    for (var i: u32 = 0u; i < n; i++) {
-        let k = i * batch + b;
-        let a = gap_sets[two_halves * n * batch + k];
-        let c = gap_sets[full * n * batch + k];
-        var e: real;
-        if a > 0.0 && c > 0.0 {
-            e = abs(a - c) / (tol * a);
-        } else {
-            e = abs(stored_ln(a) - stored_ln(c)) / tol;
-        }
-        // Bonded gaps do not count; no `continue`, so the loop stays uniform.
-        err = select(err, select(REAL_MAX, max(err, e), e <= REAL_MAX), is_free(k));
+// `ln_ratio` of src/backend/cpu/step.rs: ln r, by the series of 2 atanh((r - 1)/(r + 1)) near 1.
+fn ln_ratio(r: real) -> real {
+    if abs(r - 1.0) < LN_RATIO_SERIES {
+        let z = (r - 1.0) / (r + 1.0);
+        let z2 = z * z;
+        return 2.0 * z * (1.0 + z2 * (1.0 / 3.0 + z2 * (0.2 + z2 * (1.0 / 7.0 + z2 * (1.0 / 9.0 + z2 * (1.0 / 11.0))))));
     }
-    for (var i: u32 = 0u; i + 1u < n; i++) {
-        let k = i * batch + b;
-        let a = vel_sets[two_halves * rows + k];
-        let e = abs(a - vel_sets[full * rows + k]) / (tol * (1.0 + abs(a)));
-        err = select(REAL_MAX, max(err, e), e <= REAL_MAX);
-    }
-    return err;
+    return ln_real(r);
 }
 
-// `extrapolate`: cand <- the Richardson extrapolation of (cand = two half steps, full), in ln d
-// for gaps and linear for velocities, then the projection and the energy.
-fn extrapolate(b: u32, cand: u32, full: u32, p: Param, report_in: StepReport) -> StepReport {
+// A max-norm entry: a NaN or infinity counts as REAL_MAX (the CPU's infinity: both reject with
+// the largest shrink).
+fn noted(err: real, e: real) -> real {
+    return select(REAL_MAX, max(err, e), e <= REAL_MAX);
+}
+
+// `extrapolate` of src/backend/cpu/block.rs: the Aitken–Neville tableau of rows 1..=k (set
+// ROW_SET + j - 1), element by element, gaps in ln d (shifted by ln of row k), velocities
+// linearly; set `cand` <- T_kk (or row k itself when not EXTRAPOLATES: order 1). Returns
+// |T_jj - T_{j,j-1}| for j = 2..=k (gaps: of ln d; velocities: over 1 + |T_{j,j-1}|).
+fn extrapolate(b: u32, cand: u32, k: u32) -> array<real, 7> {
     let batch = config.batch;
     let n = config.particles;
     let rows = (n - 1u) * batch;
+    var err: array<real, 7>;
     for (var i: u32 = 0u; i < n; i++) {
-        let k = i * batch + b;
-        if !is_free(k) {
+        let idx = i * batch + b;
+        var y: array<real, 6>;
+        for (var j: u32 = 0u; j < k; j++) {
+            y[j] = gap_sets[(ROW_SET + j) * n * batch + idx];
+        }
+        let last = y[k - 1u];
+        if !is_free(idx) {
+            gap_sets[cand * n * batch + idx] = last;
             continue;
         }
-        let a = gap_sets[cand * n * batch + k];
-        let c = gap_sets[full * n * batch + k];
-        let linear = a * (a / c);
-        if a > 0.0 && c > 0.0 && linear >= GAP_FLOOR && linear <= REAL_MAX {
-            gap_sets[cand * n * batch + k] = linear;
+        var plain = true;
+        for (var j: u32 = 0u; j < k; j++) {
+            plain = plain && y[j] > 0.0;
+        }
+        var rho: array<real, 6>;
+        for (var j: u32 = 0u; j < k; j++) {
+            if plain {
+                rho[j] = ln_ratio(y[j] / last);
+            } else {
+                rho[j] = stored_ln(y[j]) - stored_ln(last);
+            }
+        }
+        var e: array<real, 7>;
+        // `neville`.
+        for (var c: u32 = 1u; c < k; c++) {
+            for (var j: u32 = k - 1u; j >= c; j--) {
+                let delta = (rho[j] - rho[j - 1u]) * (real(j + 1u - c) / real(c));
+                if j == c {
+                    e[c + 1u] = abs(delta);
+                }
+                rho[j] = rho[j] + delta;
+            }
+        }
+        var x: real = 0.0;
+        if EXTRAPOLATES {
+            x = rho[k - 1u];
+        }
+        let grown = last * gap_exp(x);
+        if plain && grown >= GAP_FLOOR && grown <= REAL_MAX {
+            gap_sets[cand * n * batch + idx] = grown;
         } else {
-            gap_sets[cand * n * batch + k] = encode_ln_gap(2.0 * stored_ln(a) - stored_ln(c));
+            gap_sets[cand * n * batch + idx] = encode_ln_gap(stored_ln(last) + x);
+        }
+        for (var j: u32 = 2u; j <= k; j++) {
+            err[j] = noted(err[j], e[j]);
         }
     }
     for (var i: u32 = 0u; i + 1u < n; i++) {
-        let k = i * batch + b;
-        vel_sets[cand * rows + k] = 2.0 * vel_sets[cand * rows + k] - vel_sets[full * rows + k];
+        let idx = i * batch + b;
+        var t: array<real, 6>;
+        for (var j: u32 = 0u; j < k; j++) {
+            t[j] = vel_sets[(ROW_SET + j) * rows + idx];
+        }
+        let last = t[k - 1u];
+        var e: array<real, 7>;
+        for (var c: u32 = 1u; c < k; c++) {
+            for (var j: u32 = k - 1u; j >= c; j--) {
+                let delta = (t[j] - t[j - 1u]) * (real(j + 1u - c) / real(c));
+                if j == c {
+                    e[c + 1u] = abs(delta) / (1.0 + abs(t[j]));
+                }
+                t[j] = t[j] + delta;
+            }
+        }
+        if EXTRAPOLATES {
+            vel_sets[cand * rows + idx] = t[k - 1u];
+        } else {
+            vel_sets[cand * rows + idx] = last;
+        }
+        for (var j: u32 = 2u; j <= k; j++) {
+            err[j] = noted(err[j], e[j]);
+        }
     }
-    // The caller keeps the work of the two half steps.
-    var report = conclude(b, cand, p, report_in, lane_sum(b, cand), 1.0, false);
-    return report;
+    return err;
 }
 
 // `energy_acceptable` of src/backend/cpu/control.rs, with the rounding of G (about gamma ulps)
@@ -559,38 +613,151 @@ fn energy_acceptable(before: real, after: real, work: real, gamma: real) -> bool
     return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
 }
 
-// Block::attempt: one trial step into set `cand`.
+// `step_factor` of src/backend/cpu/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].
+fn step_factor(err_in: real, q: u32) -> real {
+    let err = max(err_in, 1e-10);
+    var root: real;
+    if q == 1u {
+        root = err;
+    } else if q == 2u {
+        root = sqrt(err);
+    } else {
+        root = exp_real(ln_real(err) / real(q));
+    }
+    return clamp(SAFETY / root, MAX_SHRINK, MAX_GROWTH);
+}
+
+// `tableau_work`: substeps of the tableau's first k rows.
+fn tableau_work(k: u32) -> real {
+    return real(k * (k + 1u) / 2u);
+}
+
+// `select_order` of src/backend/cpu/control.rs: (next column, step factor) from the scaled
+// estimates of columns 2..=k.
+fn select_order(k: u32, errs: array<real, 7>, accepted: bool) -> vec2<real> {
+    var e = errs;
+    var work_k = tableau_work(k) / step_factor(e[k], k);
+    if k > 2u {
+        let work_lower = tableau_work(k - 1u) / step_factor(e[k - 1u], k - 1u);
+        if work_lower < 0.8 * work_k {
+            return vec2<real>(real(k - 1u), step_factor(e[k - 1u], k - 1u));
+        }
+    }
+    var raise = false;
+    if accepted && k < MAX_ORDER {
+        if k == 2u {
+            raise = SAFETY / sqrt(max(e[2], 1e-10)) >= MAX_GROWTH;
+        } else {
+            raise = work_k < 0.9 * (tableau_work(k - 1u) / step_factor(e[k - 1u], k - 1u));
+        }
+    }
+    if raise {
+        let f = min(step_factor(e[k], k) * tableau_work(k + 1u) / tableau_work(k), MAX_GROWTH);
+        return vec2<real>(real(k + 1u), f);
+    }
+    return vec2<real>(real(k), step_factor(e[k], k));
+}
+
+// Block::euler_attempt (EULER: order 1, fixed steps) or Block::extrapolated_attempt (TABLEAU):
+// one trial step into set `cand`.
 fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attempt {
-    var err: real = 0.0;
+    let gamma = gamma_of_member(p);
 //@BEGIN EULER
     let r = euler(b, cur, cand, h, c.t, p);
-    let work = r.work;
-    let hard = r;
-//@END EULER
-//@BEGIN RICHARDSON
-    let full = euler(b, cur, FULL_SET, h, c.t, p);
-    let half = 0.5 * h;
-    let first = euler(b, cur, HALF_SET, half, c.t, p);
-    var r = euler(b, HALF_SET, cand, half, c.t + half, p);
-    r.admissible = r.admissible && full.admissible && first.admissible;
-    let work = first.work + r.work;
-    let hard = full;
-//@END RICHARDSON
-//@BEGIN ADAPTIVE
-    err = error_norm(b, cand, FULL_SET);
-//@END ADAPTIVE
-//@BEGIN ORDER2
-    r = extrapolate(b, cand, FULL_SET, p, r);
-//@END ORDER2
     return Attempt(
         r.admissible,
-        energy_acceptable(c.energy, r.energy, work, gamma_of_member(p)),
+        energy_acceptable(c.energy, r.energy, r.work, gamma),
+        0.0,
+        1.0,
+        1u,
+        0.0,
+        r.hard,
+        r.hard_index,
+        r.hard_detail,
+        r.energy
+    );
+//@END EULER
+//@BEGIN TABLEAU
+    let k = c.order;
+    let rows = max(k, 2u);
+    var admissible = true;
+    var energy_ok = true;
+    var hard = StepReport(true, 0u, 0u, 0.0, 0.0, 0.0);
+    // Forcing work and the last substep's energy of each row.
+    var row_work: array<real, 7>;
+    var row_energy: array<real, 7>;
+    for (var j: u32 = 1u; j <= rows; j++) {
+        let hj = h / real(j);
+        // The energy of the previous substep (every substep's energy is computed here), and
+        // the work since.
+        var known = c.energy;
+        for (var s: u32 = 0u; s < j; s++) {
+            let ts = c.t + real(s) * hj;
+            // Substep s reads buffer (s - 1) % 2 and writes s % 2; the first reads the state,
+            // the last writes the row's set.
+            var src = SUB_SET + (s + 1u) % 2u;
+            if s == 0u {
+                src = cur;
+            }
+            var dst = SUB_SET + s % 2u;
+            if s + 1u == j {
+                dst = ROW_SET + j - 1u;
+            }
+            let r = euler(b, src, dst, hj, ts, p);
+            if j == 1u && s == 0u {
+                hard = r;
+            } else if r.hard != 0u {
+                // Met in a substep's state: a smaller step may avoid it.
+                admissible = false;
+            }
+            admissible = admissible && r.admissible;
+            row_work[j] = row_work[j] + r.work;
+            energy_ok = energy_ok && energy_acceptable(known, r.energy, r.work, gamma);
+            known = r.energy;
+            row_energy[j] = r.energy;
+        }
+    }
+    let estimates = extrapolate(b, cand, rows);
+    var energy = row_energy[rows];
+    if EXTRAPOLATES {
+        // The extrapolated state: projection and energy, which must not exceed the start's
+        // plus the finest row's work.
+        let report = conclude(b, cand, p, StepReport(true, 0u, 0u, 0.0, 0.0, 0.0), lane_sum(b, cand), 1.0, false);
+        admissible = admissible && report.admissible;
+        energy_ok = energy_ok && energy_acceptable(c.energy, report.energy, row_work[rows], gamma);
+        energy = report.energy;
+    }
+    var err: real = 0.0;
+    var factor: real = 1.0;
+    var order_next = k;
+//@BEGIN ADAPTIVE
+    var scaled: array<real, 7>;
+    for (var j: u32 = 0u; j < 7u; j++) {
+        scaled[j] = estimates[j] / config.tolerance;
+    }
+    err = scaled[rows];
+//@BEGIN AUTO
+    let chosen = select_order(k, scaled, admissible && energy_ok && err <= 1.0);
+    order_next = u32(chosen.x);
+    factor = chosen.y;
+//@END AUTO
+//@BEGIN FIXEDORDER
+    factor = step_factor(err, max(k, 2u));
+//@END FIXEDORDER
+//@END ADAPTIVE
+    return Attempt(
+        admissible,
+        energy_ok,
         err,
+        factor,
+        order_next,
+        estimates[rows],
         hard.hard,
         hard.hard_index,
         hard.hard_detail,
-        r.energy
+        energy
     );
+//@END TABLEAU
 }
 
 // Index (1-based) and ln d of the member's smallest free gap in set `set` (`smallest_gap`).
@@ -622,9 +789,10 @@ fn trial_step(c: Control) -> real {
 
 // StepControl::conclude_attempt. Returns whether the step is accepted. On failure the caller
 // fills in the smallest gap.
-fn conclude_attempt(c: ptr<function, Control>, h: real, admissible: bool, energy_ok: bool, err: real) -> bool {
-    if admissible && energy_ok && err <= 1.0 {
+fn conclude_attempt(c: ptr<function, Control>, h: real, r: Attempt) -> bool {
+    if r.admissible && r.energy_ok && r.err <= 1.0 {
         (*c).accepted += 1u;
+        (*c).error_sum = (*c).error_sum + r.estimate;
         let landed = h == config.t_end - (*c).t;
         (*c).regular_steps += 1u;
         if landed {
@@ -637,28 +805,29 @@ fn conclude_attempt(c: ptr<function, Control>, h: real, admissible: bool, energy
         if config.fixed_h > 0.0 {
             (*c).dt = min(2.0 * (*c).dt, config.fixed_h);
         } else {
-            let factor = clamp(SAFETY / sqrt(max(err, 1e-10)), MAX_SHRINK, MAX_GROWTH);
+            (*c).order = r.order_next;
             // A step shortened to land on an output time says little about dt.
             if landed {
-                (*c).dt = max((*c).dt, h * factor);
+                (*c).dt = max((*c).dt, h * r.factor);
             } else {
-                (*c).dt = h * factor;
+                (*c).dt = h * r.factor;
             }
         }
         return true;
     }
     (*c).rejected += 1u;
     (*c).regular = 0u;
-    if admissible && energy_ok {
-        (*c).dt = h * clamp(SAFETY / sqrt(err), MAX_SHRINK, 1.0);
+    if r.admissible && r.energy_ok {
+        (*c).order = r.order_next;
+        (*c).dt = h * min(r.factor, 1.0);
     } else {
         (*c).dt = h * REJECT_SHRINK;
     }
     if (*c).dt < config.dt_min {
         // Failure::Inadmissible = 1, ErrorTooLarge = 2, EnergyRose = 3.
-        if !admissible {
+        if !r.admissible {
             (*c).failure = 1u;
-        } else if !energy_ok {
+        } else if !r.energy_ok {
             (*c).failure = 3u;
         } else {
             (*c).failure = 2u;
@@ -715,7 +884,7 @@ fn advance(@builtin(global_invocation_id) gid: vec3<u32>) {
                 c.failure_time = c.t;
                 c.failure_index = r.hard_index;
                 c.failure_detail = r.hard_detail;
-            } else if conclude_attempt(&c, h, r.admissible, r.energy_ok, r.err) {
+            } else if conclude_attempt(&c, h, r) {
                 c.parity = cand;
                 c.energy = r.energy;
             } else if c.failure != 0u {

@@ -8,6 +8,7 @@ use roughlub::backend::gpu::kernel::{generate_step_wgsl, GammaSpec, KernelSpec, 
 use roughlub::backend::gpu::validate_wgsl;
 use roughlub::backend::Precision;
 use roughlub::expr::Expr;
+use roughlub::model::params::Order;
 use roughlub::model::quadrature::GaussLegendre;
 
 const FORCING: &str = "0.3*sin(2*pi*x)*cos(3*t)";
@@ -30,10 +31,15 @@ fn every_variant_validates_and_omits_absent_terms() {
         for repulsion in repulsions {
             for clusters in [false, true] {
                 for forced in [false, true] {
-                    for (order2, adaptive) in
-                        [(false, false), (true, false), (false, true), (true, true)]
-                    {
-                        let scheme = SchemeSpec { order2, adaptive };
+                    for (order, adaptive) in [
+                        (Order::Fixed(1), false),
+                        (Order::Fixed(2), false),
+                        (Order::Fixed(6), false),
+                        (Order::Fixed(1), true),
+                        (Order::Fixed(4), true),
+                        (Order::Auto, true),
+                    ] {
+                        let scheme = SchemeSpec::of(order, adaptive);
                         let spec = KernelSpec {
                             precision,
                             repulsion,
@@ -77,14 +83,27 @@ fn every_variant_validates_and_omits_absent_terms() {
                         // gaps need ln), never in f32 ones.
                         let needs_lib = precision == Precision::F64;
                         assert_eq!(src.contains("fn exp_f64("), needs_lib, "{label}");
-                        // Only the scheme asked for: one Euler step, or full + halves (+ error, + extrapolation).
+                        // Only the scheme asked for: one Euler step, or the tableau (+ the
+                        // step control from its estimates, + the order selection).
                         assert_eq!(
-                            src.contains("HALF_SET, cand"),
-                            scheme.richardson(),
+                            src.contains("= extrapolate(b, cand, rows)"),
+                            order != Order::Fixed(1) || adaptive,
                             "{label}"
                         );
-                        assert_eq!(src.contains("err = error_norm("), adaptive, "{label}");
-                        assert_eq!(src.contains("r = extrapolate("), order2, "{label}");
+                        assert_eq!(
+                            src.contains("euler(b, cur, cand, h, c.t, p)"),
+                            order == Order::Fixed(1) && !adaptive,
+                            "{label}"
+                        );
+                        assert_eq!(src.contains("err = scaled[rows]"), adaptive, "{label}");
+                        assert_eq!(
+                            src.contains("= select_order(k, scaled"),
+                            order == Order::Auto,
+                            "{label}"
+                        );
+                        let extrapolates =
+                            format!("const EXTRAPOLATES: bool = {};", order != Order::Fixed(1));
+                        assert!(src.contains(&extrapolates), "{label}");
                     }
                 }
             }
@@ -99,10 +118,7 @@ fn integer_power_is_the_square_and_multiply_chain() {
         repulsion: Some(GammaSpec::Integer(n)),
         clusters: false,
         forcing: None,
-        scheme: SchemeSpec {
-            order2: false,
-            adaptive: false,
-        },
+        scheme: SchemeSpec::of(Order::Fixed(1), false),
     };
     // 7 = 0b111: result = r; base = r^2; result *= base; base = r^4; result *= base.
     let src = generate_step_wgsl(&spec(7));

@@ -27,14 +27,19 @@ fn is_lavapipe(ctx: &GpuContext) -> bool {
     d.driver.to_lowercase().contains("llvmpipe") || d.name.to_lowercase().contains("llvmpipe")
 }
 
-/// Loop iterations over the chain per trial step, at most: per Euler step (one for order 1 with
-/// fixed steps, three with Richardson) two sweeps, the wall-glued bodies, the log-gap fix-up and
-/// the projection's two loops; the error norm (two loops); the extrapolation (two, and the projection's two); the
+/// Loop iterations per particle per trial step, at most: per Euler substep two sweeps, the
+/// wall-glued bodies, the log-gap fix-up and the projection's two loops (7); with the tableau,
+/// per element of gaps and velocities its loops over the R rows (loads, ratios, the Neville
+/// double loop, the estimates: at most 3R + R² + 1), the result's projection (two) and the
 /// smallest gap named by a failure (one).
 fn loops_per_attempt(scheme: SchemeSpec) -> u64 {
-    (if scheme.richardson() { 21 } else { 7 })
-        + if scheme.adaptive { 2 } else { 0 }
-        + if scheme.order2 { 4 } else { 0 }
+    let r = u64::from(scheme.rows);
+    7 * u64::from(scheme.substeps())
+        + if scheme.tableau() {
+            2 * (3 * r + r * r + 1) + 2
+        } else {
+            0
+        }
         + 1
 }
 

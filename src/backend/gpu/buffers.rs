@@ -16,8 +16,8 @@ use crate::model::plan::Plan;
 /// Byte sizes of the per-element buffers of a batch of B members of N particles.
 #[derive(Debug, Clone, Copy)]
 pub struct BufferSizes {
-    /// Buffer sets of gaps and velocities: state and candidate, plus the full and half steps
-    /// with Richardson extrapolation.
+    /// Buffer sets of gaps and velocities: state and candidate, plus with the extrapolation
+    /// tableau two for the states between substeps and one per row.
     pub sets: u64,
     /// One set of gaps (N·B reals).
     pub gaps: u64,
@@ -29,7 +29,11 @@ impl BufferSizes {
     pub fn of(particles: usize, members: usize, scheme: SchemeSpec, precision: Precision) -> Self {
         let rs = real_size(precision);
         BufferSizes {
-            sets: if scheme.richardson() { 4 } else { 2 },
+            sets: if scheme.tableau() {
+                4 + u64::from(scheme.rows)
+            } else {
+                2
+            },
             gaps: (particles * members) as u64 * rs,
             velocities: ((particles - 1) * members) as u64 * rs,
         }
@@ -43,7 +47,7 @@ impl BufferSizes {
     /// Fails with [`GpuError::BufferTooLarge`] when a storage buffer exceeds the device limits.
     pub fn check(&self, ctx: &GpuContext) -> Result<(), GpuError> {
         ctx.check_storage_size(
-            "gap sets (state, candidate, full and half steps)",
+            "gap sets (state, candidate, substeps and tableau rows)",
             self.sets * self.gaps,
         )?;
         ctx.check_storage_size("velocity sets", self.sets * self.velocities)?;

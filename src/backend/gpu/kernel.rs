@@ -8,9 +8,12 @@
 use std::fmt::Write as _;
 
 use crate::backend::cpu::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32};
-use crate::backend::cpu::step::{GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32};
+use crate::backend::cpu::step::{
+    GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32, LN_RATIO_SERIES,
+};
 use crate::backend::Precision;
 use crate::expr::{Expr, WgslFloat};
+use crate::model::params::Order;
 use crate::model::plan::MAX_INTEGER_GAMMA;
 
 /// The template (`shaders/step.wgsl`).
@@ -43,16 +46,45 @@ pub mod binding {
 /// The time scheme compiled into the kernel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SchemeSpec {
-    /// Richardson extrapolation (order 2).
-    pub order2: bool,
+    /// Rows of the extrapolation tableau a trial step computes at most: 0 for one plain Euler
+    /// step (order 1, fixed steps), else max(columns, 2).
+    pub rows: u32,
+    /// The result is the tableau's T_kk (orders >= 2), else row k itself (order 1, adaptive).
+    pub extrapolates: bool,
     /// Adaptive steps from the error estimate.
     pub adaptive: bool,
+    /// Order chosen per member and step (`order = "auto"`).
+    pub auto_order: bool,
 }
 
 impl SchemeSpec {
-    /// One Euler step per trial (order 1, fixed steps); otherwise a full and two half steps.
-    pub fn richardson(&self) -> bool {
-        self.order2 || self.adaptive
+    /// The scheme of a plan.
+    pub fn of(order: Order, adaptive: bool) -> SchemeSpec {
+        let plain = order == Order::Fixed(1) && !adaptive;
+        SchemeSpec {
+            rows: if plain {
+                0
+            } else {
+                u32::from(order.columns()).max(2)
+            },
+            extrapolates: order != Order::Fixed(1),
+            adaptive,
+            auto_order: order == Order::Auto,
+        }
+    }
+
+    /// Whether a trial step builds the tableau (else it is one Euler step).
+    pub fn tableau(&self) -> bool {
+        self.rows > 0
+    }
+
+    /// Euler substeps of a trial step at most (the tableau's rows 1..=rows).
+    pub fn substeps(&self) -> u32 {
+        if self.tableau() {
+            self.rows * (self.rows + 1) / 2
+        } else {
+            1
+        }
     }
 }
 
@@ -215,6 +247,12 @@ fn generated(spec: &KernelSpec) -> String {
         "const ENERGY_RTOL: real = {};",
         literal(energy_rtol, float)
     );
+    let _ = writeln!(
+        out,
+        "const LN_RATIO_SERIES: real = {};\nconst EXTRAPOLATES: bool = {};",
+        literal(LN_RATIO_SERIES, float),
+        spec.scheme.extrapolates
+    );
     let per_gamma = match spec.precision {
         Precision::F32 => ENERGY_RTOL_PER_GAMMA_F32,
         Precision::F64 => 0.0,
@@ -323,10 +361,11 @@ pub fn generate_step_wgsl(spec: &KernelSpec) -> String {
         "CLUSTERS" => spec.clusters,
         "FREE" => !spec.clusters,
         "FORCING" => spec.forcing.is_some(),
-        "EULER" => !spec.scheme.richardson(),
-        "RICHARDSON" => spec.scheme.richardson(),
+        "EULER" => !spec.scheme.tableau(),
+        "TABLEAU" => spec.scheme.tableau(),
         "ADAPTIVE" => spec.scheme.adaptive,
-        "ORDER2" => spec.scheme.order2,
+        "AUTO" => spec.scheme.auto_order,
+        "FIXEDORDER" => !spec.scheme.auto_order,
         other => panic!("unknown block {other} in step.wgsl"),
     });
     let real = match spec.precision {

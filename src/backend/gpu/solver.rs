@@ -31,7 +31,9 @@ use super::wgsl_types::{
 };
 use crate::backend::cpu::control::Rules;
 use crate::backend::error::GpuError;
-use crate::backend::report::{Failure, FailureRecord, MemberReport, MemberStatus};
+use crate::backend::report::{
+    error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
+};
 use crate::backend::{BatchSolver, Precision, Progress};
 use crate::model::chain::Chain;
 use crate::model::observables::{grid_points, observe, Snapshot};
@@ -111,6 +113,8 @@ pub struct GpuSolver<'a> {
     group: wgpu::BindGroup,
     pipelines: StepPipelines,
     last_controls: Vec<ControlF64>,
+    /// Each member's `error_sum` at each output time so far.
+    error_estimates: Vec<Vec<f64>>,
     stats: GpuStats,
 }
 
@@ -123,10 +127,10 @@ fn invalid(message: String) -> GpuError {
 
 /// The time scheme the kernel compiles for `plan`.
 fn scheme_of(plan: &Plan) -> SchemeSpec {
-    SchemeSpec {
-        order2: plan.order == crate::model::params::Order::Fixed(2),
-        adaptive: matches!(plan.stepping, Stepping::Adaptive { .. }),
-    }
+    SchemeSpec::of(
+        plan.order,
+        matches!(plan.stepping, Stepping::Adaptive { .. }),
+    )
 }
 
 /// What the kernel for `plan` contains. A uniform integer gamma becomes a fixed chain of
@@ -232,6 +236,7 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         failure_detail: 0.0,
         // Negative: `begin_interval` computes the initial energy on the GPU (E >= 0 otherwise).
         energy: -1.0,
+        error_sum: 0.0,
         accepted: 0,
         rejected: 0,
         regular_steps: 0,
@@ -239,7 +244,7 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         failure: 0,
         parity: 0,
         failure_index: 0,
-        padding: 0,
+        order: u32::from(plan.order.initial()),
     }
 }
 
@@ -264,15 +269,16 @@ impl<'a> GpuSolver<'a> {
                 "{bsz} members, N = {n}: need members >= 1, N >= 2"
             )));
         }
-        // The kernel indexes its buffers with u32, and up to four buffer sets hold N·B reals.
-        if n as u64 * bsz as u64 > u32::MAX as u64 / 4 {
+        // The kernel indexes its buffers with u32, and its buffer sets hold N·B reals each.
+        let scheme = scheme_of(plan);
+        let sets = BufferSizes::of(n, bsz, scheme, precision).sets;
+        if n as u64 * bsz as u64 > u32::MAX as u64 / sets {
             return Err(invalid(format!(
-                "N·B = {} elements: the kernel indexes buffers with u32 (at most {}); use fewer members per run",
+                "N·B = {} elements: the kernel indexes buffers with u32 (at most {} with {sets} buffer sets); use fewer members per run",
                 n as u64 * bsz as u64,
-                u32::MAX / 4
+                u32::MAX as u64 / sets
             )));
         }
-        let scheme = scheme_of(plan);
         BufferSizes::of(n, bsz, scheme, precision).check(ctx)?;
         let max_attempts = attempts_per_dispatch(ctx, n, scheme);
         check_loop_budget(ctx, n, scheme, max_attempts)?;
@@ -300,6 +306,7 @@ impl<'a> GpuSolver<'a> {
             ctx,
             grid_x: grid_points(plan.grid),
             last_controls: vec![control; plan.members.len()],
+            error_estimates: vec![Vec::new(); plan.members.len()],
             plan,
             precision,
             dstar,
@@ -466,6 +473,9 @@ impl<'a> GpuSolver<'a> {
         let bsz = self.plan.members.len() as u64;
         let control_bytes = self.read(ReadBack::Controls, control_size(self.precision) * bsz)?;
         self.last_controls = controls_from_bytes(&control_bytes, self.precision);
+        for (estimates, c) in self.error_estimates.iter_mut().zip(&self.last_controls) {
+            estimates.push(c.error_sum);
+        }
         self.stats.steps = self.last_controls.iter().map(|c| c.accepted as u64).sum();
         let gap_bytes = self.read(ReadBack::GatheredGaps, self.sizes.gaps)?;
         let vel_bytes = self.read(ReadBack::GatheredVelocities, self.sizes.velocities)?;
@@ -532,6 +542,7 @@ impl<'a> GpuSolver<'a> {
     /// `CpuSolver::reports`).
     fn member_reports(&self) -> Vec<MemberReport> {
         let dt_min = self.plan.stepping.dt_min();
+        let has_estimates = error_estimate_method(&self.plan).is_some();
         self.last_controls
             .iter()
             .enumerate()
@@ -555,8 +566,8 @@ impl<'a> GpuSolver<'a> {
                 steps_accepted: c.accepted as u64,
                 steps_rejected: c.rejected as u64,
                 last_dt: c.dt,
-                last_order: 0,
-                error_estimate: None,
+                last_order: c.order as u8,
+                error_estimate: has_estimates.then(|| self.error_estimates[m].clone()),
             })
             .collect()
     }

@@ -58,6 +58,8 @@ macro_rules! mirror_structs {
             pub failure_detail: $real,
             /// Discrete energy of the current state.
             pub energy: $real,
+            /// `StepControl::error_sum`.
+            pub error_sum: $real,
             pub accepted: u32,
             pub rejected: u32,
             pub regular_steps: u32,
@@ -69,8 +71,8 @@ macro_rules! mirror_structs {
             pub parity: u32,
             /// `StepControl::failure_index`.
             pub failure_index: u32,
-            /// Keeps the struct's size a multiple of 8 (WGSL field `padding`).
-            pub padding: u32,
+            /// `StepControl::order`: the tableau column of the next step.
+            pub order: u32,
         }
     };
 }
@@ -89,12 +91,12 @@ const _: () = {
     assert!(offset_of!(ConfigF32, tail) == 40);
     assert!(size_of::<ConfigF32>() == CONFIG_BUFFER_SIZE as usize);
     assert!(size_of::<ConfigF64>() == CONFIG_BUFFER_SIZE as usize);
-    assert!(size_of::<ControlF64>() == 72);
-    assert!(offset_of!(ControlF64, accepted) == 40);
-    assert!(offset_of!(ControlF64, parity) == 60);
-    assert!(size_of::<ControlF32>() == 52);
-    assert!(offset_of!(ControlF32, accepted) == 20);
-    assert!(offset_of!(ControlF32, parity) == 40);
+    assert!(size_of::<ControlF64>() == 80);
+    assert!(offset_of!(ControlF64, accepted) == 48);
+    assert!(offset_of!(ControlF64, parity) == 68);
+    assert!(size_of::<ControlF32>() == 56);
+    assert!(offset_of!(ControlF32, accepted) == 24);
+    assert!(offset_of!(ControlF32, parity) == 44);
 };
 
 impl ConfigF64 {
@@ -125,6 +127,7 @@ impl ControlF64 {
             failure_time: self.failure_time as f32,
             failure_detail: self.failure_detail as f32,
             energy: self.energy as f32,
+            error_sum: self.error_sum as f32,
             accepted: self.accepted,
             rejected: self.rejected,
             regular_steps: self.regular_steps,
@@ -132,7 +135,7 @@ impl ControlF64 {
             failure: self.failure,
             parity: self.parity,
             failure_index: self.failure_index,
-            padding: 0,
+            order: self.order,
         }
     }
 }
@@ -145,6 +148,7 @@ impl From<ControlF32> for ControlF64 {
             failure_time: c.failure_time.into(),
             failure_detail: c.failure_detail.into(),
             energy: c.energy.into(),
+            error_sum: c.error_sum.into(),
             accepted: c.accepted,
             rejected: c.rejected,
             regular_steps: c.regular_steps,
@@ -152,7 +156,7 @@ impl From<ControlF32> for ControlF64 {
             failure: c.failure,
             parity: c.parity,
             failure_index: c.failure_index,
-            padding: 0,
+            order: c.order,
         }
     }
 }
