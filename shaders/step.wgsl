@@ -646,7 +646,7 @@ fn select_order(k: u32, errs: array<real, 7>, accepted: bool) -> vec2<real> {
     var raise = false;
     if accepted && k < MAX_ORDER {
         if k == 2u {
-            raise = SAFETY / sqrt(max(e[2], 1e-10)) >= MAX_GROWTH;
+            raise = true;
         } else {
             raise = work_k < 0.9 * (tableau_work(k - 1u) / step_factor(e[k - 1u], k - 1u));
         }

@@ -9,7 +9,7 @@ use roughlub::backend::BatchSolver;
 use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
 use roughlub::model::observables::energy;
-use roughlub::model::params::{MemberParams, Stepping};
+use roughlub::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
 use roughlub::model::plan::{Forcing, Power};
 use roughlub::model::quadrature::GaussLegendre;
 use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
@@ -263,8 +263,12 @@ fn energy_never_increases_without_forcing() {
             dt_min: 1e-12,
         },
     ];
-    for order in [1u8, 2] {
+    let orders = (1..=MAX_ORDER).map(Order::Fixed).chain([Order::Auto]);
+    for order in orders {
         for stepping in steppings {
+            if order == Order::Auto && matches!(stepping, Stepping::Fixed { .. }) {
+                continue;
+            }
             let plan = plan_for(
                 &chain,
                 members.clone(),
@@ -284,7 +288,8 @@ fn energy_never_increases_without_forcing() {
                     // Tolerance: rounding of a sum of ~100 terms of size ~|E|.
                     assert!(
                         e[k] <= e[k - 1] + 1e-13 * e[k - 1].abs(),
-                        "order {order} {stepping:?} gamma {}: E rose from {} to {} at t = {}",
+                        "order {} {stepping:?} gamma {}: E rose from {} to {} at t = {}",
+                        order.label(),
                         members[m].gamma,
                         e[k - 1],
                         e[k],
@@ -570,5 +575,54 @@ fn extrapolation_orders_one_to_six_converge_at_their_order() {
             errors[2] > 100.0 * reference_error,
             "order {order}: {errors:?} at the reference's accuracy"
         );
+    }
+}
+
+/// How far above the requested tolerance the global error may be (measured: see the test).
+const TOLERANCE_FACTOR: f64 = 3.0;
+
+/// Adaptive runs meet their tolerance: against the independent RK4 reference, the error at the
+/// end stays within a small factor of the requested tolerance from 1e-3 to 1e-10, for a fixed
+/// low and high order and for auto (the tolerance bounds each step's local error; the
+/// global error adds those up, damped or amplified by the dynamics).
+#[test]
+fn adaptive_runs_meet_their_tolerance_from_1e3_to_1e10() {
+    let mut rng = Rng(7);
+    let chain = random_chain(&mut rng, 6, 0.05, Some(0.03));
+    let (mu, gamma, t_end) = (0.01, 2.0, 0.2);
+    let (ref_gaps, ref_vel) = rk4_reference(&chain, mu, gamma, t_end, 20_000);
+    let params = vec![MemberParams { mu, gamma }];
+    for order in [Order::Fixed(2), Order::Fixed(5), Order::Auto] {
+        for k in 3..=10 {
+            let tolerance = 10f64.powi(-k);
+            let plan = plan_for(
+                &chain,
+                params.clone(),
+                order,
+                Stepping::Adaptive {
+                    tolerance,
+                    dt_initial: 1e-4,
+                    dt_min: 1e-14,
+                },
+                vec![0.0, t_end],
+                Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
+            );
+            let (snaps, solver) = run_all(plan, vec![chain.clone()]);
+            let reports = solver.reports();
+            let last = &snaps[1][0];
+            let error = max_error(&last.gaps, &ref_gaps) + max_error(&last.velocities, &ref_vel);
+            eprintln!(
+                "order {} tolerance {tolerance:e}: error {error:.2e} ({:.2}× tolerance), {} steps, estimate {:?}",
+                order.label(),
+                error / tolerance,
+                reports[0].steps_accepted,
+                reports[0].error_estimate
+            );
+            assert!(
+                error <= TOLERANCE_FACTOR * tolerance,
+                "order {} tolerance {tolerance:e}: error {error:e}",
+                order.label()
+            );
+        }
     }
 }

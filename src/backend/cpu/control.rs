@@ -215,24 +215,18 @@ pub fn tableau_work(k: u8) -> f64 {
 }
 
 /// Auto order: the column for the next step and its step factor, from the scaled estimates
-/// `errs[j]` of columns j = 2..=k (Hairer–Wanner II §IV.9, the order selection of SEULEX: the
-/// least work per unit step, W_j = A_j / H_j). A column is dropped when the one below costs
-/// less per unit step by a margin, added when the current one beats the one below (at k = 2,
-/// when its step is held back only by MAX_GROWTH); a rejected step never raises the order.
+/// `errs[j]` of columns j = 2..=k (Hairer–Wanner II §IV.9 and the order selection of their
+/// ODEX/SEULEX: the least work per unit step, W_j = A_j / H_j). A column is dropped when the one
+/// below costs less per unit step by a margin, added when the current one beats the one below
+/// (from column 2, which has no column below to compare with, always after an accepted step);
+/// a rejected step never raises the order.
 pub fn select_order(k: u8, errs: &[f64; MAX_ORDER as usize + 1], accepted: bool) -> (u8, f64) {
     let factor = |j: u8| step_factor(errs[j as usize], j);
     let work = |j: u8| tableau_work(j) / factor(j);
-    let lower = k > 2 && work(k - 1) < 0.8 * work(k);
-    if lower {
+    if k > 2 && work(k - 1) < 0.8 * work(k) {
         return (k - 1, factor(k - 1));
     }
-    let raise = accepted
-        && k < MAX_ORDER
-        && if k == 2 {
-            SAFETY / errs[2].max(1e-10).sqrt() >= MAX_GROWTH
-        } else {
-            work(k) < 0.9 * work(k - 1)
-        };
+    let raise = accepted && k < MAX_ORDER && (k == 2 || work(k) < 0.9 * work(k - 1));
     if raise {
         let f = (factor(k) * tableau_work(k + 1) / tableau_work(k)).min(MAX_GROWTH);
         (k + 1, f)
