@@ -1,7 +1,7 @@
 //! `roughlub accuracy`: the speed/accuracy trade measured on the user's own scene.
 //!
-//! A reference solution (order 2, adaptive, a tight tolerance, checked against a run ten times
-//! tighter), then a ladder of settings (orders × adaptive tolerances and fixed steps, on each
+//! A reference solution (order auto, adaptive, a tight tolerance, checked against a run ten times
+//! tighter), then a ladder of settings (orders 1, 2, 4, 6 (and auto) × adaptive tolerances and fixed steps, on each
 //! backend and precision asked for), each run once on the scene's first members and compared
 //! with the reference at every output time. Written: `work_precision.csv` (one row per setting),
 //! `work_precision.png` (error against wall time, log–log, one line per order, stepping,
@@ -231,7 +231,15 @@ pub fn errors(run: &[Vec<Snapshot>], reference: &[Vec<Snapshot>]) -> Errors {
     e
 }
 
-/// The adaptive rungs: orders 1 and 2, tolerances 1e-2, 1e-3, ... down to a hundredth of the
+/// The fixed orders of the ladder (3 and 5 lie between their neighbours).
+const LADDER_ORDERS: [Order; 4] = [
+    Order::Fixed(1),
+    Order::Fixed(2),
+    Order::Fixed(4),
+    Order::Fixed(6),
+];
+
+/// The adaptive rungs: orders 1, 2, 4, 6 and auto, tolerances 1e-2, 1e-3, ... down to a hundredth of the
 /// target (no tighter than ten times the reference's tolerance).
 fn adaptive_ladder(
     scene: &Scene,
@@ -241,7 +249,7 @@ fn adaptive_ladder(
 ) -> Vec<Setting> {
     let mut out = Vec::new();
     for &(backend, precision) in backends {
-        for order in [Order::Fixed(1), Order::Fixed(2)] {
+        for order in LADDER_ORDERS.into_iter().chain([Order::Auto]) {
             for k in 2..=14 {
                 let tolerance = format!("1e-{k}").parse::<f64>().expect("a number");
                 if tolerance < (target / 100.0).max(reference_tolerance * 10.0) * 0.999 {
@@ -331,7 +339,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     // The reference, and its own check ten times tighter.
     let reference_tolerance = (options.target * 1e-3).clamp(1e-11, 1e-8);
     let reference_setting = |tolerance: f64| Setting {
-        order: Order::Fixed(2),
+        order: Order::Auto,
         stepping: Stepping::Adaptive {
             tolerance,
             dt_initial: 1e-6 * scene.end,
@@ -349,12 +357,12 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     if reference.failed || check.failed {
         return Err(Error::missing(
             "accuracy",
-            "the reference run (order 2, adaptive, tight tolerance) failed for a member: the scene itself does not run; see `roughlub run` for the reason",
+            "the reference run (order auto, adaptive, tight tolerance) failed for a member: the scene itself does not run; see `roughlub run` for the reason",
         ));
     }
     let reference_error = errors(&reference.snapshots, &check.snapshots).worst();
     say(format!(
-        "reference: order 2, tolerance {reference_tolerance:e} ({} steps, {:.2} s); against tolerance {:e}: error {reference_error:.2e}",
+        "reference: order auto, tolerance {reference_tolerance:e} ({} steps, {:.2} s); against tolerance {:e}: error {reference_error:.2e}",
         reference.accepted,
         reference.wall,
         reference_tolerance / 10.0
@@ -401,7 +409,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         measure(setting)?;
     }
     for &(backend, precision) in &options.backends {
-        for order in [Order::Fixed(1), Order::Fixed(2)] {
+        for order in LADDER_ORDERS {
             let mut previous: Option<f64> = None;
             for k in 0..=MAX_HALVINGS {
                 let error = measure(fixed_setting(&scene, order, k, backend, precision))?;

@@ -158,15 +158,24 @@ fn parse_shard(text: &str) -> roughlub::Result<(u64, u64)> {
     Ok((k, n))
 }
 
+/// The end-of-run line's error estimate: a number, or why there is none.
+fn estimate_text(largest: Option<f64>) -> String {
+    match largest {
+        Some(e) => format!("{e:.2e} (see \"error_estimate\" in the manifest)"),
+        None => "unavailable (order 1, fixed steps)".into(),
+    }
+}
+
 fn report_study(summary: &StudySummary, quiet: bool) {
     if !quiet {
         eprintln!(
-            "{} members ({} failed, {} chunks reused) in {:.2} s (statistics {:.1} %); outputs in {}",
+            "{} members ({} failed, {} chunks reused) in {:.2} s (statistics {:.1} %); largest error estimate {}; outputs in {}",
             summary.members,
             summary.failed,
             summary.chunks_reused,
             summary.wall_seconds,
             100.0 * summary.statistics_seconds / summary.wall_seconds.max(1e-12),
+            estimate_text(summary.largest_error_estimate),
             summary.out_dir.display()
         );
     }
@@ -237,12 +246,13 @@ fn main() -> ExitCode {
             )?;
             if !quiet {
                 eprintln!(
-                    "{} members ({} failed) on {} ({}) in {:.2} s; outputs in {}",
+                    "{} members ({} failed) on {} ({}) in {:.2} s; largest error estimate {}; outputs in {}",
                     summary.members,
                     summary.failed,
                     summary.backend,
                     summary.adapter,
                     summary.wall_seconds,
+                    estimate_text(summary.largest_error_estimate),
                     summary.out_dir.display()
                 );
             }

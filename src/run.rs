@@ -9,7 +9,7 @@ use crate::backend::{select, Backend, MemberStatus, Precision};
 use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
 use crate::model::plan::Plan;
-use crate::output::manifest::{RunManifest, SceneRecord, VERSION};
+use crate::output::manifest::{ErrorEstimateRecord, RunManifest, SceneRecord, VERSION};
 use crate::output::{
     write_json_atomic, write_npy, NpyStream, ProgressReporter, StagedDir, MANIFEST,
 };
@@ -62,6 +62,8 @@ pub struct RunSummary {
     pub members: usize,
     pub failed: usize,
     pub wall_seconds: f64,
+    /// The largest member's error estimate at the end (`None`: unavailable).
+    pub largest_error_estimate: Option<f64>,
 }
 
 /// The .npy streams of the per-member arrays, [T, B, ...], opened only for requested fields.
@@ -336,6 +338,11 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         .filter(|r| r.status != MemberStatus::Ok)
         .map(|r| r.index)
         .collect();
+    let largest_error_estimate = reports
+        .iter()
+        .filter(|r| r.status == MemberStatus::Ok)
+        .filter_map(|r| r.error_estimate.as_ref()?.last().copied())
+        .reduce(f64::max);
     let manifest = RunManifest {
         roughlub_version: VERSION,
         scene: SceneRecord {
@@ -354,6 +361,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         plan: plan.summary(),
         output_times: plan.output_times.clone(),
         grid: plan.grid,
+        error_estimate: ErrorEstimateRecord::new(plan.order, plan.stepping, largest_error_estimate),
         steps_accepted_total: reports.iter().map(|r| r.steps_accepted).sum(),
         steps_rejected_total: reports.iter().map(|r| r.steps_rejected).sum(),
         failed_members: failed_members.clone(),
@@ -381,6 +389,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         members,
         failed: failed_members.len(),
         wall_seconds: wall,
+        largest_error_estimate,
     })
 }
 

@@ -762,9 +762,11 @@ fn rejects_nan_dt() {
 }
 
 #[test]
-fn rejects_order_three() {
-    let s = edit(BASE, "order = 1", "order = 3");
-    expect_rejected(&s, &[], &["solver.order", "1 (", "or 2"]);
+fn rejects_order_seven_and_auto_with_fixed_steps() {
+    let s = edit(BASE, "order = 1", "order = 7");
+    expect_rejected(&s, &[], &["solver.order = 7", "2..=6", "\"auto\""]);
+    let s = edit(BASE, "order = 1", "order = \"auto\"");
+    expect_rejected(&s, &[], &["solver.order", "time.tolerance"]);
 }
 
 #[test]

@@ -403,7 +403,8 @@ fn a_headless_gpu_run_prints_no_error_lines() {
     let stderr = stderr_of(&out);
     let noisy: Vec<&str> = stderr
         .lines()
-        .filter(|l| l.to_lowercase().contains("error"))
+        // roughlub's own end line names the largest error estimate.
+        .filter(|l| l.to_lowercase().contains("error") && !l.contains("; largest error estimate "))
         .collect();
     assert!(
         noisy.is_empty(),

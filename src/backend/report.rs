@@ -27,9 +27,12 @@ pub struct MemberReport {
 }
 
 /// How the error estimates of a run with this plan are made, or `None` when it has none.
-pub fn error_estimate_method(plan: &crate::model::plan::Plan) -> Option<&'static str> {
+pub fn error_estimate_method(
+    order: crate::model::params::Order,
+    stepping: crate::model::params::Stepping,
+) -> Option<&'static str> {
     use crate::model::params::{Order, Stepping};
-    match (plan.order, plan.stepping) {
+    match (order, stepping) {
         (Order::Fixed(1), Stepping::Fixed { .. }) => None,
         (_, Stepping::Adaptive { .. }) => Some(
             "sum over accepted steps of the controller's local estimate |T_kk - T_k,k-1| of the \

@@ -23,6 +23,34 @@ pub struct SceneRecord {
     pub text: String,
 }
 
+/// How the members' error estimates (`error_estimate` per member and output time, in a single
+/// run's members; the last one in members.csv of a study) are made, and the largest.
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorEstimateRecord {
+    pub method: &'static str,
+    /// The largest estimate over the members that completed (null where unavailable).
+    pub largest: Option<f64>,
+}
+
+impl ErrorEstimateRecord {
+    pub fn new(
+        order: crate::model::params::Order,
+        stepping: crate::model::params::Stepping,
+        largest: Option<f64>,
+    ) -> Self {
+        match crate::backend::report::error_estimate_method(order, stepping) {
+            Some(method) => ErrorEstimateRecord { method, largest },
+            None => ErrorEstimateRecord {
+                method: ERROR_ESTIMATE_UNAVAILABLE,
+                largest: None,
+            },
+        }
+    }
+}
+
+/// Why order 1 with fixed steps has no estimate.
+pub const ERROR_ESTIMATE_UNAVAILABLE: &str = "unavailable: order 1 with fixed steps computes no second solution to compare with (use order >= 2, or adaptive steps)";
+
 /// `manifest.json` of a single run.
 #[derive(Debug, Serialize)]
 pub struct RunManifest {
@@ -39,6 +67,7 @@ pub struct RunManifest {
     pub plan: PlanSummary,
     pub output_times: Vec<f64>,
     pub grid: usize,
+    pub error_estimate: ErrorEstimateRecord,
     pub members: Vec<MemberReport>,
     pub failed_members: Vec<usize>,
     pub steps_accepted_total: u64,
@@ -69,6 +98,7 @@ pub struct StudyManifest {
     pub members_total: u64,
     pub members_completed: u64,
     pub failed_members: Vec<u64>,
+    pub error_estimate: ErrorEstimateRecord,
     pub chunks: usize,
     pub chunks_reused: usize,
     pub wall_seconds: f64,

@@ -310,6 +310,10 @@ pub(super) fn solve_chunk(
             first_hit_time: first_hit[i],
             steps_accepted: r.steps_accepted,
             steps_rejected: r.steps_rejected,
+            error_estimate: match (&r.error_estimate, failed) {
+                (Some(e), false) => e.last().copied().unwrap_or(f64::NAN),
+                _ => f64::NAN,
+            },
         });
     }
     Ok(ChunkFile {

@@ -95,6 +95,9 @@ pub struct MemberRow {
     pub first_hit_time: f64,
     pub steps_accepted: u64,
     pub steps_rejected: u64,
+    /// The member's error estimate at the end (NaN where unavailable or failed).
+    #[serde(with = "crate::output::serde_f64")]
+    pub error_estimate: f64,
 }
 
 /// `chunks/chunk_<first>_<end>.json`: the statistics and `members.csv` rows of one finished
@@ -154,7 +157,7 @@ pub(super) struct CsvOut {
 /// The first columns of members.csv, before the swept keys'.
 pub const MEMBER_KEY_COLUMNS: [&str; 2] = ["member", "sweep_point"];
 /// The columns of members.csv after the swept keys'.
-pub const MEMBER_COLUMNS: [&str; 16] = [
+pub const MEMBER_COLUMNS: [&str; 17] = [
     "mu",
     "gamma",
     "particles",
@@ -171,6 +174,7 @@ pub const MEMBER_COLUMNS: [&str; 16] = [
     "first_hit_time",
     "steps_accepted",
     "steps_rejected",
+    "error_estimate",
 ];
 /// points.csv: this column, the swept keys', then [`POINT_COUNT_COLUMNS`].
 pub const POINT_INDEX_COLUMN: &str = "point";
@@ -209,6 +213,7 @@ impl MemberRow {
             number_text(self.first_hit_time),
             self.steps_accepted.to_string(),
             self.steps_rejected.to_string(),
+            number_text(self.error_estimate),
         ]);
         r
     }

@@ -36,7 +36,7 @@ use std::time::Instant;
 use crate::backend::{select, Backend, Engine, Precision};
 use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
-use crate::output::manifest::{StudyManifest, StudySceneRecord, VERSION};
+use crate::output::manifest::{ErrorEstimateRecord, StudyManifest, StudySceneRecord, VERSION};
 use crate::output::{
     prepare_dir, read_json, write_json_atomic, ProgressReporter, StagedDir, MANIFEST,
 };
@@ -93,6 +93,8 @@ pub struct StudySummary {
     pub chunks_reused: usize,
     pub wall_seconds: f64,
     pub statistics_seconds: f64,
+    /// The largest member's error estimate at the end (`None`: unavailable).
+    pub largest_error_estimate: Option<f64>,
 }
 
 impl StudySummary {
@@ -104,7 +106,13 @@ impl StudySummary {
             chunks_reused,
             wall_seconds: wall,
             statistics_seconds: stats,
+            largest_error_estimate: None,
         }
+    }
+
+    fn with_error_estimate(mut self, largest: Option<f64>) -> Self {
+        self.largest_error_estimate = largest;
+        self
     }
 }
 
@@ -241,6 +249,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let mut reused = 0;
     let mut total: Option<StudyState> = None;
     let mut csv_out = CsvOut::create(dir.join("members.csv"), &header.sweep_names)?;
+    let mut largest_error_estimate: Option<f64> = None;
     for &(a, b) in &bounds {
         let path = chunk_path(dir, a, b);
         let chunk: ChunkFile = if path.exists() {
@@ -262,6 +271,12 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         costs.statistics_seconds += t0.elapsed().as_secs_f64();
         for row in &chunk.rows {
             csv_out.push(row)?;
+            if !row.error_estimate.is_nan() {
+                largest_error_estimate = Some(
+                    largest_error_estimate
+                        .map_or(row.error_estimate, |e: f64| e.max(row.error_estimate)),
+                );
+            }
         }
     }
     progress.finish();
@@ -295,6 +310,11 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             members_total: header.members_total,
             members_completed: state.completed,
             failed_members: state.failed.clone(),
+            error_estimate: ErrorEstimateRecord::new(
+                scene.order,
+                scene.stepping,
+                largest_error_estimate,
+            ),
             chunks: bounds.len(),
             chunks_reused: reused,
             wall_seconds: wall,
@@ -307,11 +327,8 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     if let Some(staged) = staged {
         staged.commit()?;
     }
-    Ok(StudySummary::of(
-        target,
-        &state,
-        reused,
-        wall,
-        costs.statistics_seconds,
-    ))
+    Ok(
+        StudySummary::of(target, &state, reused, wall, costs.statistics_seconds)
+            .with_error_estimate(largest_error_estimate),
+    )
 }

@@ -534,7 +534,7 @@ impl<const L: usize> Block<L> {
 
     pub(super) fn reports(&self, plan: &Plan, dt_min: f64) -> Vec<MemberReport> {
         let params = &plan.members;
-        let has_estimates = error_estimate_method(plan).is_some();
+        let has_estimates = error_estimate_method(plan.order, plan.stepping).is_some();
         self.lanes
             .iter()
             .filter_map(|lane| {

@@ -542,7 +542,7 @@ impl<'a> GpuSolver<'a> {
     /// `CpuSolver::reports`).
     fn member_reports(&self) -> Vec<MemberReport> {
         let dt_min = self.plan.stepping.dt_min();
-        let has_estimates = error_estimate_method(&self.plan).is_some();
+        let has_estimates = error_estimate_method(self.plan.order, self.plan.stepping).is_some();
         self.last_controls
             .iter()
             .enumerate()
