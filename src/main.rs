@@ -159,10 +159,11 @@ fn parse_shard(text: &str) -> roughlub::Result<(u64, u64)> {
 }
 
 /// The end-of-run line's error estimate: a number, or why there is none.
-fn estimate_text(largest: Option<f64>) -> String {
-    match largest {
-        Some(e) => format!("{e:.2e} (see \"error_estimate\" in the manifest)"),
-        None => "unavailable (order 1, fixed steps)".into(),
+fn estimate_text(largest: Option<f64>, available: bool) -> String {
+    match (largest, available) {
+        (Some(e), _) => format!("{e:.2e} (see \"error_estimate\" in the manifest)"),
+        (None, true) => "none (no member completed)".into(),
+        (None, false) => "unavailable (order 1 with fixed steps)".into(),
     }
 }
 
@@ -175,7 +176,10 @@ fn report_study(summary: &StudySummary, quiet: bool) {
             summary.chunks_reused,
             summary.wall_seconds,
             100.0 * summary.statistics_seconds / summary.wall_seconds.max(1e-12),
-            estimate_text(summary.largest_error_estimate),
+            estimate_text(
+                        summary.largest_error_estimate,
+                        summary.error_estimate_available,
+                    ),
             summary.out_dir.display()
         );
     }
@@ -252,7 +256,10 @@ fn main() -> ExitCode {
                     summary.backend,
                     summary.adapter,
                     summary.wall_seconds,
-                    estimate_text(summary.largest_error_estimate),
+                    estimate_text(
+                summary.largest_error_estimate,
+                summary.error_estimate_available,
+            ),
                     summary.out_dir.display()
                 );
             }

@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use crate::backend::report::error_estimate_method;
 use crate::backend::{select, Backend, MemberStatus, Precision};
 use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
@@ -62,8 +63,10 @@ pub struct RunSummary {
     pub members: usize,
     pub failed: usize,
     pub wall_seconds: f64,
-    /// The largest member's error estimate at the end (`None`: unavailable).
+    /// The largest completed member's error estimate at the end.
     pub largest_error_estimate: Option<f64>,
+    /// Whether the scheme estimates its error at all (order 1 with fixed steps does not).
+    pub error_estimate_available: bool,
 }
 
 /// The .npy streams of the per-member arrays, [T, B, ...], opened only for requested fields.
@@ -390,6 +393,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         failed: failed_members.len(),
         wall_seconds: wall,
         largest_error_estimate,
+        error_estimate_available: error_estimate_method(plan.order, plan.stepping).is_some(),
     })
 }
 

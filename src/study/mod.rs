@@ -33,6 +33,7 @@ mod state;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::backend::report::error_estimate_method;
 use crate::backend::{select, Backend, Engine, Precision};
 use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
@@ -93,8 +94,10 @@ pub struct StudySummary {
     pub chunks_reused: usize,
     pub wall_seconds: f64,
     pub statistics_seconds: f64,
-    /// The largest member's error estimate at the end (`None`: unavailable).
+    /// The largest completed member's error estimate at the end.
     pub largest_error_estimate: Option<f64>,
+    /// Whether the scheme estimates its error at all (order 1 with fixed steps does not).
+    pub error_estimate_available: bool,
 }
 
 impl StudySummary {
@@ -107,11 +110,13 @@ impl StudySummary {
             wall_seconds: wall,
             statistics_seconds: stats,
             largest_error_estimate: None,
+            error_estimate_available: false,
         }
     }
 
-    fn with_error_estimate(mut self, largest: Option<f64>) -> Self {
+    fn with_error_estimate(mut self, largest: Option<f64>, available: bool) -> Self {
         self.largest_error_estimate = largest;
+        self.error_estimate_available = available;
         self
     }
 }
@@ -329,6 +334,9 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     }
     Ok(
         StudySummary::of(target, &state, reused, wall, costs.statistics_seconds)
-            .with_error_estimate(largest_error_estimate),
+            .with_error_estimate(
+                largest_error_estimate,
+                error_estimate_method(scene.order, scene.stepping).is_some(),
+            ),
     )
 }
