@@ -186,6 +186,33 @@ fn max_error(a: &[f64], b: &[f64]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The end-time error (max over gaps + max over velocities) against the reference of fixed-step
+/// runs of `order` at each of `dts`, on the test chain with forcing 0.3 sin(2πx) cos(3t).
+fn fixed_step_errors(
+    chain: &Chain,
+    params: &[MemberParams],
+    order: u8,
+    dts: [f64; 3],
+    t_end: f64,
+    (ref_gaps, ref_vel): (&[f64], &[f64]),
+) -> Vec<f64> {
+    dts.iter()
+        .map(|&dt| {
+            let plan = plan_for(
+                chain,
+                params.to_vec(),
+                order,
+                Stepping::Fixed { dt, dt_min: 1e-12 },
+                vec![0.0, t_end],
+                Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
+            );
+            let (snaps, _) = run_all(plan, vec![chain.clone()]);
+            let last = &snaps[1][0];
+            max_error(&last.gaps, ref_gaps) + max_error(&last.velocities, ref_vel)
+        })
+        .collect()
+}
+
 #[test]
 fn converges_to_independent_solution_with_orders_one_and_two() {
     let mut rng = Rng(7);
@@ -194,20 +221,8 @@ fn converges_to_independent_solution_with_orders_one_and_two() {
     let (ref_gaps, ref_vel) = rk4_reference(&chain, mu, gamma, t_end, 20_000);
     let params = vec![MemberParams { mu, gamma }];
     for order in [1u8, 2] {
-        let mut errors = Vec::new();
-        for dt in [0.01, 0.005, 0.0025] {
-            let plan = plan_for(
-                &chain,
-                params.clone(),
-                order,
-                Stepping::Fixed { dt, dt_min: 1e-12 },
-                vec![0.0, t_end],
-                Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
-            );
-            let (snaps, _) = run_all(plan, vec![chain.clone()]);
-            let last = &snaps[1][0];
-            errors.push(max_error(&last.gaps, &ref_gaps) + max_error(&last.velocities, &ref_vel));
-        }
+        let dts = [0.01, 0.005, 0.0025];
+        let errors = fixed_step_errors(&chain, &params, order, dts, t_end, (&ref_gaps, &ref_vel));
         let p1 = (errors[0] / errors[1]).log2();
         let p2 = (errors[1] / errors[2]).log2();
         eprintln!("order {order}: errors {errors:?}, measured orders {p1:.3} {p2:.3}");
@@ -536,7 +551,6 @@ fn extrapolation_orders_one_to_six_converge_at_their_order() {
         "reference moves by {reference_error:e}"
     );
     let params = vec![MemberParams { mu, gamma }];
-    // The coarsest step of each order's three.
     // The coarsest step of each order's three: where its rates have settled (measured over
     // dt = 0.1·2^-k, k = 0..9: order 1 reaches 0.97 at k = 6, order 6 5.83 at k = 3 and
     // the reference's accuracy from k = 6).
@@ -548,20 +562,8 @@ fn extrapolation_orders_one_to_six_converge_at_their_order() {
         (5, 0.0125),
         (6, 0.0125),
     ] {
-        let mut errors = Vec::new();
-        for dt in [coarse, coarse / 2.0, coarse / 4.0] {
-            let plan = plan_for(
-                &chain,
-                params.clone(),
-                order,
-                Stepping::Fixed { dt, dt_min: 1e-12 },
-                vec![0.0, t_end],
-                Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
-            );
-            let (snaps, _) = run_all(plan, vec![chain.clone()]);
-            let last = &snaps[1][0];
-            errors.push(max_error(&last.gaps, &ref_gaps) + max_error(&last.velocities, &ref_vel));
-        }
+        let dts = [coarse, coarse / 2.0, coarse / 4.0];
+        let errors = fixed_step_errors(&chain, &params, order, dts, t_end, (&ref_gaps, &ref_vel));
         let p1 = (errors[0] / errors[1]).log2();
         let p2 = (errors[1] / errors[2]).log2();
         eprintln!("order {order}: errors {errors:?}, measured orders {p1:.3} {p2:.3}");
