@@ -231,31 +231,39 @@ pub fn errors(run: &[Vec<Snapshot>], reference: &[Vec<Snapshot>]) -> Errors {
     e
 }
 
-/// The fixed orders of the ladder (3 and 5 lie between their neighbours).
+/// The fixed orders of the ladder (3 and 5 lie between their neighbours), the usually cheapest
+/// first: a line stops once its rungs cost far more than a setting that already met the target
+/// ([`LINE_BUDGET`]).
 const LADDER_ORDERS: [Order; 4] = [
-    Order::Fixed(1),
-    Order::Fixed(2),
-    Order::Fixed(4),
     Order::Fixed(6),
+    Order::Fixed(4),
+    Order::Fixed(2),
+    Order::Fixed(1),
 ];
 
-/// The adaptive rungs: orders 1, 2, 4, 6 and auto, tolerances 1e-2, 1e-3, ... down to a hundredth of the
-/// target (no tighter than ten times the reference's tolerance).
+/// A ladder line stops after a rung that took more than this many times the wall time of the
+/// cheapest setting found so far that meets the target (its later rungs only cost more: order 1
+/// adaptive at 1e-8 would take minutes where auto needs milliseconds).
+const LINE_BUDGET: f64 = 20.0;
+
+/// The adaptive lines: auto and orders 6, 4, 2, 1 on each backend, tolerances 1e-2, 1e-3, ...
+/// down to a hundredth of the target (no tighter than ten times the reference's tolerance).
 fn adaptive_ladder(
     scene: &Scene,
     target: f64,
     reference_tolerance: f64,
     backends: &[(Backend, Precision)],
-) -> Vec<Setting> {
-    let mut out = Vec::new();
+) -> Vec<Vec<Setting>> {
+    let mut lines = Vec::new();
     for &(backend, precision) in backends {
-        for order in LADDER_ORDERS.into_iter().chain([Order::Auto]) {
+        for order in [Order::Auto].into_iter().chain(LADDER_ORDERS) {
+            let mut line = Vec::new();
             for k in 2..=14 {
                 let tolerance = format!("1e-{k}").parse::<f64>().expect("a number");
                 if tolerance < (target / 100.0).max(reference_tolerance * 10.0) * 0.999 {
                     break;
                 }
-                out.push(Setting {
+                line.push(Setting {
                     order,
                     stepping: Stepping::Adaptive {
                         tolerance,
@@ -266,9 +274,10 @@ fn adaptive_ladder(
                     precision,
                 });
             }
+            lines.push(line);
         }
     }
-    out
+    lines
 }
 
 /// The fixed-step rung k of an order: dt = end/25 · 2^-k. The ladder halves dt until the error
@@ -377,7 +386,9 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     let staged = StagedDir::begin(&options.out_dir, options.force)?;
     let dir = staged.staging.clone();
     let mut measurements = Vec::new();
-    let mut measure = |setting: Setting| -> Result<Option<f64>> {
+    // Wall time of the cheapest setting so far that meets the target.
+    let mut cheapest: Option<f64> = None;
+    let mut measure = |setting: Setting| -> Result<(Option<f64>, bool)> {
         let run = solve(&base, &chains, &setting)?;
         let errors = (!run.failed).then(|| errors(&run.snapshots, &reference.snapshots));
         let particle_steps = (run.accepted * base.particles as u64) as f64;
@@ -397,23 +408,33 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
             m.wall_seconds,
             m.steps_accepted
         ));
+        let error = errors.map(|e| e.worst());
+        if error.is_some_and(|e| e <= options.target) {
+            cheapest = Some(cheapest.map_or(m.wall_seconds, |c: f64| c.min(m.wall_seconds)));
+        }
+        let over_budget = cheapest.is_some_and(|c| m.wall_seconds > LINE_BUDGET * c);
         measurements.push(m);
-        Ok(errors.map(|e| e.worst()))
+        Ok((error, over_budget))
     };
-    for setting in adaptive_ladder(
+    for line in adaptive_ladder(
         &scene,
         options.target,
         reference_tolerance,
         &options.backends,
     ) {
-        measure(setting)?;
+        for setting in line {
+            if measure(setting)?.1 {
+                break;
+            }
+        }
     }
     for &(backend, precision) in &options.backends {
         for order in LADDER_ORDERS {
             let mut previous: Option<f64> = None;
             for k in 0..=MAX_HALVINGS {
-                let error = measure(fixed_setting(&scene, order, k, backend, precision))?;
-                if error.is_some_and(|e| e <= options.target / 10.0) {
+                let (error, over_budget) =
+                    measure(fixed_setting(&scene, order, k, backend, precision))?;
+                if over_budget || error.is_some_and(|e| e <= options.target / 10.0) {
                     break;
                 }
                 // An error that no longer falls (f32 rounding, or the reference's own error)
