@@ -38,6 +38,7 @@
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
 
+use self::partitioned::{euler_partitioned, Layout};
 use super::{twin_math, SimdLevel};
 use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};
@@ -161,12 +162,14 @@ impl<const L: usize> Gamma<L> {
 /// Thomas sweep scratch, length (N-1)·L each: the rows u_i = d_{i+1} ys_i + w_i u_{i+1} with
 /// r_{i+1} = ls_i u_{i+1} - ys_i (the back sweep overwrites ls with the rate r_{i+1}, which the
 /// log-gap fix-up reads), and the forces F_i (only with forcing, for the work h Σ u' F).
+/// `spike` is the partitioned solve's (`partitioned`), sized by it on first use.
 #[derive(Debug, Clone)]
 pub struct Scratch {
     pub w: Vec<f64>,
     pub ls: Vec<f64>,
     pub ys: Vec<f64>,
     pub force: Vec<f64>,
+    pub spike: Vec<f64>,
 }
 
 impl Scratch {
@@ -177,6 +180,7 @@ impl Scratch {
             ls: vec![0.0; len],
             ys: vec![0.0; len],
             force: vec![0.0; len],
+            spike: Vec::new(),
         }
     }
 }
@@ -574,6 +578,41 @@ pub(crate) fn euler_step_at<const L: usize>(
     vel_out: &mut [f64],
     scratch: &mut Scratch,
 ) -> [StepReport; L] {
+    // One member with a long chain: segments side by side (the sequential sweep would be bound
+    // by its row-to-row latency).
+    let layout = if L == 1 {
+        Layout::for_chain(particles)
+    } else {
+        None
+    };
+    euler_step_as(
+        simd, layout, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch,
+    )
+}
+
+/// [`euler_step_at`] with the solve chosen: the sequential sweep (`None`) or the partitioned
+/// one with this layout (L = 1 only).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn euler_step_as<const L: usize>(
+    simd: SimdLevel,
+    layout: Option<Layout>,
+    terms: &Terms<L>,
+    particles: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch,
+) -> [StepReport; L] {
+    if let Some(layout) = layout {
+        return specialised!(
+            terms,
+            euler_partitioned,
+            (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch, layout)
+        );
+    }
     specialised!(
         terms,
         euler_simd,
@@ -1180,6 +1219,9 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
         report[l].certified = false;
     }
 }
+
+// After the macros above, which it uses.
+mod partitioned;
 
 #[cfg(test)]
 mod tests {
