@@ -90,7 +90,8 @@ impl Layout {
     /// only (never on the thread count).
     pub(crate) fn for_chain(n: usize) -> Option<Layout> {
         static OFF: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        let off = *OFF.get_or_init(|| std::env::var("ROUGHLUB_CPU_PARTITION").is_ok_and(|v| v == "off"));
+        let off =
+            *OFF.get_or_init(|| std::env::var("ROUGHLUB_CPU_PARTITION").is_ok_and(|v| v == "off"));
         if off || n < PARTITION_MIN_PARTICLES {
             return None;
         }
@@ -371,8 +372,9 @@ where
         let dstar = dstar_of(main, m);
         let bonded = bonded_of(main, m);
         for l in 0..S {
-            let (a, gg, _) =
-                gap_terms::<REP, CLU, P, Q>(law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h);
+            let (a, gg, _) = gap_terms::<REP, CLU, P, Q>(
+                law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
+            );
             st.a_prev[l] = a;
             st.g_prev[l] = gg;
         }
@@ -650,7 +652,10 @@ where
     GroupBack {
         sums: st.sum,
         opening: st.opening.iter().fold(0.0, |a, &b| fmax(b, a)),
-        closing: st.closing.iter().fold(f64::NEG_INFINITY, |a, &b| fmax(b, a)),
+        closing: st
+            .closing
+            .iter()
+            .fold(f64::NEG_INFINITY, |a, &b| fmax(b, a)),
         needs_fixup: st.needs_fixup.iter().fold(0, |a, b| a | b),
         u_first,
     }
@@ -879,4 +884,320 @@ where
         law,
     );
     report
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::super::{euler_step_as, stored_ln, Gamma, HardFailure};
+    use super::*;
+    use crate::expr::Expr;
+    use crate::model::plan::{Forcing, Power};
+    use crate::model::quadrature::GaussLegendre;
+
+    /// A random chain of n particles: gaps of very different sizes around 1/n (stored form),
+    /// velocities, d*, bonded flags; `near` gaps of 1e-300 (stored as ln d) and `bonds` bonded
+    /// gaps at the given gap indices.
+    struct Chain {
+        n: usize,
+        gaps: Vec<f64>,
+        vel: Vec<f64>,
+        dstar: Vec<f64>,
+        bonded: Vec<bool>,
+    }
+
+    fn chain(n: usize, seed: u64, near: &[usize], bonds: &[usize]) -> Chain {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let scale = 0.5 / n as f64;
+        let mut gaps: Vec<f64> = (0..n)
+            .map(|_| scale * (0.05 + 2.0 * rng.random::<f64>()))
+            .collect();
+        let dstar: Vec<f64> = (0..n)
+            .map(|_| scale * (0.2 + 1.5 * rng.random::<f64>()))
+            .collect();
+        let vel: Vec<f64> = (1..n)
+            .map(|i| {
+                let x = i as f64 / n as f64;
+                0.5 * (2.0 * std::f64::consts::PI * x).sin() + 0.05 * (rng.random::<f64>() - 0.5)
+            })
+            .collect();
+        let mut bonded = vec![false; n];
+        for &k in near {
+            gaps[k] = stored_gap::encode(1e-300, GAP_FLOOR);
+        }
+        for &k in bonds {
+            gaps[k] = 0.0;
+            bonded[k] = true;
+        }
+        Chain {
+            n,
+            gaps,
+            vel,
+            dstar,
+            bonded,
+        }
+    }
+
+    /// Which terms a case has.
+    #[derive(Clone, Copy, Debug)]
+    struct Model {
+        gamma: Option<f64>,
+        clusters: bool,
+        forced: bool,
+    }
+
+    type Outcome = (Vec<f64>, Vec<f64>, StepReport);
+
+    /// One step of the chain, sequential (`layout` None) or partitioned.
+    fn step(c: &Chain, model: Model, h: f64, layout: Option<Layout>, simd: SimdLevel) -> Outcome {
+        let n = c.n;
+        let eps = 0.25 / n as f64;
+        let forcing = model.forced.then(|| Forcing {
+            expr: Expr::parse("0.3*sin(2*pi*(x - t)) + 0.1").unwrap(),
+            rule: GaussLegendre::new(3),
+            params: Vec::new(),
+        });
+        let terms = Terms::<1> {
+            eps,
+            mu: [0.01],
+            total_gap: [c.gaps.iter().map(|&v| stored_gap::decode(v)).sum()],
+            contact_repulsion: [model.gamma.map_or(0.0, |g| 3f64.powf(g))],
+            repulsion: model
+                .gamma
+                .map(|g| (c.dstar.as_slice(), Gamma::Uniform(Power::of(g)))),
+            bonded: model.clusters.then_some(c.bonded.as_slice()),
+            forcing: forcing.as_ref(),
+            forcing_params: [&[]],
+        };
+        let mut gaps_out = vec![0.0; n];
+        let mut vel_out = vec![0.0; n - 1];
+        let mut scratch = Scratch::new(n, 1);
+        let report = euler_step_as(
+            simd,
+            layout,
+            &terms,
+            n,
+            &[0.25],
+            &[h],
+            &c.gaps,
+            &c.vel,
+            &mut gaps_out,
+            &mut vel_out,
+            &mut scratch,
+        );
+        (gaps_out, vel_out, report[0])
+    }
+
+    /// The partitioned result equals the sequential one to `tol`: gaps relatively (in ln d for
+    /// log-stored ones; bonded gaps exactly 0 in both), velocities relative to max |u|, the
+    /// energy and work relatively, the flags exactly.
+    fn assert_close(label: &str, part: &Outcome, seq: &Outcome, tol: f64) {
+        let (pg, pv, pr) = part;
+        let (sg, sv, sr) = seq;
+        for (i, (&a, &b)) in pg.iter().zip(sg).enumerate() {
+            let err = if a > 0.0 && b > 0.0 {
+                (a - b).abs() / b
+            } else if a == 0.0 || b == 0.0 {
+                assert_eq!(a, b, "{label}: gap {i} bonded in one only");
+                0.0
+            } else {
+                (stored_ln(a) - stored_ln(b)).abs()
+            };
+            assert!(err <= tol, "{label}: gap {i}: {a:e} vs {b:e} (rel {err:e})");
+        }
+        let umax = sv.iter().fold(0.0f64, |m, u| m.max(u.abs()));
+        for (i, (a, b)) in pv.iter().zip(sv).enumerate() {
+            let err = (a - b).abs() / umax;
+            assert!(err <= tol, "{label}: u {i}: {a:e} vs {b:e} (rel {err:e})");
+        }
+        assert_eq!(
+            (pr.admissible, pr.hard, pr.certified),
+            (sr.admissible, sr.hard, sr.certified),
+            "{label}: flags"
+        );
+        for (what, a, b) in [("energy", pr.energy, sr.energy), ("work", pr.work, sr.work)] {
+            assert!(
+                (a - b).abs() <= tol * b.abs().max(1e-300),
+                "{label}: {what} {a:e} vs {b:e}"
+            );
+        }
+    }
+
+    const TOL: f64 = 1e-12;
+
+    fn models() -> Vec<Model> {
+        let mut out = Vec::new();
+        for gamma in [None, Some(2.0), Some(1.5)] {
+            for clusters in [false, true] {
+                for forced in [false, true] {
+                    out.push(Model {
+                        gamma,
+                        clusters,
+                        forced,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    /// Segment boundaries of a layout: the first gap of each segment (index b - 1) and its
+    /// neighbours, where the interface solve matters most.
+    fn boundary_gaps(layout: &Layout, n: usize) -> Vec<usize> {
+        let mut out = vec![0, 1, n - 1];
+        for s in 1..layout.segments() {
+            let b = layout.first_row(s);
+            out.extend([b - 2, b - 1, b]);
+        }
+        out
+    }
+
+    /// Plain, repulsion, forcing and clusters, on chains whose row count the segments do not
+    /// divide (n - 1 = 2000 + 13 rows, 1 to 3 groups), at a mild and a large step.
+    #[test]
+    fn partitioned_equals_sequential() {
+        let n = 2014;
+        for groups in [1, 2, 3] {
+            let layout = Layout::new(n, groups).unwrap();
+            assert_ne!(layout.rem, 0);
+            let mut bonds: Vec<usize> = vec![0, 1, 2, 700, 701, n - 1];
+            bonds.extend(boundary_gaps(&layout, n).into_iter().skip(3).step_by(4));
+            bonds.sort();
+            bonds.dedup();
+            for model in models() {
+                let c = chain(
+                    n,
+                    7 + groups as u64,
+                    &[],
+                    if model.clusters { &bonds } else { &[] },
+                );
+                for h in [1e-4, 3e-3] {
+                    let label = format!("{model:?}, groups {groups}, h {h}");
+                    let seq = step(&c, model, h, None, SimdLevel::detect());
+                    let part = step(&c, model, h, Some(layout), SimdLevel::detect());
+                    assert_close(&label, &part, &seq, TOL);
+                }
+            }
+        }
+    }
+
+    /// Near contact: gaps of 1e-300 (stored as ln d) at and next to segment boundaries, at the
+    /// walls and inside segments, with clusters too: the rates of those gaps (and so ln d')
+    /// agree, and the fix-up runs.
+    #[test]
+    fn near_contact_equals_sequential() {
+        let n = 1777;
+        let layout = Layout::new(n, 2).unwrap();
+        let mut near = boundary_gaps(&layout, n);
+        near.extend([5, 300, 301, 302]);
+        near.sort();
+        near.dedup();
+        let bonds = [1000, 1001, 1500];
+        for model in models() {
+            let c = chain(n, 3, &near, if model.clusters { &bonds } else { &[] });
+            for h in [1e-5, 1e-3] {
+                let label = format!("near contact, {model:?}, h {h}");
+                let seq = step(&c, model, h, None, SimdLevel::detect());
+                let part = step(&c, model, h, Some(layout), SimdLevel::detect());
+                // The case took the log form (the gaps stay below GAP_FLOOR).
+                assert!(seq.0[near[3]] < 0.0, "{label}: not log-stored");
+                assert_close(&label, &part, &seq, TOL);
+            }
+        }
+    }
+
+    /// The default layout just above the threshold (and the threshold itself) through
+    /// `Layout::for_chain`, with repulsion and clusters.
+    #[test]
+    fn default_layout_just_above_threshold() {
+        assert_eq!(Layout::for_chain(PARTITION_MIN_PARTICLES - 1), None);
+        for n in [PARTITION_MIN_PARTICLES, PARTITION_MIN_PARTICLES + 37] {
+            let layout = Layout::for_chain(n).expect("partitioned above the threshold");
+            assert!(layout.seg >= SEGMENT_ROWS / 2);
+            let model = Model {
+                gamma: Some(2.0),
+                clusters: true,
+                forced: false,
+            };
+            let c = chain(n, 11, &[n / 2], &[n / 3, n / 3 + 1]);
+            let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
+            let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+            assert_close(&format!("n {n}"), &part, &seq, TOL);
+        }
+    }
+
+    /// Results do not depend on the thread count (1 or 2 rayon threads), nor on the SIMD level:
+    /// bit for bit.
+    #[test]
+    fn bitwise_equal_across_threads_and_simd_levels() {
+        let n = 3001;
+        let layout = Layout::new(n, 4).unwrap();
+        let model = Model {
+            gamma: Some(2.0),
+            clusters: true,
+            forced: true,
+        };
+        let c = chain(n, 5, &[10, 2000], &[400, 401]);
+        let bits = |o: &Outcome| -> Vec<u64> {
+            o.0.iter()
+                .chain(&o.1)
+                .chain([&o.2.energy, &o.2.work])
+                .map(|v| v.to_bits())
+                .collect()
+        };
+        let run = |threads: usize, simd: SimdLevel| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| bits(&step(&c, model, 1e-3, Some(layout), simd)))
+        };
+        let one = run(1, SimdLevel::detect());
+        assert_eq!(one, run(2, SimdLevel::detect()), "1 vs 2 threads");
+        assert_eq!(one, run(2, SimdLevel::Portable), "detected vs portable");
+    }
+
+    /// A non-finite repulsion is found as by the sequential sweep (the hard-failure lookup).
+    #[test]
+    fn hard_failure_is_reported() {
+        let n = 1500;
+        let layout = Layout::new(n, 1).unwrap();
+        let mut c = chain(n, 9, &[], &[]);
+        c.dstar[900] = 1e300;
+        let model = Model {
+            gamma: Some(200.0),
+            clusters: false,
+            forced: false,
+        };
+        let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
+        let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+        assert!(matches!(
+            seq.2.hard,
+            Some(HardFailure::Repulsion { gap: 901, .. })
+        ));
+        assert_eq!(part.2.hard, seq.2.hard);
+    }
+
+    /// The layout's index map is a bijection of the rows onto the scratch, with the chunks in
+    /// order.
+    #[test]
+    fn layout_indexes_every_row_once() {
+        for (n, groups) in [(33, 2), (1000, 1), (1000, 3), (5000, 7)] {
+            let layout = Layout::new(n, groups).unwrap();
+            let mut seen = vec![false; n - 1];
+            for row in 1..n {
+                let k = layout.index_of(row);
+                assert!(!seen[k], "n {n}: index {k} twice");
+                seen[k] = true;
+            }
+            assert_eq!(layout.chunk(0).start, 0);
+            assert_eq!(layout.chunk(groups - 1).end, n - 1);
+            for g in 1..groups {
+                assert_eq!(layout.chunk(g - 1).end, layout.chunk(g).start);
+            }
+        }
+        assert_eq!(Layout::new(16, 1), None);
+    }
 }
