@@ -54,8 +54,8 @@ fn particle_steps(c: &mut Criterion) {
         .warm_up_time(Duration::from_secs(1));
     for (members, particles, steps) in [
         (1usize, 100_000usize, 20usize),
-        (1, 1_000_000, 4),
-        (4, 1_000_000, 2),
+        (1, 1_000_000, 10),
+        (4, 1_000_000, 4),
         (256, 1000, 40),
         (4096, 100, 40),
     ] {

@@ -162,14 +162,12 @@ impl<const L: usize> Gamma<L> {
 /// Thomas sweep scratch, length (N-1)·L each: the rows u_i = d_{i+1} ys_i + w_i u_{i+1} with
 /// r_{i+1} = ls_i u_{i+1} - ys_i (the back sweep overwrites ls with the rate r_{i+1}, which the
 /// log-gap fix-up reads), and the forces F_i (only with forcing, for the work h Σ u' F).
-/// `spike` is the partitioned solve's (`partitioned`), sized by it on first use.
 #[derive(Debug, Clone)]
 pub struct Scratch {
     pub w: Vec<f64>,
     pub ls: Vec<f64>,
     pub ys: Vec<f64>,
     pub force: Vec<f64>,
-    pub spike: Vec<f64>,
 }
 
 impl Scratch {
@@ -180,7 +178,6 @@ impl Scratch {
             ls: vec![0.0; len],
             ys: vec![0.0; len],
             force: vec![0.0; len],
-            spike: Vec::new(),
         }
     }
 }
@@ -1046,12 +1043,18 @@ fn fix_up_lane<const L: usize>(
         } else {
             rates[(i - 1) * L + l]
         };
-        let x = h * rate;
-        let grown = gaps_out[k];
-        if (GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX && gaps_in[k] > 0.0 {
-            continue;
-        }
-        gaps_out[k] = encode_ln_gap(stored_ln(gaps_in[k]) + x);
+        gaps_out[k] = fixed_up(gaps_in[k], h * rate, gaps_out[k]);
+    }
+}
+
+/// A free gap's stored value after the update to `grown` = old·e^x: kept, or redone in log form
+/// where the fast form does not apply (a log-stored gap, or a result outside [GAP_FLOOR, inf)).
+#[inline(always)]
+fn fixed_up(old: f64, x: f64, grown: f64) -> f64 {
+    if (GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX && old > 0.0 {
+        grown
+    } else {
+        encode_ln_gap(stored_ln(old) + x)
     }
 }
 

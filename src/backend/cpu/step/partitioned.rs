@@ -40,7 +40,7 @@
 use rayon::prelude::*;
 
 use super::{
-    energy_certified, find_hard_failure, fix_up_lane, fmax, fmin, gap_exp, gap_terms,
+    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms,
     particle_force, Law, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR,
     GAP_FLOOR, MAX_OPENING,
 };
@@ -121,12 +121,8 @@ impl Layout {
         1 + self.rem + s * self.seg
     }
 
-    /// `s` cut at the chunks (read only).
-    fn chunk_slices<'a>(&self, s: &'a [f64]) -> Vec<&'a [f64]> {
-        (0..self.groups).map(|g| &s[self.chunk(g)]).collect()
-    }
-
-    /// Scratch index of row `row` (1-based).
+    /// Index of row `row` (1-based) in a group's rows (offset by its chunk's start).
+    #[cfg(test)]
     fn index_of(&self, row: usize) -> usize {
         let i = row - 1;
         if i < self.rem {
@@ -153,7 +149,8 @@ fn split_chunks<'a, T>(layout: &Layout, s: &'a mut [T], offset: usize) -> Vec<&'
     out
 }
 
-/// Values at base, base + stride, …: one bounds check for the row, none per lane.
+/// Values at base, base + stride, …: one bounds check for the row, none per lane (for the
+/// segments' first gaps).
 #[inline(always)]
 fn gather<const S: usize, T: Copy>(src: &[T], base: usize, stride: usize) -> [T; S] {
     assert!(base + (S - 1) * stride < src.len());
@@ -161,12 +158,143 @@ fn gather<const S: usize, T: Copy>(src: &[T], base: usize, stride: usize) -> [T;
     std::array::from_fn(|l| unsafe { *src.get_unchecked(base + l * stride) })
 }
 
+/// Rows per tile of the lane loops (a tile of each input is 4 KiB: all stay in L1).
+const TILE: usize = 32;
+
+/// tile[k][l] = src[base + l·stride + k] for k < kn: lane l's next kn values, read in order.
 #[inline(always)]
-fn scatter<const S: usize, T: Copy>(dst: &mut [T], base: usize, stride: usize, v: &[T; S]) {
-    assert!(base + (S - 1) * stride < dst.len());
-    for (l, x) in v.iter().enumerate() {
-        // SAFETY: as in `gather`.
-        unsafe { *dst.get_unchecked_mut(base + l * stride) = *x };
+fn tile_in<const S: usize, T: Copy>(
+    src: &[T],
+    base: usize,
+    stride: usize,
+    kn: usize,
+    tile: &mut [[T; S]; TILE],
+) {
+    for l in 0..S {
+        let from = &src[base + l * stride..base + l * stride + kn];
+        for (row, &v) in tile.iter_mut().zip(from) {
+            row[l] = v;
+        }
+    }
+}
+
+/// dst[base + l·stride + k] = tile[k][l] for k < kn (the inverse of [`tile_in`]).
+#[inline(always)]
+fn tile_out<const S: usize>(
+    dst: &mut [f64],
+    base: usize,
+    stride: usize,
+    kn: usize,
+    tile: &[[f64; S]; TILE],
+) {
+    for l in 0..S {
+        let to = &mut dst[base + l * stride..base + l * stride + kn];
+        for (row, v) in tile.iter().zip(to) {
+            *v = row[l];
+        }
+    }
+}
+
+/// [`tile_in`] for f64, by 4×4 AVX2 transposes where `simd` allows (the same values: only
+/// moves; the scalar copy costs a load and a store per value, a third of the step).
+#[inline(always)]
+fn tile_in_f64<const S: usize>(
+    simd: SimdLevel,
+    src: &[f64],
+    base: usize,
+    stride: usize,
+    kn: usize,
+    tile: &mut [[f64; S]; TILE],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if simd == SimdLevel::Avx2Fma && S % 4 == 0 {
+        assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
+        // SAFETY: AVX2 is there (SimdLevel::Avx2Fma); every read is within the lanes' ranges
+        // checked above, every write within the tile.
+        unsafe { transpose_avx2::<S, true>(src.as_ptr() as *mut f64, stride, base, kn, tile) };
+        return;
+    }
+    let _ = simd;
+    tile_in(src, base, stride, kn, tile);
+}
+
+/// [`tile_out`] by 4×4 AVX2 transposes where `simd` allows.
+#[inline(always)]
+fn tile_out_f64<const S: usize>(
+    simd: SimdLevel,
+    dst: &mut [f64],
+    base: usize,
+    stride: usize,
+    kn: usize,
+    tile: &[[f64; S]; TILE],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if simd == SimdLevel::Avx2Fma && S % 4 == 0 {
+        assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
+        let mut t = *tile;
+        // SAFETY: as in `tile_in_f64`; `dst` is borrowed mutably.
+        unsafe { transpose_avx2::<S, false>(dst.as_mut_ptr(), stride, base, kn, &mut t) };
+        return;
+    }
+    let _ = simd;
+    tile_out(dst, base, stride, kn, tile);
+}
+
+/// Between lane streams (lane l's k-th value at `mem[base + l·stride + k]`) and a tile of rows
+/// (tile[k][l]): into the tile (`IN`) or out of it, four lanes by four rows per transpose.
+///
+/// # Safety
+/// AVX2 must be available; `mem` must be valid for reads (IN) or writes of
+/// base + l·stride + k for all l < S, k < kn; kn <= TILE and S a multiple of 4.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn transpose_avx2<const S: usize, const IN: bool>(
+    mem: *mut f64,
+    stride: usize,
+    base: usize,
+    kn: usize,
+    tile: &mut [[f64; S]; TILE],
+) {
+    use std::arch::x86_64::*;
+    let k4 = kn & !3;
+    for l0 in (0..S).step_by(4) {
+        let p = mem.add(base + l0 * stride);
+        let mut k = 0;
+        while k < k4 {
+            // a: four vectors of four; b = its transpose.
+            let a: [__m256d; 4] = if IN {
+                std::array::from_fn(|j| _mm256_loadu_pd(p.add(j * stride + k)))
+            } else {
+                std::array::from_fn(|j| _mm256_loadu_pd(tile[k + j].as_ptr().add(l0)))
+            };
+            let t0 = _mm256_unpacklo_pd(a[0], a[1]);
+            let t1 = _mm256_unpackhi_pd(a[0], a[1]);
+            let t2 = _mm256_unpacklo_pd(a[2], a[3]);
+            let t3 = _mm256_unpackhi_pd(a[2], a[3]);
+            let b = [
+                _mm256_permute2f128_pd::<0x20>(t0, t2),
+                _mm256_permute2f128_pd::<0x20>(t1, t3),
+                _mm256_permute2f128_pd::<0x31>(t0, t2),
+                _mm256_permute2f128_pd::<0x31>(t1, t3),
+            ];
+            for (j, v) in b.into_iter().enumerate() {
+                if IN {
+                    _mm256_storeu_pd(tile[k + j].as_mut_ptr().add(l0), v);
+                } else {
+                    _mm256_storeu_pd(p.add(j * stride + k), v);
+                }
+            }
+            k += 4;
+        }
+        for k in k4..kn {
+            for j in 0..4 {
+                if IN {
+                    tile[k][l0 + j] = *p.add(j * stride + k);
+                } else {
+                    *p.add(j * stride + k) = tile[k][l0 + j];
+                }
+            }
+        }
     }
 }
 
@@ -177,9 +305,9 @@ struct Sweep<const S: usize> {
     g_prev: [f64; S],
     ls_prev: [f64; S],
     ys_prev: [f64; S],
-    /// d ys/d tau of the previous row.
+    /// d ys/d tau of the previous row (first pass only).
     z_prev: [f64; S],
-    /// Running product of w from the segment's first row (the weight of u_{i} in u_b).
+    /// Running product of w from the segment's first row (the weight of u_i in u_b).
     pi: [f64; S],
     /// u_b = acc_a + pi·u_e + acc_c·tau.
     acc_a: [f64; S],
@@ -189,7 +317,26 @@ struct Sweep<const S: usize> {
     q: [f64; S],
 }
 
-/// The end of one segment's forward sweep (see the module doc).
+impl<const S: usize> Sweep<S> {
+    /// Segments starting from the rate tau of their first gap: ls = 0, ys = -tau (the first
+    /// pass: tau unknown, ys0 = 0 and z = -1).
+    fn new(tau: [f64; S], spike: f64) -> Sweep<S> {
+        Sweep {
+            a_prev: [0.0; S],
+            g_prev: [0.0; S],
+            ls_prev: [0.0; S],
+            ys_prev: tau.map(|x| -x),
+            z_prev: [spike; S],
+            pi: [1.0; S],
+            acc_a: [0.0; S],
+            acc_c: [0.0; S],
+            nonfinite: [0; S],
+            q: [0.0; S],
+        }
+    }
+}
+
+/// The end of one segment's first forward sweep (see the module doc).
 #[derive(Clone, Copy, Default, Debug)]
 struct SegmentEnd {
     ls: f64,
@@ -203,6 +350,8 @@ struct SegmentEnd {
 /// Constants of one step.
 #[derive(Clone, Copy)]
 struct Step {
+    /// The instruction set the lane loops run (for the tiles' transposes).
+    simd: SimdLevel,
     mu: f64,
     eps: f64,
     h: f64,
@@ -210,11 +359,12 @@ struct Step {
     m_over_h: f64,
 }
 
-/// One row of the forward sweep for S segments: the sequential sweep's operations, plus the
-/// spike and the accumulation of u_b. Returns (w, z) of the row; ls, ys are left in the state.
+/// One row of the forward sweep for S segments: the sequential sweep's operations, plus (with
+/// SPIKE) the spike and the accumulation of u_b. Returns w of the row; ls, ys are left in the
+/// state.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn forward_row<const S: usize, const REP: bool, const CLU: bool, P, Q>(
+fn forward_row<const S: usize, const REP: bool, const CLU: bool, const SPIKE: bool, P, Q>(
     law: Law<P, Q>,
     c: Step,
     st: &mut Sweep<S>,
@@ -223,14 +373,13 @@ fn forward_row<const S: usize, const REP: bool, const CLU: bool, P, Q>(
     bonded: &[bool; S],
     vel: &[f64; S],
     f: &[f64; S],
-) -> ([f64; S], [f64; S])
+) -> [f64; S]
 where
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
 {
     let eps2 = 2.0 * c.eps;
     let mut w = [0.0; S];
-    let mut zs = [0.0; S];
     for l in 0..S {
         let (a_next, g_next, d_next) =
             gap_terms::<REP, CLU, P, Q>(law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h);
@@ -244,22 +393,23 @@ where
         let inv = 1.0 / (pivot_base + coupling * st.ls_prev[l]);
         let ls = excess * inv;
         let ys = delta * inv;
-        let z = st.a_prev[l] * st.z_prev[l] * inv;
-        // z <= 0; flushed to 0 once negligible (NaN is kept).
-        let z = if z > -TINY { 0.0 } else { z };
         w[l] = a_next * inv;
-        zs[l] = z;
-        st.acc_a[l] += st.pi[l] * (d_next * ys);
-        st.acc_c[l] += st.pi[l] * (d_next * z);
-        let pi = st.pi[l] * w[l];
-        st.pi[l] = if pi < TINY { 0.0 } else { pi };
+        if SPIKE {
+            let z = st.a_prev[l] * st.z_prev[l] * inv;
+            // z <= 0; flushed to 0 once negligible (NaN is kept).
+            let z = if z > -TINY { 0.0 } else { z };
+            st.acc_a[l] += st.pi[l] * (d_next * ys);
+            st.acc_c[l] += st.pi[l] * (d_next * z);
+            let pi = st.pi[l] * w[l];
+            st.pi[l] = if pi < TINY { 0.0 } else { pi };
+            st.z_prev[l] = z;
+        }
         st.ls_prev[l] = ls;
         st.ys_prev[l] = ys;
-        st.z_prev[l] = z;
         st.a_prev[l] = a_next;
         st.g_prev[l] = g_next;
     }
-    (w, zs)
+    w
 }
 
 /// Forcing of one row of S segments (rows `row0 + l·stride`): interpreted, so not in the lane
@@ -288,46 +438,41 @@ fn forces<const S: usize, const L: usize>(
     f
 }
 
-/// Group g's chunks of the scratch arrays (natural layout for `force`).
-struct Chunks<'a> {
+/// The inputs, natural layout: gaps, d* and bonded flags (where they exist), velocities.
+type Inputs<'a> = (&'a [f64], &'a [f64], &'a [bool], &'a [f64]);
+
+/// The sweep rows of one group (w, ls, ys: the prologue's rows at row - 1, then the group's
+/// rows interleaved), for the second pass.
+struct Rows<'a> {
     w: &'a mut [f64],
     ls: &'a mut [f64],
     ys: &'a mut [f64],
-    z: &'a mut [f64],
-    force: &'a mut [f64],
 }
 
-/// What a group's forward sweep hands to the interface solve.
-struct GroupEnd {
-    ends: [SegmentEnd; SEGMENT_LANES],
-    nonfinite: u64,
-}
-
-simd_versions!(forward_group_simd, forward_group_avx2, forward_group_impl, (
-    terms: &Terms<L>,
-    layout: &Layout,
-    g: usize,
-    c: Step,
-    q_start: &[f64],
-    inputs: &(&[f64], &[f64], &[bool], &[f64]),
-    out: Chunks<'_>
-) -> GroupEnd);
-
-/// Forward sweep of group g's segments (and of the prologue, for group 0). `inputs` are the
-/// gaps, d*, bonded flags and velocities (natural layout; d* and bonded only where they exist);
-/// `q_start` the position of each segment's particle b - 1 (forcing only).
+/// Forward sweep of group g's segments (and of the prologue, for group 0) from `start`. The
+/// first pass (SPIKE, `rows` None) computes F into `force` and returns the segments' ends; the
+/// second (tau known) reads F from `force` and stores the rows.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn forward_group_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+fn forward_group<
+    const L: usize,
+    const REP: bool,
+    const FRC: bool,
+    const CLU: bool,
+    const SPIKE: bool,
+    P,
+    Q,
+>(
     terms: &Terms<L>,
     layout: &Layout,
     g: usize,
     c: Step,
-    q_start: &[f64],
-    inputs: &(&[f64], &[f64], &[bool], &[f64]),
-    out: Chunks,
+    mut st: Sweep<SEGMENT_LANES>,
+    inputs: &Inputs,
+    force: &mut [f64],
+    mut rows: Option<Rows>,
     law: Law<P, Q>,
-) -> GroupEnd
+) -> Sweep<SEGMENT_LANES>
 where
     P: Fn(usize, f64) -> f64 + Copy,
     Q: Fn(usize) -> f64 + Copy,
@@ -339,64 +484,30 @@ where
     let main = layout.main_start(g);
     let off = main - chunk_at;
     let eps2 = 2.0 * c.eps;
-    let dstar_of = |at: usize, stride: usize| -> [f64; S] {
-        if REP {
-            gather::<S, f64>(dstar_all, at, stride)
+    {
+        // The first gap of each segment (index main + l·m) is the previous row's.
+        let stored = gather::<S, f64>(gaps_in, main, m);
+        let dstar = if REP {
+            gather::<S, f64>(dstar_all, main, m)
         } else {
             [0.0; S]
-        }
-    };
-    let bonded_of = |at: usize, stride: usize| -> [bool; S] {
-        if CLU {
-            gather::<S, bool>(bonded_all, at, stride)
+        };
+        let bonded = if CLU {
+            gather::<S, bool>(bonded_all, main, m)
         } else {
             [false; S]
-        }
-    };
-    // Each segment starts from the unknown rate of its first gap (index main + l·m): ls = 0,
-    // ys = -tau, i.e. ys0 = 0 and z = -1.
-    let mut st = Sweep::<S> {
-        a_prev: [0.0; S],
-        g_prev: [0.0; S],
-        ls_prev: [0.0; S],
-        ys_prev: [0.0; S],
-        z_prev: [-1.0; S],
-        pi: [1.0; S],
-        acc_a: [0.0; S],
-        acc_c: [0.0; S],
-        nonfinite: [0; S],
-        q: [0.0; S],
-    };
-    {
-        let stored = gather::<S, f64>(gaps_in, main, m);
-        let dstar = dstar_of(main, m);
-        let bonded = bonded_of(main, m);
+        };
         for l in 0..S {
-            let (a, gg, _) = gap_terms::<REP, CLU, P, Q>(
-                law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
-            );
+            let (a, gg, _) =
+                gap_terms::<REP, CLU, P, Q>(law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h);
             st.a_prev[l] = a;
             st.g_prev[l] = gg;
-        }
-        if FRC {
-            st.q.copy_from_slice(&q_start[g * S..(g + 1) * S]);
         }
     }
     if g == 0 {
         // Segment 0 starts from the left wall (lambda_0 = 1: ls_0 = 1/d_1, ys_0 = 0, no spike),
         // as the sequential sweep does, and sweeps the prologue's rows alone.
-        let mut s0 = Sweep::<1> {
-            a_prev: [0.0],
-            g_prev: [0.0],
-            ls_prev: [0.0],
-            ys_prev: [0.0],
-            z_prev: [0.0],
-            pi: [1.0],
-            acc_a: [0.0],
-            acc_c: [0.0],
-            nonfinite: [0],
-            q: [0.0],
-        };
+        let mut s0 = Sweep::<1>::new([0.0], 0.0);
         let (a, gg, d) = gap_terms::<REP, CLU, P, Q>(
             law,
             0,
@@ -412,22 +523,23 @@ where
         s0.ls_prev[0] = 1.0 / d;
         s0.nonfinite[0] |= !gg.is_finite() as u64;
         for row in 1..=layout.rem {
-            let f = if FRC {
-                forces::<1, L>(terms, c, &mut s0, gaps_in, row, 0, out.force, 0)
-            } else {
-                [0.0]
+            let f = match (FRC, SPIKE) {
+                (false, _) => [0.0],
+                (true, true) => forces::<1, L>(terms, c, &mut s0, gaps_in, row, 0, force, 0),
+                (true, false) => [force[row - 1]],
             };
             let stored = [gaps_in[row]];
             let dstar = [if REP { dstar_all[row] } else { 0.0 }];
             let bonded = [CLU && bonded_all[row]];
             let vel = [vel_in[row - 1]];
-            let (w, z) = forward_row::<1, REP, CLU, P, Q>(
+            let w = forward_row::<1, REP, CLU, false, P, Q>(
                 law, c, &mut s0, &stored, &dstar, &bonded, &vel, &f,
             );
-            out.w[row - 1] = w[0];
-            out.ls[row - 1] = s0.ls_prev[0];
-            out.ys[row - 1] = s0.ys_prev[0];
-            out.z[row - 1] = z[0];
+            if let Some(r) = rows.as_mut() {
+                r.w[row - 1] = w[0];
+                r.ls[row - 1] = s0.ls_prev[0];
+                r.ys[row - 1] = s0.ys_prev[0];
+            }
         }
         st.ls_prev[0] = s0.ls_prev[0];
         st.ys_prev[0] = s0.ys_prev[0];
@@ -435,52 +547,116 @@ where
         st.nonfinite[0] |= s0.nonfinite[0];
         st.q[0] = s0.q[0];
     }
-    for k in 0..m {
+    // Rows in tiles of TILE: each lane's inputs are copied in (contiguous reads per lane), so
+    // that the lane loop reads whole rows (gathering a row lane by lane stalls every row on
+    // store forwarding).
+    let mut t_gap = [[0.0; S]; TILE];
+    let mut t_dstar = [[0.0; S]; TILE];
+    let mut t_bond = [[false; S]; TILE];
+    let mut t_vel = [[0.0; S]; TILE];
+    let mut t_f = [[0.0; S]; TILE];
+    let mut k0 = 0;
+    while k0 < m {
+        let kn = TILE.min(m - k0);
         // Row main + 1 + l·m + k of lane l; its next gap has index main + 1 + l·m + k.
-        let row0 = main + 1 + k;
-        let f = if FRC {
-            forces::<S, L>(terms, c, &mut st, gaps_in, row0, m, out.force, chunk_at)
-        } else {
-            [0.0; S]
-        };
-        let stored = gather::<S, f64>(gaps_in, row0, m);
-        let dstar = dstar_of(row0, m);
-        let bonded = bonded_of(row0, m);
-        let vel = gather::<S, f64>(vel_in, row0 - 1, m);
-        let (w, z) =
-            forward_row::<S, REP, CLU, P, Q>(law, c, &mut st, &stored, &dstar, &bonded, &vel, &f);
-        let at = off + k * S;
-        out.w[at..at + S].copy_from_slice(&w);
-        out.ls[at..at + S].copy_from_slice(&st.ls_prev);
-        out.ys[at..at + S].copy_from_slice(&st.ys_prev);
-        out.z[at..at + S].copy_from_slice(&z);
+        let row0 = main + 1 + k0;
+        tile_in_f64(c.simd, gaps_in, row0, m, kn, &mut t_gap);
+        tile_in_f64(c.simd, vel_in, row0 - 1, m, kn, &mut t_vel);
+        if REP {
+            tile_in_f64(c.simd, dstar_all, row0, m, kn, &mut t_dstar);
+        }
+        if CLU {
+            tile_in(bonded_all, row0, m, kn, &mut t_bond);
+        }
+        if FRC && !SPIKE {
+            tile_in_f64(c.simd, force, row0 - 1 - chunk_at, m, kn, &mut t_f);
+        }
+        for kk in 0..kn {
+            if FRC && SPIKE {
+                t_f[kk] = forces::<S, L>(terms, c, &mut st, gaps_in, row0 + kk, m, force, chunk_at);
+            }
+            let w = forward_row::<S, REP, CLU, SPIKE, P, Q>(
+                law,
+                c,
+                &mut st,
+                &t_gap[kk],
+                &t_dstar[kk],
+                &t_bond[kk],
+                &t_vel[kk],
+                &t_f[kk],
+            );
+            if let Some(r) = rows.as_mut() {
+                let at = off + (k0 + kk) * S;
+                r.w[at..at + S].copy_from_slice(&w);
+                r.ls[at..at + S].copy_from_slice(&st.ls_prev);
+                r.ys[at..at + S].copy_from_slice(&st.ys_prev);
+            }
+        }
+        k0 += kn;
     }
-    GroupEnd {
-        ends: std::array::from_fn(|l| SegmentEnd {
-            ls: st.ls_prev[l],
-            ys: st.ys_prev[l],
-            z: st.z_prev[l],
-            a: st.acc_a[l],
-            b: st.pi[l],
-            c: st.acc_c[l],
-        }),
-        nonfinite: st.nonfinite.iter().fold(0, |a, b| a | b),
+    st
+}
+
+simd_versions!(ends_group_simd, ends_group_avx2, ends_group_impl, (
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    q_start: &[f64],
+    inputs: &Inputs<'_>,
+    force: &mut [f64]
+) -> ([SegmentEnd; SEGMENT_LANES], u64));
+
+/// The first pass over group g: the segments' ends from a forward sweep with the spike (nothing
+/// stored but F). `q_start` is the position of each segment's particle b - 1 (forcing only).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn ends_group_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    q_start: &[f64],
+    inputs: &Inputs<'_>,
+    force: &mut [f64],
+    law: Law<P, Q>,
+) -> ([SegmentEnd; SEGMENT_LANES], u64)
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    const S: usize = SEGMENT_LANES;
+    let mut start = Sweep::<S>::new([0.0; S], -1.0);
+    if FRC {
+        start.q.copy_from_slice(&q_start[g * S..(g + 1) * S]);
     }
+    let st = forward_group::<L, REP, FRC, CLU, true, P, Q>(
+        terms, layout, g, c, start, inputs, force, None, law,
+    );
+    let ends = std::array::from_fn(|l| SegmentEnd {
+        ls: st.ls_prev[l],
+        ys: st.ys_prev[l],
+        z: st.z_prev[l],
+        a: st.acc_a[l],
+        b: st.pi[l],
+        c: st.acc_c[l],
+    });
+    (ends, st.nonfinite.iter().fold(0, |a, b| a | b))
 }
 
 /// The back sweep's flags and sums of S segments.
 #[derive(Clone, Copy)]
 struct Back<const S: usize> {
     u_next: [f64; S],
-    tau: [f64; S],
     sum: [f64; S],
     opening: [f64; S],
     closing: [f64; S],
     needs_fixup: [u64; S],
 }
 
-/// One row of the back sweep for S segments: the sequential back sweep's operations with
-/// ys = ys0 + z·tau. Returns (u, rate, new stored gap) of the row.
+/// One row of the back sweep for S segments: the sequential back sweep's operations, with the
+/// log-form fix-up of the gaps that need it done here (their rates are not kept) before the
+/// sum. Returns (u, new stored gap) of the row.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn back_row<const S: usize, const CLU: bool>(
@@ -490,45 +666,56 @@ fn back_row<const S: usize, const CLU: bool>(
     old: &[f64; S],
     bonded: &[bool; S],
     w: &[f64; S],
-    ys0: &[f64; S],
-    z: &[f64; S],
+    ys: &[f64; S],
     ls: &[f64; S],
-) -> ([f64; S], [f64; S], [f64; S]) {
-    let mut rates = [0.0; S];
+) -> ([f64; S], [f64; S]) {
     let mut x = [0.0; S];
     let mut small = 1u64;
     for l in 0..S {
-        let ys = ys0[l] + z[l] * st.tau[l];
         let d = fmax(old[l], GAP_FLOOR);
-        let mut u = d * ys + w[l] * st.u_next[l];
+        let mut u = d * ys[l] + w[l] * st.u_next[l];
         if CLU && bonded[l] {
             u = st.u_next[l];
         }
-        let rate = ls[l] * st.u_next[l] - ys;
+        let rate = ls[l] * st.u_next[l] - ys[l];
         x[l] = h * rate;
         small &= (x[l].abs() < GAP_EXP_TAYLOR) as u64;
-        rates[l] = rate;
         st.u_next[l] = u;
     }
     let e = super::exp_row(&x, small);
-    let mut grown_row = [0.0; S];
+    let mut grown = [0.0; S];
+    let mut flags = [0u64; S];
+    let mut any = 0u64;
     for l in 0..S {
-        let grown = old[l] * e[l];
-        grown_row[l] = grown;
-        st.sum[l] += fmax(grown, 0.0);
+        grown[l] = old[l] * e[l];
         if old[l] > 0.0 {
             st.opening[l] = fmax(x[l], st.opening[l]);
         }
         let d = fmax(old[l], GAP_FLOOR);
         st.closing[l] = fmax(d * (gamma2 * fmin(x[l], 0.0) - 1.0), st.closing[l]);
         // NaN fails the comparisons.
-        st.needs_fixup[l] |=
-            !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x[l] <= EXP_FAST_MAX) as u64;
+        flags[l] = !((GAP_FLOOR..f64::INFINITY).contains(&grown[l]) && x[l] <= EXP_FAST_MAX) as u64;
+        st.needs_fixup[l] |= flags[l];
+        any |= flags[l];
     }
-    (st.u_next, rates, grown_row)
+    if any != 0 {
+        for l in 0..S {
+            if flags[l] != 0 {
+                grown[l] = if CLU && bonded[l] {
+                    0.0
+                } else {
+                    fixed_up(old[l], x[l], grown[l])
+                };
+            }
+        }
+    }
+    for l in 0..S {
+        st.sum[l] += fmax(grown[l], 0.0);
+    }
+    (st.u_next, grown)
 }
 
-/// What a group's back sweep hands back: per segment the sum of its new gaps (segment 0's
+/// What a group's second pass hands back: per segment the sum of its new gaps (segment 0's
 /// including the prologue's), and the flags.
 struct GroupBack {
     sums: [f64; SEGMENT_LANES],
@@ -540,39 +727,44 @@ struct GroupBack {
 }
 
 /// Group g's chunks of the outputs (natural layout: velocities of the chunk's rows, the gaps
-/// after them).
+/// after them) and of the forces.
 struct Outputs<'a> {
     vel: &'a mut [f64],
     gaps: &'a mut [f64],
-    /// The sweep scratch (the back sweep reads w, ys, z and overwrites ls with the rates).
-    w: &'a [f64],
-    ls: &'a mut [f64],
-    ys: &'a [f64],
-    z: &'a [f64],
+    force: &'a mut [f64],
 }
 
-simd_versions!(back_group_simd, back_group_avx2, back_group_impl, (
+std::thread_local! {
+    /// Per thread: the sweep rows of the group it solves (w, ls, ys), reused by every group, so
+    /// that they stay in its cache and never go to memory.
+    static ROWS: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+simd_versions!(solve_group_simd, solve_group_avx2, solve_group_impl, (
     terms: &Terms<L>,
     layout: &Layout,
     g: usize,
-    h: f64,
+    c: Step,
     iface: &[(f64, f64)],
-    gaps_in: &[f64],
-    out: Outputs<'_>
+    inputs: &Inputs<'_>,
+    out: Outputs<'_>,
+    buf: &mut Vec<f64>
 ) -> GroupBack);
 
-/// Back sweep of group g's segments (and of the prologue, for group 0): `iface[s]` is segment
-/// s's (tau, velocity of the next segment's first row).
+/// The second pass over group g (and the prologue, for group 0): forward sweep of each segment
+/// from its tau, then the back sweep from the first velocity of the next segment
+/// (`iface[s]` = (tau, that velocity)), writing velocities and gaps.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn back_group_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+fn solve_group_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
     terms: &Terms<L>,
     layout: &Layout,
     g: usize,
-    h: f64,
+    c: Step,
     iface: &[(f64, f64)],
-    gaps_in: &[f64],
-    out: Outputs,
+    inputs: &Inputs<'_>,
+    out: Outputs<'_>,
+    buf: &mut Vec<f64>,
     law: Law<P, Q>,
 ) -> GroupBack
 where
@@ -580,6 +772,52 @@ where
     Q: Fn(usize) -> f64 + Copy,
 {
     const S: usize = SEGMENT_LANES;
+    {
+        let len = layout.chunk(g).len();
+        if buf.len() < 3 * len {
+            buf.resize(3 * len, 0.0);
+        }
+        let (w, rest) = buf.split_at_mut(len);
+        let (ls, rest) = rest.split_at_mut(len);
+        let ys = &mut rest[..len];
+        let tau: [f64; S] = std::array::from_fn(|l| iface[g * S + l].0);
+        forward_group::<L, REP, FRC, CLU, false, P, Q>(
+            terms,
+            layout,
+            g,
+            c,
+            Sweep::new(tau, 0.0),
+            inputs,
+            out.force,
+            Some(Rows { w, ls, ys }),
+            law,
+        );
+        back_group::<L, CLU, P, Q>(terms, layout, g, c, iface, inputs.0, w, ls, ys, out, law)
+    }
+}
+
+/// The back sweep of [`solve_group_impl`].
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn back_group<const L: usize, const CLU: bool, P, Q>(
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    iface: &[(f64, f64)],
+    gaps_in: &[f64],
+    w: &[f64],
+    ls: &[f64],
+    ys: &[f64],
+    out: Outputs<'_>,
+    law: Law<P, Q>,
+) -> GroupBack
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    const S: usize = SEGMENT_LANES;
+    let h = c.h;
     let m = layout.seg;
     let chunk_at = layout.chunk(g).start;
     let main = layout.main_start(g);
@@ -588,36 +826,49 @@ where
     let gamma2 = -((law.gamma)(0) + 2.0);
     let mut st = Back::<S> {
         u_next: std::array::from_fn(|l| iface[g * S + l].1),
-        tau: std::array::from_fn(|l| iface[g * S + l].0),
         sum: [0.0; S],
         opening: [0.0; S],
         closing: [f64::NEG_INFINITY; S],
         needs_fixup: [0; S],
     };
-    for k in (0..m).rev() {
-        let row0 = main + 1 + k;
-        let old = gather::<S, f64>(gaps_in, row0, m);
-        let bonded = if CLU {
-            gather::<S, bool>(bonded_all, row0, m)
-        } else {
-            [false; S]
-        };
-        let at = off + k * S;
-        let w: &[f64; S] = out.w[at..at + S].try_into().unwrap();
-        let ys: &[f64; S] = out.ys[at..at + S].try_into().unwrap();
-        let z: &[f64; S] = out.z[at..at + S].try_into().unwrap();
-        let ls: &mut [f64; S] = (&mut out.ls[at..at + S]).try_into().unwrap();
-        let (u, rates, grown) = back_row::<S, CLU>(h, gamma2, &mut st, &old, &bonded, w, ys, z, ls);
-        *ls = rates;
+    // Tiles of rows from the top, as in the forward sweep; the outputs go out per tile.
+    let mut t_old = [[0.0; S]; TILE];
+    let mut t_bond = [[false; S]; TILE];
+    let mut t_u = [[0.0; S]; TILE];
+    let mut t_grown = [[0.0; S]; TILE];
+    let mut k_hi = m;
+    while k_hi > 0 {
+        let kn = TILE.min(k_hi);
+        let k0 = k_hi - kn;
+        let row0 = main + 1 + k0;
+        tile_in_f64(c.simd, gaps_in, row0, m, kn, &mut t_old);
+        if CLU {
+            tile_in(bonded_all, row0, m, kn, &mut t_bond);
+        }
+        for kk in (0..kn).rev() {
+            let at = off + (k0 + kk) * S;
+            let (u, grown) = back_row::<S, CLU>(
+                h,
+                gamma2,
+                &mut st,
+                &t_old[kk],
+                &t_bond[kk],
+                w[at..at + S].try_into().unwrap(),
+                ys[at..at + S].try_into().unwrap(),
+                ls[at..at + S].try_into().unwrap(),
+            );
+            t_u[kk] = u;
+            t_grown[kk] = grown;
+        }
         // Velocity of row r at r - 1 - chunk_at, gap index r at r - 1 - chunk_at of the chunk.
-        scatter::<S, f64>(out.vel, row0 - 1 - chunk_at, m, &u);
-        scatter::<S, f64>(out.gaps, row0 - 1 - chunk_at, m, &grown);
+        tile_out_f64(c.simd, out.vel, row0 - 1 - chunk_at, m, kn, &t_u);
+        tile_out_f64(c.simd, out.gaps, row0 - 1 - chunk_at, m, kn, &t_grown);
+        k_hi = k0;
     }
     let mut u_first = 0.0;
     if g == 0 {
         let mut s0 = Back::<1> {
             u_next: [st.u_next[0]],
-            tau: [0.0],
             sum: [st.sum[0]],
             opening: [st.opening[0]],
             closing: [st.closing[0]],
@@ -625,20 +876,16 @@ where
         };
         for row in (1..=layout.rem).rev() {
             let i = row - 1;
-            let old = [gaps_in[row]];
-            let bonded = [CLU && bonded_all[row]];
-            let (u, rates, grown) = back_row::<1, CLU>(
+            let (u, grown) = back_row::<1, CLU>(
                 h,
                 gamma2,
                 &mut s0,
-                &old,
-                &bonded,
-                &[out.w[i]],
-                &[out.ys[i]],
-                &[out.z[i]],
-                &[out.ls[i]],
+                &[gaps_in[row]],
+                &[CLU && bonded_all[row]],
+                &[w[i]],
+                &[ys[i]],
+                &[ls[i]],
             );
-            out.ls[i] = rates[0];
             out.vel[i] = u[0];
             out.gaps[i] = grown[0];
         }
@@ -652,10 +899,7 @@ where
     GroupBack {
         sums: st.sum,
         opening: st.opening.iter().fold(0.0, |a, &b| fmax(b, a)),
-        closing: st
-            .closing
-            .iter()
-            .fold(f64::NEG_INFINITY, |a, &b| fmax(b, a)),
+        closing: st.closing.iter().fold(f64::NEG_INFINITY, |a, &b| fmax(b, a)),
         needs_fixup: st.needs_fixup.iter().fold(0, |a, b| a | b),
         u_first,
     }
@@ -725,6 +969,7 @@ where
     let (h0, t0) = (h[0], t[0]);
     let eps = terms.eps;
     let c = Step {
+        simd,
         mu: terms.mu[0],
         eps,
         h: h0,
@@ -747,70 +992,48 @@ where
             q += stored_gap::decode(gaps_in[row - 1]) + 2.0 * eps;
         }
     }
-    scratch.spike.resize(n - 1, 0.0);
     let dstar_all: &[f64] = terms.repulsion.map_or(&[], |r| r.0);
     let bonded_all: &[bool] = terms.bonded.unwrap_or(&[]);
-    let inputs = (gaps_in, dstar_all, bonded_all, vel_in);
+    let inputs: Inputs = (gaps_in, dstar_all, bonded_all, vel_in);
 
-    // 1. Forward sweeps of all segments.
-    let chunks: Vec<Chunks> = split_chunks(&layout, &mut scratch.w, 0)
-        .into_iter()
-        .zip(split_chunks(&layout, &mut scratch.ls, 0))
-        .zip(split_chunks(&layout, &mut scratch.ys, 0))
-        .zip(split_chunks(&layout, &mut scratch.spike, 0))
-        .zip(split_chunks(&layout, &mut scratch.force, 0))
-        .map(|((((w, ls), ys), z), force)| Chunks {
-            w,
-            ls,
-            ys,
-            z,
-            force,
-        })
-        .collect();
-    let group_ends: Vec<GroupEnd> = chunks
-        .into_par_iter()
-        .enumerate()
-        .map(|(g, out)| {
-            forward_group_simd::<L, REP, FRC, CLU, P, Q>(
-                simd, terms, &layout, g, c, &q_start, &inputs, out, law,
-            )
-        })
-        .collect();
-    let nonfinite = group_ends.iter().fold(0, |a, e| a | e.nonfinite);
-    if nonfinite != 0 {
+    // 1. The ends of every segment's forward sweep (and the forces).
+    let group_ends: Vec<([SegmentEnd; SEGMENT_LANES], u64)> =
+        split_chunks(&layout, &mut scratch.force, 0)
+            .into_par_iter()
+            .enumerate()
+            .map(|(g, force)| {
+                ends_group_simd::<L, REP, FRC, CLU, P, Q>(
+                    simd, terms, &layout, g, c, &q_start, &inputs, force, law,
+                )
+            })
+            .collect();
+    if group_ends.iter().any(|e| e.1 != 0) {
         report[0].hard = find_hard_failure(terms, law, n, 0, t0, h0, gaps_in);
     }
-    let ends: Vec<SegmentEnd> = group_ends.iter().flat_map(|e| e.ends).collect();
+    let ends: Vec<SegmentEnd> = group_ends.iter().flat_map(|e| e.0).collect();
 
     // 2. The interface values.
     let iface = interfaces(&ends);
 
-    // 3. Back sweeps of all segments.
+    // 3. Every segment solved from its interface values.
     let (gap_first, gaps_rest) = gaps_out.split_at_mut(1);
-    let ws: Vec<&[f64]> = layout.chunk_slices(&scratch.w);
-    let yss: Vec<&[f64]> = layout.chunk_slices(&scratch.ys);
-    let zs: Vec<&[f64]> = layout.chunk_slices(&scratch.spike);
     let outs: Vec<Outputs> = split_chunks(&layout, vel_out, 0)
         .into_iter()
         .zip(split_chunks(&layout, gaps_rest, 0))
-        .zip(split_chunks(&layout, &mut scratch.ls, 0))
-        .enumerate()
-        .map(|(g, ((vel, gaps), ls))| Outputs {
-            vel,
-            gaps,
-            w: ws[g],
-            ls,
-            ys: yss[g],
-            z: zs[g],
-        })
+        .zip(split_chunks(&layout, &mut scratch.force, 0))
+        .map(|((vel, gaps), force)| Outputs { vel, gaps, force })
         .collect();
     let backs: Vec<GroupBack> = outs
         .into_par_iter()
         .enumerate()
         .map(|(g, out)| {
-            back_group_simd::<L, REP, FRC, CLU, P, Q>(
-                simd, terms, &layout, g, h0, &iface, gaps_in, out, law,
-            )
+            // The thread's buffer is taken here: a closure inside the AVX2 instance would be
+            // compiled without AVX2.
+            ROWS.with_borrow_mut(|buf| {
+                solve_group_simd::<L, REP, FRC, CLU, P, Q>(
+                    simd, terms, &layout, g, c, &iface, &inputs, out, buf, law,
+                )
+            })
         })
         .collect();
     // The sum of the new gaps in a fixed order (from the last segment down), so that it does
@@ -830,36 +1053,34 @@ where
     let u_first = backs[0].u_first;
 
     // 4. The rest as in the sequential path (step.rs `euler_impl`): bodies glued to the left
-    // wall, the first gap, the fix-up, the certificate and the projection.
+    // wall, the first gap, the certificate and the projection.
     if CLU {
-        if let Some(bonded) = terms.bonded {
-            for i in 0..n - 1 {
-                if !bonded[i] {
-                    break;
-                }
-                vel_out[i] = 0.0;
+        for i in 0..n - 1 {
+            if !bonded_all[i] {
+                break;
             }
+            vel_out[i] = 0.0;
         }
     }
     let gamma2 = -((law.gamma)(0) + 2.0);
     let old = gaps_in[0];
-    let rate_first = u_first / fmax(old, GAP_FLOOR);
-    let x = h0 * rate_first;
-    let grown = old * gap_exp(x);
-    gap_first[0] = grown;
-    sum += fmax(grown, 0.0);
+    let x = h0 * (u_first / fmax(old, GAP_FLOOR));
+    let mut grown = old * gap_exp(x);
     if old > 0.0 {
         opening = fmax(x, opening);
     }
     let d = fmax(old, GAP_FLOOR);
     closing = fmax(d * (gamma2 * fmin(x, 0.0) - 1.0), closing);
-    needs_fixup |= !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX) as u64;
-    if needs_fixup != 0 {
-        // The fix-up reads the rates by row (rare: log-stored gaps or extreme steps).
-        let rates: Vec<f64> = (1..n).map(|row| scratch.ls[layout.index_of(row)]).collect();
-        fix_up_lane::<L>(terms, n, 0, h0, gaps_in, gaps_out, &rates, rate_first);
-        sum = super::lane_sum::<L>(n, 0, gaps_out);
+    if !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX) {
+        needs_fixup = 1;
+        grown = if CLU && bonded_all[0] {
+            0.0
+        } else {
+            fixed_up(old, x, grown)
+        };
     }
+    gap_first[0] = grown;
+    sum += fmax(grown, 0.0);
     report[0].admissible &= opening <= MAX_OPENING;
     report[0].certified = needs_fixup == 0
         && energy_certified(
