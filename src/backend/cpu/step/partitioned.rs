@@ -31,11 +31,21 @@
 //! log-stored gaps included); the segments depend on n only, and per-segment sums are added in a
 //! fixed order, so the result does not depend on the thread count.
 //!
-//! Layout of the sweep scratch (w, ls, ys, spike, length n-1): the prologue's rows at row - 1,
-//! then per group its S segments interleaved (local row k of lane l at k·S + l), so that the
-//! lane loops read and write whole rows; gaps and velocities keep their natural layout (gathered
-//! and scattered per row). The rest of the step (hard-failure lookup, log-gap fix-up,
-//! certificate, projection and energy) is the sequential path's code.
+//! Two passes over the chain, because at N = 10^6 memory, not arithmetic, is the limit (measured
+//! here: 15 GB/s for one core, 17 for two): the first sweeps every segment forward with the
+//! spike and keeps only its end (and the forces); after the interface solve, the second sweeps
+//! each group forward again from its known tau into per-thread rows that stay in cache, and back.
+//! That reads the inputs twice and stores nothing per row but the new state (about 80 bytes
+//! per particle-step against ~140 for storing the spike rows), at the price of a second forward
+//! sweep. The log-form fix-up of a gap is local, so it is done in the back sweep (the rates are
+//! not kept); the hard-failure lookup, certificate, projection and energy are the sequential
+//! path's code.
+//!
+//! Layout: the rows of group g (and the prologue's, for group 0) are one contiguous range; the
+//! lane loops work on tiles of TILE rows × S segments copied in from the natural layout of
+//! gaps and velocities and out again (4×4 AVX2 transposes where available; only moves).
+//!
+//! `ROUGHLUB_CPU_PARTITION=off` keeps the sequential sweep at every N (for comparisons).
 
 use rayon::prelude::*;
 
@@ -49,12 +59,13 @@ use crate::model::chain::stored_gap;
 /// Segments per group: the lanes of the partitioned lane loops (as many as the batched blocks,
 /// to keep several divisions in flight per core).
 pub(crate) const SEGMENT_LANES: usize = 16;
-/// Chains of fewer particles keep the sequential sweep (measured: see `benches/cpu_solver.rs`).
+/// Chains of fewer particles keep the sequential sweep. Measured on one core: at 2^14 the
+/// partitioned step already does 1.37 times the sequential one's particle-steps per second
+/// (its divisions in SIMD registers), and uses several cores.
 pub(crate) const PARTITION_MIN_PARTICLES: usize = 1 << 14;
-/// Rows per segment the default layout aims at (at least), and its largest number of groups
-/// (enough to share out over many cores; more only adds interfaces).
-const SEGMENT_ROWS: usize = 512;
-const MAX_GROUPS: usize = 16;
+/// Rows per segment the default layout aims at (at least): 2^14 particles then make 4 groups to
+/// share out over cores, and a group's rows and inputs (16·m·48 bytes) stay well inside L2.
+const SEGMENT_ROWS: usize = 256;
 /// Spike coefficients and the running product of w are set to 0 below this: their terms are
 /// then far below rounding, and letting them decay through the subnormals would cost a
 /// microcode assist per operation.
@@ -95,7 +106,7 @@ impl Layout {
         if off || n < PARTITION_MIN_PARTICLES {
             return None;
         }
-        let groups = ((n - 1) / (SEGMENT_LANES * SEGMENT_ROWS)).clamp(1, MAX_GROUPS);
+        let groups = ((n - 1) / (SEGMENT_LANES * SEGMENT_ROWS)).max(1);
         Layout::new(n, groups)
     }
 
@@ -158,8 +169,8 @@ fn gather<const S: usize, T: Copy>(src: &[T], base: usize, stride: usize) -> [T;
     std::array::from_fn(|l| unsafe { *src.get_unchecked(base + l * stride) })
 }
 
-/// Rows per tile of the lane loops (a tile of each input is 4 KiB: all stay in L1).
-const TILE: usize = 32;
+/// Rows per tile of the lane loops (a tile of each input is 8 KiB: all stay in L1).
+const TILE: usize = 64;
 
 /// tile[k][l] = src[base + l·stride + k] for k < kn: lane l's next kn values, read in order.
 #[inline(always)]
@@ -211,7 +222,9 @@ fn tile_in_f64<const S: usize>(
         assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
         // SAFETY: AVX2 is there (SimdLevel::Avx2Fma); every read is within the lanes' ranges
         // checked above, every write within the tile.
-        unsafe { transpose_avx2::<S, true>(src.as_ptr() as *mut f64, stride, base, kn, tile) };
+        unsafe {
+            transpose_avx2::<S, true>(src.as_ptr() as *mut f64, stride, base, kn, tile.as_mut_ptr())
+        };
         return;
     }
     let _ = simd;
@@ -231,9 +244,10 @@ fn tile_out_f64<const S: usize>(
     #[cfg(target_arch = "x86_64")]
     if simd == SimdLevel::Avx2Fma && S % 4 == 0 {
         assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
-        let mut t = *tile;
-        // SAFETY: as in `tile_in_f64`; `dst` is borrowed mutably.
-        unsafe { transpose_avx2::<S, false>(dst.as_mut_ptr(), stride, base, kn, &mut t) };
+        // SAFETY: as in `tile_in_f64`; `dst` is borrowed mutably, the tile is only read.
+        unsafe {
+            transpose_avx2::<S, false>(dst.as_mut_ptr(), stride, base, kn, tile.as_ptr() as *mut _)
+        };
         return;
     }
     let _ = simd;
@@ -245,7 +259,8 @@ fn tile_out_f64<const S: usize>(
 ///
 /// # Safety
 /// AVX2 must be available; `mem` must be valid for reads (IN) or writes of
-/// base + l·stride + k for all l < S, k < kn; kn <= TILE and S a multiple of 4.
+/// base + l·stride + k for all l < S, k < kn, and `tile` for writes (IN) or reads of kn rows;
+/// S a multiple of 4.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn transpose_avx2<const S: usize, const IN: bool>(
@@ -253,7 +268,7 @@ unsafe fn transpose_avx2<const S: usize, const IN: bool>(
     stride: usize,
     base: usize,
     kn: usize,
-    tile: &mut [[f64; S]; TILE],
+    tile: *mut [f64; S],
 ) {
     use std::arch::x86_64::*;
     let k4 = kn & !3;
@@ -265,7 +280,7 @@ unsafe fn transpose_avx2<const S: usize, const IN: bool>(
             let a: [__m256d; 4] = if IN {
                 std::array::from_fn(|j| _mm256_loadu_pd(p.add(j * stride + k)))
             } else {
-                std::array::from_fn(|j| _mm256_loadu_pd(tile[k + j].as_ptr().add(l0)))
+                std::array::from_fn(|j| _mm256_loadu_pd((*tile.add(k + j)).as_ptr().add(l0)))
             };
             let t0 = _mm256_unpacklo_pd(a[0], a[1]);
             let t1 = _mm256_unpackhi_pd(a[0], a[1]);
@@ -279,7 +294,7 @@ unsafe fn transpose_avx2<const S: usize, const IN: bool>(
             ];
             for (j, v) in b.into_iter().enumerate() {
                 if IN {
-                    _mm256_storeu_pd(tile[k + j].as_mut_ptr().add(l0), v);
+                    _mm256_storeu_pd((*tile.add(k + j)).as_mut_ptr().add(l0), v);
                 } else {
                     _mm256_storeu_pd(p.add(j * stride + k), v);
                 }
@@ -289,9 +304,9 @@ unsafe fn transpose_avx2<const S: usize, const IN: bool>(
         for k in k4..kn {
             for j in 0..4 {
                 if IN {
-                    tile[k][l0 + j] = *p.add(j * stride + k);
+                    (*tile.add(k))[l0 + j] = *p.add(j * stride + k);
                 } else {
-                    *p.add(j * stride + k) = tile[k][l0 + j];
+                    *p.add(j * stride + k) = (*tile.add(k))[l0 + j];
                 }
             }
         }
@@ -1336,7 +1351,7 @@ mod tests {
         assert_eq!(Layout::for_chain(PARTITION_MIN_PARTICLES - 1), None);
         for n in [PARTITION_MIN_PARTICLES, PARTITION_MIN_PARTICLES + 37] {
             let layout = Layout::for_chain(n).expect("partitioned above the threshold");
-            assert!(layout.seg >= SEGMENT_ROWS / 2);
+            assert!(layout.seg >= SEGMENT_ROWS && layout.groups >= 2, "{layout:?}");
             let model = Model {
                 gamma: Some(2.0),
                 clusters: true,
