@@ -57,7 +57,11 @@ fn run(scene_text: &str, partition: Option<&str>) -> Run {
     std::fs::write(&scene_path, scene_text).unwrap();
     let out = tmp.path().join("out");
     let mut cmd = Command::new(BIN);
-    cmd.arg("run").arg(&scene_path).arg("--out").arg(&out).arg("--quiet");
+    cmd.arg("run")
+        .arg(&scene_path)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet");
     match partition {
         Some(v) => cmd.env("ROUGHLUB_CPU_PARTITION", v),
         None => cmd.env_remove("ROUGHLUB_CPU_PARTITION"),
@@ -70,8 +74,7 @@ fn run(scene_text: &str, partition: Option<&str>) -> Run {
         String::from_utf8_lossy(&output.stderr)
     );
     let manifest: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(manifest["members"][0]["status"], "ok");
     Run {
         gaps: read_npy(&out.join("gaps.npy")),
@@ -132,7 +135,10 @@ fn partitioned_run_equals_sequential_run() {
         assert_ne!(part.gaps, seq.gaps, "{label}: identical bits");
         let (gap, vel) = differences(&part, &seq);
         assert!(gap <= 1e-12, "{label}: gaps differ by {gap:e} (relative)");
-        assert!(vel <= 1e-12, "{label}: velocities differ by {vel:e} of max |u|");
+        assert!(
+            vel <= 1e-12,
+            "{label}: velocities differ by {vel:e} of max |u|"
+        );
     }
 }
 

@@ -50,9 +50,9 @@
 use rayon::prelude::*;
 
 use super::{
-    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms,
-    particle_force, Law, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR,
-    GAP_FLOOR, MAX_OPENING,
+    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms, particle_force,
+    Law, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR,
+    MAX_OPENING,
 };
 use crate::model::chain::stored_gap;
 
@@ -223,7 +223,13 @@ fn tile_in_f64<const S: usize>(
         // SAFETY: AVX2 is there (SimdLevel::Avx2Fma); every read is within the lanes' ranges
         // checked above, every write within the tile.
         unsafe {
-            transpose_avx2::<S, true>(src.as_ptr() as *mut f64, stride, base, kn, tile.as_mut_ptr())
+            transpose_avx2::<S, true>(
+                src.as_ptr() as *mut f64,
+                stride,
+                base,
+                kn,
+                tile.as_mut_ptr(),
+            )
         };
         return;
     }
@@ -443,11 +449,11 @@ fn forces<const S: usize, const L: usize>(
 ) -> [f64; S] {
     let mut f = [0.0; S];
     if let Some(forcing) = terms.forcing {
-        for l in 0..S {
+        for (l, (q, fl)) in st.q.iter_mut().zip(f.iter_mut()).enumerate() {
             let row = row0 + l * stride;
-            st.q[l] += stored_gap::decode(gaps_in[row - 1]) + 2.0 * c.eps;
-            f[l] = particle_force(forcing, terms.forcing_params[0], c.eps, c.t, st.q[l]);
-            force[row - 1 - force_at] = f[l];
+            *q += stored_gap::decode(gaps_in[row - 1]) + 2.0 * c.eps;
+            *fl = particle_force(forcing, terms.forcing_params[0], c.eps, c.t, *q);
+            force[row - 1 - force_at] = *fl;
         }
     }
     f
@@ -513,8 +519,9 @@ where
             [false; S]
         };
         for l in 0..S {
-            let (a, gg, _) =
-                gap_terms::<REP, CLU, P, Q>(law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h);
+            let (a, gg, _) = gap_terms::<REP, CLU, P, Q>(
+                law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
+            );
             st.a_prev[l] = a;
             st.g_prev[l] = gg;
         }
@@ -724,8 +731,8 @@ fn back_row<const S: usize, const CLU: bool>(
             }
         }
     }
-    for l in 0..S {
-        st.sum[l] += fmax(grown[l], 0.0);
+    for (sum, g) in st.sum.iter_mut().zip(grown) {
+        *sum += fmax(g, 0.0);
     }
     (st.u_next, grown)
 }
@@ -914,7 +921,10 @@ where
     GroupBack {
         sums: st.sum,
         opening: st.opening.iter().fold(0.0, |a, &b| fmax(b, a)),
-        closing: st.closing.iter().fold(f64::NEG_INFINITY, |a, &b| fmax(b, a)),
+        closing: st
+            .closing
+            .iter()
+            .fold(f64::NEG_INFINITY, |a, &b| fmax(b, a)),
         needs_fixup: st.needs_fixup.iter().fold(0, |a, b| a | b),
         u_first,
     }
@@ -1351,7 +1361,10 @@ mod tests {
         assert_eq!(Layout::for_chain(PARTITION_MIN_PARTICLES - 1), None);
         for n in [PARTITION_MIN_PARTICLES, PARTITION_MIN_PARTICLES + 37] {
             let layout = Layout::for_chain(n).expect("partitioned above the threshold");
-            assert!(layout.seg >= SEGMENT_ROWS && layout.groups >= 2, "{layout:?}");
+            assert!(
+                layout.seg >= SEGMENT_ROWS && layout.groups >= 2,
+                "{layout:?}"
+            );
             let model = Model {
                 gamma: Some(2.0),
                 clusters: true,
