@@ -1377,6 +1377,24 @@ mod tests {
         }
     }
 
+    /// A long chain (N = 10^5, the default layout: 24 groups) at a realistic step: the velocity
+    /// solve is ill-conditioned at large N (cond ~ 4 mu h/(d·2eps) ~ 1e7 here), which both
+    /// solves share; they still agree to 1e-12.
+    #[test]
+    fn long_chain_equals_sequential() {
+        let n = 100_000;
+        let layout = Layout::for_chain(n).unwrap();
+        let model = Model {
+            gamma: Some(2.0),
+            clusters: false,
+            forced: false,
+        };
+        let c = chain(n, 21, &[], &[]);
+        let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
+        let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+        assert_close("N = 1e5", &part, &seq, TOL);
+    }
+
     /// Results do not depend on the thread count (1 or 2 rayon threads), nor on the SIMD level:
     /// bit for bit.
     #[test]
