@@ -1,5 +1,7 @@
 //! Particle-steps per second (members × particles × steps / wall time) of the batched CPU
 //! solver: order 1, fixed steps, integer gamma (repulsion on, gamma = 2), no forcing.
+//! B1_N1000000 and B4_N1000000 are the few-members-huge-N cases, which take the partitioned
+//! solve (`ROUGHLUB_CPU_PARTITION=off` measures the sequential sweep instead).
 
 use std::time::Duration;
 
@@ -52,6 +54,8 @@ fn particle_steps(c: &mut Criterion) {
         .warm_up_time(Duration::from_secs(1));
     for (members, particles, steps) in [
         (1usize, 100_000usize, 20usize),
+        (1, 1_000_000, 10),
+        (4, 1_000_000, 4),
         (256, 1000, 40),
         (4096, 100, 40),
     ] {

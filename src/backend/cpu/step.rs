@@ -38,6 +38,7 @@
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
 
+use self::partitioned::{euler_partitioned, Layout};
 use super::{twin_math, SimdLevel};
 use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};
@@ -596,6 +597,41 @@ pub(crate) fn euler_step_at<const L: usize>(
     vel_out: &mut [f64],
     scratch: &mut Scratch,
 ) -> [StepReport; L] {
+    // One member with a long chain: segments side by side (the sequential sweep would be bound
+    // by its row-to-row latency).
+    let layout = if L == 1 {
+        Layout::for_chain(particles)
+    } else {
+        None
+    };
+    euler_step_as(
+        simd, layout, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch,
+    )
+}
+
+/// [`euler_step_at`] with the solve chosen: the sequential sweep (`None`) or the partitioned
+/// one with this layout (L = 1 only).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn euler_step_as<const L: usize>(
+    simd: SimdLevel,
+    layout: Option<Layout>,
+    terms: &Terms<L>,
+    particles: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch,
+) -> [StepReport; L] {
+    if let Some(layout) = layout {
+        return specialised!(
+            terms,
+            euler_partitioned,
+            (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch, layout)
+        );
+    }
     specialised!(
         terms,
         euler_simd,
@@ -1029,12 +1065,18 @@ fn fix_up_lane<const L: usize>(
         } else {
             rates[(i - 1) * L + l]
         };
-        let x = h * rate;
-        let grown = gaps_out[k];
-        if (GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX && gaps_in[k] > 0.0 {
-            continue;
-        }
-        gaps_out[k] = encode_ln_gap(stored_ln(gaps_in[k]) + x);
+        gaps_out[k] = fixed_up(gaps_in[k], h * rate, gaps_out[k]);
+    }
+}
+
+/// A free gap's stored value after the update to `grown` = old·e^x: kept, or redone in log form
+/// where the fast form does not apply (a log-stored gap, or a result outside [GAP_FLOOR, inf)).
+#[inline(always)]
+fn fixed_up(old: f64, x: f64, grown: f64) -> f64 {
+    if (GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX && old > 0.0 {
+        grown
+    } else {
+        encode_ln_gap(stored_ln(old) + x)
     }
 }
 
@@ -1202,6 +1244,9 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
         report[l].certified = false;
     }
 }
+
+// After the macros above, which it uses.
+mod partitioned;
 
 #[cfg(test)]
 mod tests {

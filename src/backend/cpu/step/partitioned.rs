@@ -1,0 +1,1470 @@
+//! One member with a huge chain: the step's tridiagonal solve split into segments solved side
+//! by side (a partitioned, SPIKE-style Thomas algorithm).
+//!
+//! Why: a single member's sequential sweep is bound by the latency of its row-to-row dependency
+//! (a division per row), and a block of one lane has no other lanes to fill the SIMD registers or
+//! the other cores. Splitting the rows into P independent segments gives P sweeps to run as the
+//! lanes of the usual lane loop (SIMD across segments) and in parallel (rayon across groups of
+//! segments), so one member at N = 10^6 runs near the batched rate.
+//!
+//! How. The rows 1..n-1 are cut into P = G·S segments (S lanes per group, G groups), all m rows
+//! long except segment 0, which also takes the r = (n-1) mod P rows left over (swept alone
+//! before and after its group: the prologue). Segment s, rows [b, e), is swept forward exactly as
+//! the sequential sweep does, but not from the state its left neighbour would hand it: it starts
+//! from the rate of its first gap, tau = r_b = (u_b - u_{b-1})/d_b, as an unknown (ls = 0,
+//! ys = -tau). The rows' ys are then affine in tau, ys_i = ys0_i + z_i tau (the spike z is swept
+//! along; segment 0 starts from the wall and has none), and the sweep also accumulates the
+//! segment's first velocity as u_b = A + B u_e + C tau. Per segment, the end of the sweep gives
+//!   tau_{s+1} = ls_{e-1} u_e - ys0_{e-1} - z_{e-1} tau_s   (the rate of the next segment's first gap)
+//!   u_b = A + B u_e + C tau_s,
+//! a small system in the 2P interface values (tau_s, u_{b_s}) that is itself swept like a Thomas
+//! system: left to right carrying tau_s = Lc u_{b_s} - Yc (the sequential sweep's state at the
+//! interface), right to left from the wall. Its pivots 1 - Lc C are >= 1 (Lc >= 0, C <= 0) and
+//! Lc stays >= 0: no cancellation. The back-substitution of each segment from its tau and right
+//! neighbour's first velocity is then the sequential back sweep (velocities, rate form of the
+//! gap update, flags for the energy certificate, sum of the new gaps), again side by side.
+//!
+//! The interface carries a rate, not a velocity: near contact (d below GAP_FLOOR) the rate is
+//! O(1) while u_b - u_{b-1} is below rounding, so a velocity interface would lose the rate of a
+//! gap at a segment boundary; this one computes every rate as the sequential sweep does. The
+//! results equal the sequential sweep's up to rounding (tested to 1e-12 relative, clusters and
+//! log-stored gaps included); the segments depend on n only, and per-segment sums are added in a
+//! fixed order, so the result does not depend on the thread count.
+//!
+//! Two passes over the chain, because at N = 10^6 memory, not arithmetic, is the limit (measured
+//! here: 15 GB/s for one core, 17 for two): the first sweeps every segment forward with the
+//! spike and keeps only its end (and the forces); after the interface solve, the second sweeps
+//! each group forward again from its known tau into per-thread rows that stay in cache, and back.
+//! That reads the inputs twice and stores nothing per row but the new state (about 80 bytes
+//! per particle-step against ~140 for storing the spike rows), at the price of a second forward
+//! sweep. The log-form fix-up of a gap is local, so it is done in the back sweep (the rates are
+//! not kept); the hard-failure lookup, certificate, projection and energy are the sequential
+//! path's code.
+//!
+//! Layout: the rows of group g (and the prologue's, for group 0) are one contiguous range; the
+//! lane loops work on tiles of TILE rows × S segments copied in from the natural layout of
+//! gaps and velocities and out again (4×4 AVX2 transposes where available; only moves).
+//!
+//! `ROUGHLUB_CPU_PARTITION=off` keeps the sequential sweep at every N (for comparisons).
+
+use rayon::prelude::*;
+
+use super::{
+    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms, particle_force,
+    Law, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR,
+    MAX_OPENING,
+};
+use crate::model::chain::stored_gap;
+
+/// Segments per group: the lanes of the partitioned lane loops (as many as the batched blocks,
+/// to keep several divisions in flight per core).
+pub(crate) const SEGMENT_LANES: usize = 16;
+/// Chains of fewer particles keep the sequential sweep. Measured on one core: at 2^14 the
+/// partitioned step already does 1.37 times the sequential one's particle-steps per second
+/// (its divisions in SIMD registers), and uses several cores.
+pub(crate) const PARTITION_MIN_PARTICLES: usize = 1 << 14;
+/// Rows per segment the default layout aims at (at least): 2^14 particles then make 4 groups to
+/// share out over cores, and a group's rows and inputs (16·m·48 bytes) stay well inside L2.
+const SEGMENT_ROWS: usize = 256;
+/// Spike coefficients and the running product of w are set to 0 below this: their terms are
+/// then far below rounding, and letting them decay through the subnormals would cost a
+/// microcode assist per operation.
+const TINY: f64 = 1e-140;
+
+/// How the rows of a chain are cut: `groups` groups of SEGMENT_LANES segments of `seg` rows,
+/// segment 0 with `rem` more rows in front.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Layout {
+    groups: usize,
+    seg: usize,
+    rem: usize,
+}
+
+impl Layout {
+    /// `groups` groups for a chain of n particles; None if a segment would have no row.
+    pub(crate) fn new(n: usize, groups: usize) -> Option<Layout> {
+        let rows = n.checked_sub(1)?;
+        let p = groups * SEGMENT_LANES;
+        if groups == 0 || rows < p {
+            return None;
+        }
+        let seg = rows / p;
+        Some(Layout {
+            groups,
+            seg,
+            rem: rows - p * seg,
+        })
+    }
+
+    /// The layout a step of a one-member block with n particles uses, None for the sequential
+    /// sweep: below PARTITION_MIN_PARTICLES, or with `ROUGHLUB_CPU_PARTITION=off`. Depends on n
+    /// only (never on the thread count).
+    pub(crate) fn for_chain(n: usize) -> Option<Layout> {
+        static OFF: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        let off =
+            *OFF.get_or_init(|| std::env::var("ROUGHLUB_CPU_PARTITION").is_ok_and(|v| v == "off"));
+        if off || n < PARTITION_MIN_PARTICLES {
+            return None;
+        }
+        let groups = ((n - 1) / (SEGMENT_LANES * SEGMENT_ROWS)).max(1);
+        Layout::new(n, groups)
+    }
+
+    fn segments(&self) -> usize {
+        self.groups * SEGMENT_LANES
+    }
+
+    /// Scratch index (= row - 1) where group g's main rows start; group 0's chunk also holds the
+    /// prologue's rem rows before it.
+    fn main_start(&self, g: usize) -> usize {
+        self.rem + g * SEGMENT_LANES * self.seg
+    }
+
+    /// Scratch (and velocity) index range of group g: the chunks split the scratch, the
+    /// velocities and (shifted by one) the gaps 1..n among the groups.
+    fn chunk(&self, g: usize) -> std::ops::Range<usize> {
+        let start = if g == 0 { 0 } else { self.main_start(g) };
+        start..self.main_start(g + 1)
+    }
+
+    /// Segment s's first row (s >= 1; segment 0 starts at row 1).
+    fn first_row(&self, s: usize) -> usize {
+        1 + self.rem + s * self.seg
+    }
+
+    /// Index of row `row` (1-based) in a group's rows (offset by its chunk's start).
+    #[cfg(test)]
+    fn index_of(&self, row: usize) -> usize {
+        let i = row - 1;
+        if i < self.rem {
+            return i;
+        }
+        let j = i - self.rem;
+        let per_group = SEGMENT_LANES * self.seg;
+        let (g, within) = (j / per_group, j % per_group);
+        let (l, k) = (within / self.seg, within % self.seg);
+        self.main_start(g) + k * SEGMENT_LANES + l
+    }
+}
+
+/// `s` cut at the chunks of `layout` (of the slice's own first `offset` elements, which go
+/// nowhere).
+fn split_chunks<'a, T>(layout: &Layout, s: &'a mut [T], offset: usize) -> Vec<&'a mut [T]> {
+    let mut rest = &mut s[offset..];
+    let mut out = Vec::with_capacity(layout.groups);
+    for g in 0..layout.groups {
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(layout.chunk(g).len());
+        out.push(head);
+        rest = tail;
+    }
+    out
+}
+
+/// Values at base, base + stride, …: one bounds check for the row, none per lane (for the
+/// segments' first gaps).
+#[inline(always)]
+fn gather<const S: usize, T: Copy>(src: &[T], base: usize, stride: usize) -> [T; S] {
+    assert!(base + (S - 1) * stride < src.len());
+    // SAFETY: every index is at most base + (S-1)·stride, checked above.
+    std::array::from_fn(|l| unsafe { *src.get_unchecked(base + l * stride) })
+}
+
+/// Rows per tile of the lane loops (a tile of each input is 8 KiB: all stay in L1).
+const TILE: usize = 64;
+
+/// tile[k][l] = src[base + l·stride + k] for k < kn: lane l's next kn values, read in order.
+#[inline(always)]
+fn tile_in<const S: usize, T: Copy>(
+    src: &[T],
+    base: usize,
+    stride: usize,
+    kn: usize,
+    tile: &mut [[T; S]; TILE],
+) {
+    for l in 0..S {
+        let from = &src[base + l * stride..base + l * stride + kn];
+        for (row, &v) in tile.iter_mut().zip(from) {
+            row[l] = v;
+        }
+    }
+}
+
+/// dst[base + l·stride + k] = tile[k][l] for k < kn (the inverse of [`tile_in`]).
+#[inline(always)]
+fn tile_out<const S: usize>(
+    dst: &mut [f64],
+    base: usize,
+    stride: usize,
+    kn: usize,
+    tile: &[[f64; S]; TILE],
+) {
+    for l in 0..S {
+        let to = &mut dst[base + l * stride..base + l * stride + kn];
+        for (row, v) in tile.iter().zip(to) {
+            *v = row[l];
+        }
+    }
+}
+
+/// [`tile_in`] for f64, by 4×4 AVX2 transposes where `simd` allows (the same values: only
+/// moves; the scalar copy costs a load and a store per value, a third of the step).
+#[inline(always)]
+fn tile_in_f64<const S: usize>(
+    simd: SimdLevel,
+    src: &[f64],
+    base: usize,
+    stride: usize,
+    kn: usize,
+    tile: &mut [[f64; S]; TILE],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if simd == SimdLevel::Avx2Fma && S % 4 == 0 {
+        assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
+        // SAFETY: AVX2 is there (SimdLevel::Avx2Fma); every read is within the lanes' ranges
+        // checked above, every write within the tile.
+        unsafe {
+            transpose_avx2::<S, true>(
+                src.as_ptr() as *mut f64,
+                stride,
+                base,
+                kn,
+                tile.as_mut_ptr(),
+            )
+        };
+        return;
+    }
+    let _ = simd;
+    tile_in(src, base, stride, kn, tile);
+}
+
+/// [`tile_out`] by 4×4 AVX2 transposes where `simd` allows.
+#[inline(always)]
+fn tile_out_f64<const S: usize>(
+    simd: SimdLevel,
+    dst: &mut [f64],
+    base: usize,
+    stride: usize,
+    kn: usize,
+    tile: &[[f64; S]; TILE],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if simd == SimdLevel::Avx2Fma && S % 4 == 0 {
+        assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
+        // SAFETY: as in `tile_in_f64`; `dst` is borrowed mutably, the tile is only read.
+        unsafe {
+            transpose_avx2::<S, false>(dst.as_mut_ptr(), stride, base, kn, tile.as_ptr() as *mut _)
+        };
+        return;
+    }
+    let _ = simd;
+    tile_out(dst, base, stride, kn, tile);
+}
+
+/// Between lane streams (lane l's k-th value at `mem[base + l·stride + k]`) and a tile of rows
+/// (tile[k][l]): into the tile (`IN`) or out of it, four lanes by four rows per transpose.
+///
+/// # Safety
+/// AVX2 must be available; `mem` must be valid for reads (IN) or writes of
+/// base + l·stride + k for all l < S, k < kn, and `tile` for writes (IN) or reads of kn rows;
+/// S a multiple of 4.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn transpose_avx2<const S: usize, const IN: bool>(
+    mem: *mut f64,
+    stride: usize,
+    base: usize,
+    kn: usize,
+    tile: *mut [f64; S],
+) {
+    use std::arch::x86_64::*;
+    let k4 = kn & !3;
+    for l0 in (0..S).step_by(4) {
+        let p = mem.add(base + l0 * stride);
+        let mut k = 0;
+        while k < k4 {
+            // a: four vectors of four; b = its transpose.
+            let a: [__m256d; 4] = if IN {
+                std::array::from_fn(|j| _mm256_loadu_pd(p.add(j * stride + k)))
+            } else {
+                std::array::from_fn(|j| _mm256_loadu_pd((*tile.add(k + j)).as_ptr().add(l0)))
+            };
+            let t0 = _mm256_unpacklo_pd(a[0], a[1]);
+            let t1 = _mm256_unpackhi_pd(a[0], a[1]);
+            let t2 = _mm256_unpacklo_pd(a[2], a[3]);
+            let t3 = _mm256_unpackhi_pd(a[2], a[3]);
+            let b = [
+                _mm256_permute2f128_pd::<0x20>(t0, t2),
+                _mm256_permute2f128_pd::<0x20>(t1, t3),
+                _mm256_permute2f128_pd::<0x31>(t0, t2),
+                _mm256_permute2f128_pd::<0x31>(t1, t3),
+            ];
+            for (j, v) in b.into_iter().enumerate() {
+                if IN {
+                    _mm256_storeu_pd((*tile.add(k + j)).as_mut_ptr().add(l0), v);
+                } else {
+                    _mm256_storeu_pd(p.add(j * stride + k), v);
+                }
+            }
+            k += 4;
+        }
+        for k in k4..kn {
+            for j in 0..4 {
+                if IN {
+                    (*tile.add(k))[l0 + j] = *p.add(j * stride + k);
+                } else {
+                    *p.add(j * stride + k) = (*tile.add(k))[l0 + j];
+                }
+            }
+        }
+    }
+}
+
+/// The forward sweep's state of S segments.
+#[derive(Clone, Copy)]
+struct Sweep<const S: usize> {
+    a_prev: [f64; S],
+    g_prev: [f64; S],
+    ls_prev: [f64; S],
+    ys_prev: [f64; S],
+    /// d ys/d tau of the previous row (first pass only).
+    z_prev: [f64; S],
+    /// Running product of w from the segment's first row (the weight of u_i in u_b).
+    pi: [f64; S],
+    /// u_b = acc_a + pi·u_e + acc_c·tau.
+    acc_a: [f64; S],
+    acc_c: [f64; S],
+    nonfinite: [u64; S],
+    /// Position of the last particle swept (forcing only).
+    q: [f64; S],
+}
+
+impl<const S: usize> Sweep<S> {
+    /// Segments starting from the rate tau of their first gap: ls = 0, ys = -tau (the first
+    /// pass: tau unknown, ys0 = 0 and z = -1).
+    fn new(tau: [f64; S], spike: f64) -> Sweep<S> {
+        Sweep {
+            a_prev: [0.0; S],
+            g_prev: [0.0; S],
+            ls_prev: [0.0; S],
+            ys_prev: tau.map(|x| -x),
+            z_prev: [spike; S],
+            pi: [1.0; S],
+            acc_a: [0.0; S],
+            acc_c: [0.0; S],
+            nonfinite: [0; S],
+            q: [0.0; S],
+        }
+    }
+}
+
+/// The end of one segment's first forward sweep (see the module doc).
+#[derive(Clone, Copy, Default, Debug)]
+struct SegmentEnd {
+    ls: f64,
+    ys: f64,
+    z: f64,
+    a: f64,
+    b: f64,
+    c: f64,
+}
+
+/// Constants of one step.
+#[derive(Clone, Copy)]
+struct Step {
+    /// The instruction set the lane loops run (for the tiles' transposes).
+    simd: SimdLevel,
+    mu: f64,
+    eps: f64,
+    h: f64,
+    t: f64,
+    m_over_h: f64,
+}
+
+/// One row of the forward sweep for S segments: the sequential sweep's operations, plus (with
+/// SPIKE) the spike and the accumulation of u_b. Returns w of the row; ls, ys are left in the
+/// state.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn forward_row<const S: usize, const REP: bool, const CLU: bool, const SPIKE: bool, P, Q>(
+    law: Law<P, Q>,
+    c: Step,
+    st: &mut Sweep<S>,
+    stored: &[f64; S],
+    dstar: &[f64; S],
+    bonded: &[bool; S],
+    vel: &[f64; S],
+    f: &[f64; S],
+) -> [f64; S]
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    let eps2 = 2.0 * c.eps;
+    let mut w = [0.0; S];
+    for l in 0..S {
+        let (a_next, g_next, d_next) =
+            gap_terms::<REP, CLU, P, Q>(law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h);
+        st.nonfinite[l] |= !(g_next + f[l]).is_finite() as u64;
+        let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
+        // As in the sequential sweep (step.rs), operation for operation.
+        let excess = c.m_over_h + st.a_prev[l] * st.ls_prev[l];
+        let delta = rhs + st.a_prev[l] * st.ys_prev[l];
+        let pivot_base = c.m_over_h * d_next + a_next;
+        let coupling = st.a_prev[l] * d_next;
+        let inv = 1.0 / (pivot_base + coupling * st.ls_prev[l]);
+        let ls = excess * inv;
+        let ys = delta * inv;
+        w[l] = a_next * inv;
+        if SPIKE {
+            let z = st.a_prev[l] * st.z_prev[l] * inv;
+            // z <= 0; flushed to 0 once negligible (NaN is kept).
+            let z = if z > -TINY { 0.0 } else { z };
+            st.acc_a[l] += st.pi[l] * (d_next * ys);
+            st.acc_c[l] += st.pi[l] * (d_next * z);
+            let pi = st.pi[l] * w[l];
+            st.pi[l] = if pi < TINY { 0.0 } else { pi };
+            st.z_prev[l] = z;
+        }
+        st.ls_prev[l] = ls;
+        st.ys_prev[l] = ys;
+        st.a_prev[l] = a_next;
+        st.g_prev[l] = g_next;
+    }
+    w
+}
+
+/// Forcing of one row of S segments (rows `row0 + l·stride`): interpreted, so not in the lane
+/// loop. Writes F to `force` (natural layout, index row - 1 - `force_at`).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn forces<const S: usize, const L: usize>(
+    terms: &Terms<L>,
+    c: Step,
+    st: &mut Sweep<S>,
+    gaps_in: &[f64],
+    row0: usize,
+    stride: usize,
+    force: &mut [f64],
+    force_at: usize,
+) -> [f64; S] {
+    let mut f = [0.0; S];
+    if let Some(forcing) = terms.forcing {
+        for (l, (q, fl)) in st.q.iter_mut().zip(f.iter_mut()).enumerate() {
+            let row = row0 + l * stride;
+            *q += stored_gap::decode(gaps_in[row - 1]) + 2.0 * c.eps;
+            *fl = particle_force(forcing, terms.forcing_params[0], c.eps, c.t, *q);
+            force[row - 1 - force_at] = *fl;
+        }
+    }
+    f
+}
+
+/// The inputs, natural layout: gaps, d* and bonded flags (where they exist), velocities.
+type Inputs<'a> = (&'a [f64], &'a [f64], &'a [bool], &'a [f64]);
+
+/// The sweep rows of one group (w, ls, ys: the prologue's rows at row - 1, then the group's
+/// rows interleaved), for the second pass.
+struct Rows<'a> {
+    w: &'a mut [f64],
+    ls: &'a mut [f64],
+    ys: &'a mut [f64],
+}
+
+/// Forward sweep of group g's segments (and of the prologue, for group 0) from `start`. The
+/// first pass (SPIKE, `rows` None) computes F into `force` and returns the segments' ends; the
+/// second (tau known) reads F from `force` and stores the rows.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn forward_group<
+    const L: usize,
+    const REP: bool,
+    const FRC: bool,
+    const CLU: bool,
+    const SPIKE: bool,
+    P,
+    Q,
+>(
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    mut st: Sweep<SEGMENT_LANES>,
+    inputs: &Inputs,
+    force: &mut [f64],
+    mut rows: Option<Rows>,
+    law: Law<P, Q>,
+) -> Sweep<SEGMENT_LANES>
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    const S: usize = SEGMENT_LANES;
+    let (gaps_in, dstar_all, bonded_all, vel_in) = *inputs;
+    let m = layout.seg;
+    let chunk_at = layout.chunk(g).start;
+    let main = layout.main_start(g);
+    let off = main - chunk_at;
+    let eps2 = 2.0 * c.eps;
+    {
+        // The first gap of each segment (index main + l·m) is the previous row's.
+        let stored = gather::<S, f64>(gaps_in, main, m);
+        let dstar = if REP {
+            gather::<S, f64>(dstar_all, main, m)
+        } else {
+            [0.0; S]
+        };
+        let bonded = if CLU {
+            gather::<S, bool>(bonded_all, main, m)
+        } else {
+            [false; S]
+        };
+        for l in 0..S {
+            let (a, gg, _) = gap_terms::<REP, CLU, P, Q>(
+                law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
+            );
+            st.a_prev[l] = a;
+            st.g_prev[l] = gg;
+        }
+    }
+    if g == 0 {
+        // Segment 0 starts from the left wall (lambda_0 = 1: ls_0 = 1/d_1, ys_0 = 0, no spike),
+        // as the sequential sweep does, and sweeps the prologue's rows alone.
+        let mut s0 = Sweep::<1>::new([0.0], 0.0);
+        let (a, gg, d) = gap_terms::<REP, CLU, P, Q>(
+            law,
+            0,
+            c.mu,
+            eps2,
+            gaps_in[0],
+            if REP { dstar_all[0] } else { 0.0 },
+            CLU && bonded_all[0],
+            c.h,
+        );
+        s0.a_prev[0] = a;
+        s0.g_prev[0] = gg;
+        s0.ls_prev[0] = 1.0 / d;
+        s0.nonfinite[0] |= !gg.is_finite() as u64;
+        for row in 1..=layout.rem {
+            let f = match (FRC, SPIKE) {
+                (false, _) => [0.0],
+                (true, true) => forces::<1, L>(terms, c, &mut s0, gaps_in, row, 0, force, 0),
+                (true, false) => [force[row - 1]],
+            };
+            let stored = [gaps_in[row]];
+            let dstar = [if REP { dstar_all[row] } else { 0.0 }];
+            let bonded = [CLU && bonded_all[row]];
+            let vel = [vel_in[row - 1]];
+            let w = forward_row::<1, REP, CLU, false, P, Q>(
+                law, c, &mut s0, &stored, &dstar, &bonded, &vel, &f,
+            );
+            if let Some(r) = rows.as_mut() {
+                r.w[row - 1] = w[0];
+                r.ls[row - 1] = s0.ls_prev[0];
+                r.ys[row - 1] = s0.ys_prev[0];
+            }
+        }
+        st.ls_prev[0] = s0.ls_prev[0];
+        st.ys_prev[0] = s0.ys_prev[0];
+        st.z_prev[0] = 0.0;
+        st.nonfinite[0] |= s0.nonfinite[0];
+        st.q[0] = s0.q[0];
+    }
+    // Rows in tiles of TILE: each lane's inputs are copied in (contiguous reads per lane), so
+    // that the lane loop reads whole rows (gathering a row lane by lane stalls every row on
+    // store forwarding).
+    let mut t_gap = [[0.0; S]; TILE];
+    let mut t_dstar = [[0.0; S]; TILE];
+    let mut t_bond = [[false; S]; TILE];
+    let mut t_vel = [[0.0; S]; TILE];
+    let mut t_f = [[0.0; S]; TILE];
+    let mut k0 = 0;
+    while k0 < m {
+        let kn = TILE.min(m - k0);
+        // Row main + 1 + l·m + k of lane l; its next gap has index main + 1 + l·m + k.
+        let row0 = main + 1 + k0;
+        tile_in_f64(c.simd, gaps_in, row0, m, kn, &mut t_gap);
+        tile_in_f64(c.simd, vel_in, row0 - 1, m, kn, &mut t_vel);
+        if REP {
+            tile_in_f64(c.simd, dstar_all, row0, m, kn, &mut t_dstar);
+        }
+        if CLU {
+            tile_in(bonded_all, row0, m, kn, &mut t_bond);
+        }
+        if FRC && !SPIKE {
+            tile_in_f64(c.simd, force, row0 - 1 - chunk_at, m, kn, &mut t_f);
+        }
+        for kk in 0..kn {
+            if FRC && SPIKE {
+                t_f[kk] = forces::<S, L>(terms, c, &mut st, gaps_in, row0 + kk, m, force, chunk_at);
+            }
+            let w = forward_row::<S, REP, CLU, SPIKE, P, Q>(
+                law,
+                c,
+                &mut st,
+                &t_gap[kk],
+                &t_dstar[kk],
+                &t_bond[kk],
+                &t_vel[kk],
+                &t_f[kk],
+            );
+            if let Some(r) = rows.as_mut() {
+                let at = off + (k0 + kk) * S;
+                r.w[at..at + S].copy_from_slice(&w);
+                r.ls[at..at + S].copy_from_slice(&st.ls_prev);
+                r.ys[at..at + S].copy_from_slice(&st.ys_prev);
+            }
+        }
+        k0 += kn;
+    }
+    st
+}
+
+simd_versions!(ends_group_simd, ends_group_avx2, ends_group_impl, (
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    q_start: &[f64],
+    inputs: &Inputs<'_>,
+    force: &mut [f64]
+) -> ([SegmentEnd; SEGMENT_LANES], u64));
+
+/// The first pass over group g: the segments' ends from a forward sweep with the spike (nothing
+/// stored but F). `q_start` is the position of each segment's particle b - 1 (forcing only).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn ends_group_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    q_start: &[f64],
+    inputs: &Inputs<'_>,
+    force: &mut [f64],
+    law: Law<P, Q>,
+) -> ([SegmentEnd; SEGMENT_LANES], u64)
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    const S: usize = SEGMENT_LANES;
+    let mut start = Sweep::<S>::new([0.0; S], -1.0);
+    if FRC {
+        start.q.copy_from_slice(&q_start[g * S..(g + 1) * S]);
+    }
+    let st = forward_group::<L, REP, FRC, CLU, true, P, Q>(
+        terms, layout, g, c, start, inputs, force, None, law,
+    );
+    let ends = std::array::from_fn(|l| SegmentEnd {
+        ls: st.ls_prev[l],
+        ys: st.ys_prev[l],
+        z: st.z_prev[l],
+        a: st.acc_a[l],
+        b: st.pi[l],
+        c: st.acc_c[l],
+    });
+    (ends, st.nonfinite.iter().fold(0, |a, b| a | b))
+}
+
+/// The back sweep's flags and sums of S segments.
+#[derive(Clone, Copy)]
+struct Back<const S: usize> {
+    u_next: [f64; S],
+    sum: [f64; S],
+    opening: [f64; S],
+    closing: [f64; S],
+    needs_fixup: [u64; S],
+}
+
+/// One row of the back sweep for S segments: the sequential back sweep's operations, with the
+/// log-form fix-up of the gaps that need it done here (their rates are not kept) before the
+/// sum. Returns (u, new stored gap) of the row.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn back_row<const S: usize, const CLU: bool>(
+    h: f64,
+    gamma2: f64,
+    st: &mut Back<S>,
+    old: &[f64; S],
+    bonded: &[bool; S],
+    w: &[f64; S],
+    ys: &[f64; S],
+    ls: &[f64; S],
+) -> ([f64; S], [f64; S]) {
+    let mut x = [0.0; S];
+    let mut small = 1u64;
+    for l in 0..S {
+        let d = fmax(old[l], GAP_FLOOR);
+        let mut u = d * ys[l] + w[l] * st.u_next[l];
+        if CLU && bonded[l] {
+            u = st.u_next[l];
+        }
+        let rate = ls[l] * st.u_next[l] - ys[l];
+        x[l] = h * rate;
+        small &= (x[l].abs() < GAP_EXP_TAYLOR) as u64;
+        st.u_next[l] = u;
+    }
+    let e = super::exp_row(&x, small);
+    let mut grown = [0.0; S];
+    let mut flags = [0u64; S];
+    let mut any = 0u64;
+    for l in 0..S {
+        grown[l] = old[l] * e[l];
+        if old[l] > 0.0 {
+            st.opening[l] = fmax(x[l], st.opening[l]);
+        }
+        let d = fmax(old[l], GAP_FLOOR);
+        st.closing[l] = fmax(d * (gamma2 * fmin(x[l], 0.0) - 1.0), st.closing[l]);
+        // NaN fails the comparisons.
+        flags[l] = !((GAP_FLOOR..f64::INFINITY).contains(&grown[l]) && x[l] <= EXP_FAST_MAX) as u64;
+        st.needs_fixup[l] |= flags[l];
+        any |= flags[l];
+    }
+    if any != 0 {
+        for l in 0..S {
+            if flags[l] != 0 {
+                grown[l] = if CLU && bonded[l] {
+                    0.0
+                } else {
+                    fixed_up(old[l], x[l], grown[l])
+                };
+            }
+        }
+    }
+    for (sum, g) in st.sum.iter_mut().zip(grown) {
+        *sum += fmax(g, 0.0);
+    }
+    (st.u_next, grown)
+}
+
+/// What a group's second pass hands back: per segment the sum of its new gaps (segment 0's
+/// including the prologue's), and the flags.
+struct GroupBack {
+    sums: [f64; SEGMENT_LANES],
+    opening: f64,
+    closing: f64,
+    needs_fixup: u64,
+    /// u_1 (group 0 only).
+    u_first: f64,
+}
+
+/// Group g's chunks of the outputs (natural layout: velocities of the chunk's rows, the gaps
+/// after them) and of the forces.
+struct Outputs<'a> {
+    vel: &'a mut [f64],
+    gaps: &'a mut [f64],
+    force: &'a mut [f64],
+}
+
+std::thread_local! {
+    /// Per thread: the sweep rows of the group it solves (w, ls, ys), reused by every group, so
+    /// that they stay in its cache and never go to memory.
+    static ROWS: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+simd_versions!(solve_group_simd, solve_group_avx2, solve_group_impl, (
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    iface: &[(f64, f64)],
+    inputs: &Inputs<'_>,
+    out: Outputs<'_>,
+    buf: &mut Vec<f64>
+) -> GroupBack);
+
+/// The second pass over group g (and the prologue, for group 0): forward sweep of each segment
+/// from its tau, then the back sweep from the first velocity of the next segment
+/// (`iface[s]` = (tau, that velocity)), writing velocities and gaps.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn solve_group_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    iface: &[(f64, f64)],
+    inputs: &Inputs<'_>,
+    out: Outputs<'_>,
+    buf: &mut Vec<f64>,
+    law: Law<P, Q>,
+) -> GroupBack
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    const S: usize = SEGMENT_LANES;
+    {
+        let len = layout.chunk(g).len();
+        if buf.len() < 3 * len {
+            buf.resize(3 * len, 0.0);
+        }
+        let (w, rest) = buf.split_at_mut(len);
+        let (ls, rest) = rest.split_at_mut(len);
+        let ys = &mut rest[..len];
+        let tau: [f64; S] = std::array::from_fn(|l| iface[g * S + l].0);
+        forward_group::<L, REP, FRC, CLU, false, P, Q>(
+            terms,
+            layout,
+            g,
+            c,
+            Sweep::new(tau, 0.0),
+            inputs,
+            out.force,
+            Some(Rows { w, ls, ys }),
+            law,
+        );
+        back_group::<L, CLU, P, Q>(terms, layout, g, c, iface, inputs.0, w, ls, ys, out, law)
+    }
+}
+
+/// The back sweep of [`solve_group_impl`].
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn back_group<const L: usize, const CLU: bool, P, Q>(
+    terms: &Terms<L>,
+    layout: &Layout,
+    g: usize,
+    c: Step,
+    iface: &[(f64, f64)],
+    gaps_in: &[f64],
+    w: &[f64],
+    ls: &[f64],
+    ys: &[f64],
+    out: Outputs<'_>,
+    law: Law<P, Q>,
+) -> GroupBack
+where
+    P: Fn(usize, f64) -> f64 + Copy,
+    Q: Fn(usize) -> f64 + Copy,
+{
+    const S: usize = SEGMENT_LANES;
+    let h = c.h;
+    let m = layout.seg;
+    let chunk_at = layout.chunk(g).start;
+    let main = layout.main_start(g);
+    let off = main - chunk_at;
+    let bonded_all = terms.bonded.unwrap_or(&[]);
+    let gamma2 = -((law.gamma)(0) + 2.0);
+    let mut st = Back::<S> {
+        u_next: std::array::from_fn(|l| iface[g * S + l].1),
+        sum: [0.0; S],
+        opening: [0.0; S],
+        closing: [f64::NEG_INFINITY; S],
+        needs_fixup: [0; S],
+    };
+    // Tiles of rows from the top, as in the forward sweep; the outputs go out per tile.
+    let mut t_old = [[0.0; S]; TILE];
+    let mut t_bond = [[false; S]; TILE];
+    let mut t_u = [[0.0; S]; TILE];
+    let mut t_grown = [[0.0; S]; TILE];
+    let mut k_hi = m;
+    while k_hi > 0 {
+        let kn = TILE.min(k_hi);
+        let k0 = k_hi - kn;
+        let row0 = main + 1 + k0;
+        tile_in_f64(c.simd, gaps_in, row0, m, kn, &mut t_old);
+        if CLU {
+            tile_in(bonded_all, row0, m, kn, &mut t_bond);
+        }
+        for kk in (0..kn).rev() {
+            let at = off + (k0 + kk) * S;
+            let (u, grown) = back_row::<S, CLU>(
+                h,
+                gamma2,
+                &mut st,
+                &t_old[kk],
+                &t_bond[kk],
+                w[at..at + S].try_into().unwrap(),
+                ys[at..at + S].try_into().unwrap(),
+                ls[at..at + S].try_into().unwrap(),
+            );
+            t_u[kk] = u;
+            t_grown[kk] = grown;
+        }
+        // Velocity of row r at r - 1 - chunk_at, gap index r at r - 1 - chunk_at of the chunk.
+        tile_out_f64(c.simd, out.vel, row0 - 1 - chunk_at, m, kn, &t_u);
+        tile_out_f64(c.simd, out.gaps, row0 - 1 - chunk_at, m, kn, &t_grown);
+        k_hi = k0;
+    }
+    let mut u_first = 0.0;
+    if g == 0 {
+        let mut s0 = Back::<1> {
+            u_next: [st.u_next[0]],
+            sum: [st.sum[0]],
+            opening: [st.opening[0]],
+            closing: [st.closing[0]],
+            needs_fixup: [st.needs_fixup[0]],
+        };
+        for row in (1..=layout.rem).rev() {
+            let i = row - 1;
+            let (u, grown) = back_row::<1, CLU>(
+                h,
+                gamma2,
+                &mut s0,
+                &[gaps_in[row]],
+                &[CLU && bonded_all[row]],
+                &[w[i]],
+                &[ys[i]],
+                &[ls[i]],
+            );
+            out.vel[i] = u[0];
+            out.gaps[i] = grown[0];
+        }
+        st.sum[0] = s0.sum[0];
+        st.opening[0] = s0.opening[0];
+        st.closing[0] = s0.closing[0];
+        st.needs_fixup[0] = s0.needs_fixup[0];
+        u_first = s0.u_next[0];
+    }
+    // max and | do not depend on the order.
+    GroupBack {
+        sums: st.sum,
+        opening: st.opening.iter().fold(0.0, |a, &b| fmax(b, a)),
+        closing: st
+            .closing
+            .iter()
+            .fold(f64::NEG_INFINITY, |a, &b| fmax(b, a)),
+        needs_fixup: st.needs_fixup.iter().fold(0, |a, b| a | b),
+        u_first,
+    }
+}
+
+/// The interface values (tau_s, u of the next segment's first row) of every segment from the
+/// segments' forward ends (the reduced system, swept like a Thomas system; see the module doc).
+fn interfaces(ends: &[SegmentEnd]) -> Vec<(f64, f64)> {
+    let p = ends.len();
+    // tau_s = alpha_s + beta_s u_{b_{s+1}}; segment 0 has tau = 0.
+    let mut alpha = vec![0.0; p];
+    let mut beta = vec![0.0; p];
+    // The state at the interface: tau_s = lc·u_{b_s} - yc.
+    let (mut lc, mut yc) = (ends[0].ls, ends[0].ys);
+    for s in 1..p {
+        let e = ends[s];
+        let inv = 1.0 / (1.0 - lc * e.c);
+        alpha[s] = (lc * e.a - yc) * inv;
+        beta[s] = lc * e.b * inv;
+        lc = e.ls - e.z * beta[s];
+        yc = e.ys + e.z * alpha[s];
+    }
+    let mut out = vec![(0.0, 0.0); p];
+    // The right wall: u_n = 0.
+    let mut u_right = 0.0;
+    for s in (0..p).rev() {
+        let tau = alpha[s] + beta[s] * u_right;
+        out[s] = (tau, u_right);
+        let e = ends[s];
+        u_right = e.a + e.b * u_right + e.c * tau;
+    }
+    out
+}
+
+/// `euler_impl` for a block of one lane (L = 1) with the rows cut as `layout` says: the same
+/// step, the tridiagonal solve partitioned (see the module doc).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn euler_partitioned<
+    const L: usize,
+    const REP: bool,
+    const FRC: bool,
+    const CLU: bool,
+    P,
+    Q,
+>(
+    simd: SimdLevel,
+    terms: &Terms<L>,
+    n: usize,
+    t: &[f64; L],
+    h: &[f64; L],
+    gaps_in: &[f64],
+    vel_in: &[f64],
+    gaps_out: &mut [f64],
+    vel_out: &mut [f64],
+    scratch: &mut Scratch,
+    layout: Layout,
+    law: Law<P, Q>,
+) -> [StepReport; L]
+where
+    P: Fn(usize, f64) -> f64 + Copy + Send + Sync,
+    Q: Fn(usize) -> f64 + Copy + Send + Sync,
+{
+    assert_eq!(L, 1, "the partitioned solve is for one member");
+    assert_eq!(gaps_in.len(), n);
+    assert_eq!(vel_in.len(), n - 1);
+    assert_eq!(Layout::new(n, layout.groups), Some(layout));
+    let (h0, t0) = (h[0], t[0]);
+    let eps = terms.eps;
+    let c = Step {
+        simd,
+        mu: terms.mu[0],
+        eps,
+        h: h0,
+        t: t0,
+        m_over_h: 2.0 * eps / h0,
+    };
+    let mut report = [StepReport::START; L];
+    let p = layout.segments();
+    // Positions of each segment's particle b - 1, summed in the sequential sweep's order.
+    let mut q_start = Vec::new();
+    if FRC {
+        q_start = vec![0.0; p];
+        let mut q = 0.0;
+        let mut s = 1;
+        for row in 1..n {
+            if s < p && row == layout.first_row(s) {
+                q_start[s] = q;
+                s += 1;
+            }
+            q += stored_gap::decode(gaps_in[row - 1]) + 2.0 * eps;
+        }
+    }
+    let dstar_all: &[f64] = terms.repulsion.map_or(&[], |r| r.0);
+    let bonded_all: &[bool] = terms.bonded.unwrap_or(&[]);
+    let inputs: Inputs = (gaps_in, dstar_all, bonded_all, vel_in);
+
+    // 1. The ends of every segment's forward sweep (and the forces).
+    let group_ends: Vec<([SegmentEnd; SEGMENT_LANES], u64)> =
+        split_chunks(&layout, &mut scratch.force, 0)
+            .into_par_iter()
+            .enumerate()
+            .map(|(g, force)| {
+                ends_group_simd::<L, REP, FRC, CLU, P, Q>(
+                    simd, terms, &layout, g, c, &q_start, &inputs, force, law,
+                )
+            })
+            .collect();
+    if group_ends.iter().any(|e| e.1 != 0) {
+        report[0].hard = find_hard_failure(terms, law, n, 0, t0, h0, gaps_in);
+    }
+    let ends: Vec<SegmentEnd> = group_ends.iter().flat_map(|e| e.0).collect();
+
+    // 2. The interface values.
+    let iface = interfaces(&ends);
+
+    // 3. Every segment solved from its interface values.
+    let (gap_first, gaps_rest) = gaps_out.split_at_mut(1);
+    let outs: Vec<Outputs> = split_chunks(&layout, vel_out, 0)
+        .into_iter()
+        .zip(split_chunks(&layout, gaps_rest, 0))
+        .zip(split_chunks(&layout, &mut scratch.force, 0))
+        .map(|((vel, gaps), force)| Outputs { vel, gaps, force })
+        .collect();
+    let backs: Vec<GroupBack> = outs
+        .into_par_iter()
+        .enumerate()
+        .map(|(g, out)| {
+            // The thread's buffer is taken here: a closure inside the AVX2 instance would be
+            // compiled without AVX2.
+            ROWS.with_borrow_mut(|buf| {
+                solve_group_simd::<L, REP, FRC, CLU, P, Q>(
+                    simd, terms, &layout, g, c, &iface, &inputs, out, buf, law,
+                )
+            })
+        })
+        .collect();
+    // The sum of the new gaps in a fixed order (from the last segment down), so that it does
+    // not depend on the thread count.
+    let mut sum = 0.0;
+    let mut opening = 0.0f64;
+    let mut closing = f64::NEG_INFINITY;
+    let mut needs_fixup = 0u64;
+    for b in backs.iter().rev() {
+        for s in b.sums.iter().rev() {
+            sum += s;
+        }
+        opening = fmax(b.opening, opening);
+        closing = fmax(b.closing, closing);
+        needs_fixup |= b.needs_fixup;
+    }
+    let u_first = backs[0].u_first;
+
+    // 4. The rest as in the sequential path (step.rs `euler_impl`): bodies glued to the left
+    // wall, the first gap, the certificate and the projection.
+    if CLU {
+        for i in 0..n - 1 {
+            if !bonded_all[i] {
+                break;
+            }
+            vel_out[i] = 0.0;
+        }
+    }
+    let gamma2 = -((law.gamma)(0) + 2.0);
+    let old = gaps_in[0];
+    let x = h0 * (u_first / fmax(old, GAP_FLOOR));
+    let mut grown = old * gap_exp(x);
+    if old > 0.0 {
+        opening = fmax(x, opening);
+    }
+    let d = fmax(old, GAP_FLOOR);
+    closing = fmax(d * (gamma2 * fmin(x, 0.0) - 1.0), closing);
+    if !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX) {
+        needs_fixup = 1;
+        grown = if CLU && bonded_all[0] {
+            0.0
+        } else {
+            fixed_up(old, x, grown)
+        };
+    }
+    gap_first[0] = grown;
+    sum += fmax(grown, 0.0);
+    report[0].admissible &= opening <= MAX_OPENING;
+    report[0].certified = needs_fixup == 0
+        && energy_certified(
+            REP,
+            closing,
+            opening,
+            2.0 * eps,
+            terms.contact_repulsion[0],
+            terms.mu[0] / h0,
+        );
+    let force = FRC.then_some(scratch.force.as_slice());
+    super::conclude_simd::<L, REP, FRC, CLU, P, Q>(
+        simd,
+        terms,
+        n,
+        h,
+        std::array::from_fn(|_| sum),
+        gaps_out,
+        vel_out,
+        force,
+        &mut report,
+        law,
+    );
+    report
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::super::{euler_step_as, stored_ln, Gamma, HardFailure};
+    use super::*;
+    use crate::expr::Expr;
+    use crate::model::plan::{Forcing, Power};
+    use crate::model::quadrature::GaussLegendre;
+
+    /// A random chain of n particles: gaps of very different sizes around 1/n (stored form),
+    /// velocities, d*, bonded flags; `near` gaps of 1e-300 (stored as ln d) and `bonds` bonded
+    /// gaps at the given gap indices.
+    struct Chain {
+        n: usize,
+        gaps: Vec<f64>,
+        vel: Vec<f64>,
+        dstar: Vec<f64>,
+        bonded: Vec<bool>,
+    }
+
+    fn chain(n: usize, seed: u64, near: &[usize], bonds: &[usize]) -> Chain {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let scale = 0.5 / n as f64;
+        let mut gaps: Vec<f64> = (0..n)
+            .map(|_| scale * (0.05 + 2.0 * rng.random::<f64>()))
+            .collect();
+        let dstar: Vec<f64> = (0..n)
+            .map(|_| scale * (0.2 + 1.5 * rng.random::<f64>()))
+            .collect();
+        let vel: Vec<f64> = (1..n)
+            .map(|i| {
+                let x = i as f64 / n as f64;
+                0.5 * (2.0 * std::f64::consts::PI * x).sin() + 0.05 * (rng.random::<f64>() - 0.5)
+            })
+            .collect();
+        let mut bonded = vec![false; n];
+        for &k in near {
+            gaps[k] = stored_gap::encode(1e-300, GAP_FLOOR);
+        }
+        for &k in bonds {
+            gaps[k] = 0.0;
+            bonded[k] = true;
+        }
+        Chain {
+            n,
+            gaps,
+            vel,
+            dstar,
+            bonded,
+        }
+    }
+
+    /// Which terms a case has.
+    #[derive(Clone, Copy, Debug)]
+    struct Model {
+        gamma: Option<f64>,
+        clusters: bool,
+        forced: bool,
+    }
+
+    type Outcome = (Vec<f64>, Vec<f64>, StepReport);
+
+    /// One step of the chain, sequential (`layout` None) or partitioned.
+    fn step(c: &Chain, model: Model, h: f64, layout: Option<Layout>, simd: SimdLevel) -> Outcome {
+        let n = c.n;
+        let eps = 0.25 / n as f64;
+        let forcing = model.forced.then(|| Forcing {
+            expr: Expr::parse("0.3*sin(2*pi*(x - t)) + 0.1").unwrap(),
+            rule: GaussLegendre::new(3),
+            params: Vec::new(),
+        });
+        let terms = Terms::<1> {
+            eps,
+            mu: [0.01],
+            total_gap: [c.gaps.iter().map(|&v| stored_gap::decode(v)).sum()],
+            contact_repulsion: [model.gamma.map_or(0.0, |g| 3f64.powf(g))],
+            repulsion: model
+                .gamma
+                .map(|g| (c.dstar.as_slice(), Gamma::Uniform(Power::of(g)))),
+            bonded: model.clusters.then_some(c.bonded.as_slice()),
+            forcing: forcing.as_ref(),
+            forcing_params: [&[]],
+        };
+        let mut gaps_out = vec![0.0; n];
+        let mut vel_out = vec![0.0; n - 1];
+        let mut scratch = Scratch::new(n, 1);
+        let report = euler_step_as(
+            simd,
+            layout,
+            &terms,
+            n,
+            &[0.25],
+            &[h],
+            &c.gaps,
+            &c.vel,
+            &mut gaps_out,
+            &mut vel_out,
+            &mut scratch,
+        );
+        (gaps_out, vel_out, report[0])
+    }
+
+    /// The partitioned result equals the sequential one to `tol`: gaps relatively (in ln d for
+    /// log-stored ones; bonded gaps exactly 0 in both), velocities relative to max |u|, the
+    /// energy and work relatively, the flags exactly.
+    fn assert_close(label: &str, part: &Outcome, seq: &Outcome, tol: f64) {
+        let (pg, pv, pr) = part;
+        let (sg, sv, sr) = seq;
+        for (i, (&a, &b)) in pg.iter().zip(sg).enumerate() {
+            let err = if a > 0.0 && b > 0.0 {
+                (a - b).abs() / b
+            } else if a == 0.0 || b == 0.0 {
+                assert_eq!(a, b, "{label}: gap {i} bonded in one only");
+                0.0
+            } else {
+                (stored_ln(a) - stored_ln(b)).abs()
+            };
+            assert!(err <= tol, "{label}: gap {i}: {a:e} vs {b:e} (rel {err:e})");
+        }
+        let umax = sv.iter().fold(0.0f64, |m, u| m.max(u.abs()));
+        for (i, (a, b)) in pv.iter().zip(sv).enumerate() {
+            let err = (a - b).abs() / umax;
+            assert!(err <= tol, "{label}: u {i}: {a:e} vs {b:e} (rel {err:e})");
+        }
+        assert_eq!(
+            (pr.admissible, pr.hard, pr.certified),
+            (sr.admissible, sr.hard, sr.certified),
+            "{label}: flags"
+        );
+        for (what, a, b) in [("energy", pr.energy, sr.energy), ("work", pr.work, sr.work)] {
+            assert!(
+                (a - b).abs() <= tol * b.abs().max(1e-300),
+                "{label}: {what} {a:e} vs {b:e}"
+            );
+        }
+    }
+
+    const TOL: f64 = 1e-12;
+
+    fn models() -> Vec<Model> {
+        let mut out = Vec::new();
+        for gamma in [None, Some(2.0), Some(1.5)] {
+            for clusters in [false, true] {
+                for forced in [false, true] {
+                    out.push(Model {
+                        gamma,
+                        clusters,
+                        forced,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    /// Segment boundaries of a layout: the first gap of each segment (index b - 1) and its
+    /// neighbours, where the interface solve matters most.
+    fn boundary_gaps(layout: &Layout, n: usize) -> Vec<usize> {
+        let mut out = vec![0, 1, n - 1];
+        for s in 1..layout.segments() {
+            let b = layout.first_row(s);
+            out.extend([b - 2, b - 1, b]);
+        }
+        out
+    }
+
+    /// Plain, repulsion, forcing and clusters, on chains whose row count the segments do not
+    /// divide (n - 1 = 2000 + 13 rows, 1 to 3 groups), at a mild and a large step.
+    #[test]
+    fn partitioned_equals_sequential() {
+        let n = 2014;
+        for groups in [1, 2, 3] {
+            let layout = Layout::new(n, groups).unwrap();
+            assert_ne!(layout.rem, 0);
+            let mut bonds: Vec<usize> = vec![0, 1, 2, 700, 701, n - 1];
+            bonds.extend(boundary_gaps(&layout, n).into_iter().skip(3).step_by(4));
+            bonds.sort();
+            bonds.dedup();
+            for model in models() {
+                let c = chain(
+                    n,
+                    7 + groups as u64,
+                    &[],
+                    if model.clusters { &bonds } else { &[] },
+                );
+                for h in [1e-4, 3e-3] {
+                    let label = format!("{model:?}, groups {groups}, h {h}");
+                    let seq = step(&c, model, h, None, SimdLevel::detect());
+                    let part = step(&c, model, h, Some(layout), SimdLevel::detect());
+                    assert_close(&label, &part, &seq, TOL);
+                }
+            }
+        }
+    }
+
+    /// Near contact: gaps of 1e-300 (stored as ln d) at and next to segment boundaries, at the
+    /// walls and inside segments, with clusters too: the rates of those gaps (and so ln d')
+    /// agree, and the fix-up runs.
+    #[test]
+    fn near_contact_equals_sequential() {
+        let n = 1777;
+        let layout = Layout::new(n, 2).unwrap();
+        let mut near = boundary_gaps(&layout, n);
+        near.extend([5, 300, 301, 302]);
+        near.sort();
+        near.dedup();
+        let bonds = [1000, 1001, 1500];
+        for model in models() {
+            let c = chain(n, 3, &near, if model.clusters { &bonds } else { &[] });
+            for h in [1e-5, 1e-3] {
+                let label = format!("near contact, {model:?}, h {h}");
+                let seq = step(&c, model, h, None, SimdLevel::detect());
+                let part = step(&c, model, h, Some(layout), SimdLevel::detect());
+                // The case took the log form (the gaps stay below GAP_FLOOR).
+                assert!(seq.0[near[3]] < 0.0, "{label}: not log-stored");
+                assert_close(&label, &part, &seq, TOL);
+            }
+        }
+    }
+
+    /// The default layout just above the threshold (and the threshold itself) through
+    /// `Layout::for_chain`, with repulsion and clusters.
+    #[test]
+    fn default_layout_just_above_threshold() {
+        assert_eq!(Layout::for_chain(PARTITION_MIN_PARTICLES - 1), None);
+        for n in [PARTITION_MIN_PARTICLES, PARTITION_MIN_PARTICLES + 37] {
+            let layout = Layout::for_chain(n).expect("partitioned above the threshold");
+            assert!(
+                layout.seg >= SEGMENT_ROWS && layout.groups >= 2,
+                "{layout:?}"
+            );
+            let model = Model {
+                gamma: Some(2.0),
+                clusters: true,
+                forced: false,
+            };
+            let c = chain(n, 11, &[n / 2], &[n / 3, n / 3 + 1]);
+            let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
+            let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+            assert_close(&format!("n {n}"), &part, &seq, TOL);
+        }
+    }
+
+    /// A long chain (N = 10^5, the default layout: 24 groups) at a realistic step: the velocity
+    /// solve is ill-conditioned at large N (cond ~ 4 mu h/(d·2eps) ~ 1e7 here), which both
+    /// solves share; they still agree to 1e-12.
+    #[test]
+    fn long_chain_equals_sequential() {
+        let n = 100_000;
+        let layout = Layout::for_chain(n).unwrap();
+        let model = Model {
+            gamma: Some(2.0),
+            clusters: false,
+            forced: false,
+        };
+        let c = chain(n, 21, &[], &[]);
+        let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
+        let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+        assert_close("N = 1e5", &part, &seq, TOL);
+    }
+
+    /// Results do not depend on the thread count (1 or 2 rayon threads), nor on the SIMD level:
+    /// bit for bit.
+    #[test]
+    fn bitwise_equal_across_threads_and_simd_levels() {
+        let n = 3001;
+        let layout = Layout::new(n, 4).unwrap();
+        let model = Model {
+            gamma: Some(2.0),
+            clusters: true,
+            forced: true,
+        };
+        let c = chain(n, 5, &[10, 2000], &[400, 401]);
+        let bits = |o: &Outcome| -> Vec<u64> {
+            o.0.iter()
+                .chain(&o.1)
+                .chain([&o.2.energy, &o.2.work])
+                .map(|v| v.to_bits())
+                .collect()
+        };
+        let run = |threads: usize, simd: SimdLevel| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| bits(&step(&c, model, 1e-3, Some(layout), simd)))
+        };
+        let one = run(1, SimdLevel::detect());
+        assert_eq!(one, run(2, SimdLevel::detect()), "1 vs 2 threads");
+        assert_eq!(one, run(2, SimdLevel::Portable), "detected vs portable");
+    }
+
+    /// A non-finite repulsion is found as by the sequential sweep (the hard-failure lookup).
+    #[test]
+    fn hard_failure_is_reported() {
+        let n = 1500;
+        let layout = Layout::new(n, 1).unwrap();
+        let mut c = chain(n, 9, &[], &[]);
+        c.dstar[900] = 1e300;
+        let model = Model {
+            gamma: Some(200.0),
+            clusters: false,
+            forced: false,
+        };
+        let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
+        let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+        assert!(matches!(
+            seq.2.hard,
+            Some(HardFailure::Repulsion { gap: 901, .. })
+        ));
+        assert_eq!(part.2.hard, seq.2.hard);
+    }
+
+    /// The layout's index map is a bijection of the rows onto the scratch, with the chunks in
+    /// order.
+    #[test]
+    fn layout_indexes_every_row_once() {
+        for (n, groups) in [(33, 2), (1000, 1), (1000, 3), (5000, 7)] {
+            let layout = Layout::new(n, groups).unwrap();
+            let mut seen = vec![false; n - 1];
+            for row in 1..n {
+                let k = layout.index_of(row);
+                assert!(!seen[k], "n {n}: index {k} twice");
+                seen[k] = true;
+            }
+            assert_eq!(layout.chunk(0).start, 0);
+            assert_eq!(layout.chunk(groups - 1).end, n - 1);
+            for g in 1..groups {
+                assert_eq!(layout.chunk(g - 1).end, layout.chunk(g).start);
+            }
+        }
+        assert_eq!(Layout::new(16, 1), None);
+    }
+}
