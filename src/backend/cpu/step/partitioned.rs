@@ -114,14 +114,14 @@ impl Layout {
         self.groups * SEGMENT_LANES
     }
 
-    /// Scratch index (= row - 1) where group g's main rows start; group 0's chunk also holds the
+    /// Index (= row - 1) where group g's main rows start; group 0's chunk also holds the
     /// prologue's rem rows before it.
     fn main_start(&self, g: usize) -> usize {
         self.rem + g * SEGMENT_LANES * self.seg
     }
 
-    /// Scratch (and velocity) index range of group g: the chunks split the scratch, the
-    /// velocities and (shifted by one) the gaps 1..n among the groups.
+    /// Row - 1 range of group g: the chunks split the forces, the velocities and (shifted by one)
+    /// the gaps 1..n among the groups; a group's sweep rows are its chunk, interleaved.
     fn chunk(&self, g: usize) -> std::ops::Range<usize> {
         let start = if g == 0 { 0 } else { self.main_start(g) };
         start..self.main_start(g + 1)
@@ -132,7 +132,8 @@ impl Layout {
         1 + self.rem + s * self.seg
     }
 
-    /// Index of row `row` (1-based) in a group's rows (offset by its chunk's start).
+    /// Index of row `row` (1-based) in the groups' sweep rows laid end to end (the prologue's at
+    /// row - 1, then each group's segments interleaved: local row k of lane l at k·S + l).
     #[cfg(test)]
     fn index_of(&self, row: usize) -> usize {
         let i = row - 1;
