@@ -148,10 +148,9 @@ impl Layout {
     }
 }
 
-/// `s` cut at the chunks of `layout` (of the slice's own first `offset` elements, which go
-/// nowhere).
-fn split_chunks<'a, T>(layout: &Layout, s: &'a mut [T], offset: usize) -> Vec<&'a mut [T]> {
-    let mut rest = &mut s[offset..];
+/// `s` cut at the chunks of `layout`.
+fn split_chunks<'a, T>(layout: &Layout, s: &'a mut [T]) -> Vec<&'a mut [T]> {
+    let mut rest = s;
     let mut out = Vec::with_capacity(layout.groups);
     for g in 0..layout.groups {
         let (head, tail) = std::mem::take(&mut rest).split_at_mut(layout.chunk(g).len());
@@ -1024,7 +1023,7 @@ where
 
     // 1. The ends of every segment's forward sweep (and the forces).
     let group_ends: Vec<([SegmentEnd; SEGMENT_LANES], u64)> =
-        split_chunks(&layout, &mut scratch.force, 0)
+        split_chunks(&layout, &mut scratch.force)
             .into_par_iter()
             .enumerate()
             .map(|(g, force)| {
@@ -1043,10 +1042,10 @@ where
 
     // 3. Every segment solved from its interface values.
     let (gap_first, gaps_rest) = gaps_out.split_at_mut(1);
-    let outs: Vec<Outputs> = split_chunks(&layout, vel_out, 0)
+    let outs: Vec<Outputs> = split_chunks(&layout, vel_out)
         .into_iter()
-        .zip(split_chunks(&layout, gaps_rest, 0))
-        .zip(split_chunks(&layout, &mut scratch.force, 0))
+        .zip(split_chunks(&layout, gaps_rest))
+        .zip(split_chunks(&layout, &mut scratch.force))
         .map(|((vel, gaps), force)| Outputs { vel, gaps, force })
         .collect();
     let backs: Vec<GroupBack> = outs
