@@ -114,14 +114,14 @@ impl Layout {
         self.groups * SEGMENT_LANES
     }
 
-    /// Scratch index (= row - 1) where group g's main rows start; group 0's chunk also holds the
+    /// Index (= row - 1) where group g's main rows start; group 0's chunk also holds the
     /// prologue's rem rows before it.
     fn main_start(&self, g: usize) -> usize {
         self.rem + g * SEGMENT_LANES * self.seg
     }
 
-    /// Scratch (and velocity) index range of group g: the chunks split the scratch, the
-    /// velocities and (shifted by one) the gaps 1..n among the groups.
+    /// Row - 1 range of group g: the chunks split the forces, the velocities and (shifted by one)
+    /// the gaps 1..n among the groups; a group's sweep rows are its chunk, interleaved.
     fn chunk(&self, g: usize) -> std::ops::Range<usize> {
         let start = if g == 0 { 0 } else { self.main_start(g) };
         start..self.main_start(g + 1)
@@ -132,7 +132,8 @@ impl Layout {
         1 + self.rem + s * self.seg
     }
 
-    /// Index of row `row` (1-based) in a group's rows (offset by its chunk's start).
+    /// Index of row `row` (1-based) in the groups' sweep rows laid end to end (the prologue's at
+    /// row - 1, then each group's segments interleaved: local row k of lane l at k·S + l).
     #[cfg(test)]
     fn index_of(&self, row: usize) -> usize {
         let i = row - 1;
@@ -147,10 +148,9 @@ impl Layout {
     }
 }
 
-/// `s` cut at the chunks of `layout` (of the slice's own first `offset` elements, which go
-/// nowhere).
-fn split_chunks<'a, T>(layout: &Layout, s: &'a mut [T], offset: usize) -> Vec<&'a mut [T]> {
-    let mut rest = &mut s[offset..];
+/// `s` cut at the chunks of `layout`.
+fn split_chunks<'a, T>(layout: &Layout, s: &'a mut [T]) -> Vec<&'a mut [T]> {
+    let mut rest = s;
     let mut out = Vec::with_capacity(layout.groups);
     for g in 0..layout.groups {
         let (head, tail) = std::mem::take(&mut rest).split_at_mut(layout.chunk(g).len());
@@ -1023,7 +1023,7 @@ where
 
     // 1. The ends of every segment's forward sweep (and the forces).
     let group_ends: Vec<([SegmentEnd; SEGMENT_LANES], u64)> =
-        split_chunks(&layout, &mut scratch.force, 0)
+        split_chunks(&layout, &mut scratch.force)
             .into_par_iter()
             .enumerate()
             .map(|(g, force)| {
@@ -1042,10 +1042,10 @@ where
 
     // 3. Every segment solved from its interface values.
     let (gap_first, gaps_rest) = gaps_out.split_at_mut(1);
-    let outs: Vec<Outputs> = split_chunks(&layout, vel_out, 0)
+    let outs: Vec<Outputs> = split_chunks(&layout, vel_out)
         .into_iter()
-        .zip(split_chunks(&layout, gaps_rest, 0))
-        .zip(split_chunks(&layout, &mut scratch.force, 0))
+        .zip(split_chunks(&layout, gaps_rest))
+        .zip(split_chunks(&layout, &mut scratch.force))
         .map(|((vel, gaps), force)| Outputs { vel, gaps, force })
         .collect();
     let backs: Vec<GroupBack> = outs
