@@ -1,4 +1,4 @@
-//! One member with a long chain (N = 20000, above the partitioned solve's threshold of 2^14)
+//! One member with a long chain (N = 300000, above the partitioned solve's threshold of 2^18)
 //! through the `roughlub` command, once with the partitioned tridiagonal solve (the default) and
 //! once forced onto the sequential sweep (`ROUGHLUB_CPU_PARTITION=off`): the same answers up to
 //! rounding and the same step counts. The step-level comparisons (clusters, near contact,
@@ -18,7 +18,7 @@ fn scene(time: &str, order: u32) -> String {
     format!(
         r#"name = "partitioned"
 [model]
-particles = 20000
+particles = 300000
 mu = 0.01
 gamma = 2.0
 [initial]
@@ -105,9 +105,8 @@ fn differences(a: &Run, b: &Run) -> (f64, f64) {
 }
 
 /// Fixed steps (order 1, 20 steps) and a short adaptive run (order 2, tolerance 1e-3, a first
-/// trial step too large: 15 accepted, 2 rejected): the partitioned and sequential solves agree
-/// to 1e-12 (gaps relatively, velocities relative to max |u|; measured ~4e-14) with the same
-/// step counts.
+/// trial step too large): the partitioned and sequential solves agree to 1e-12 on gaps
+/// (relatively) and 1e-11 on velocities (relative to max |u|) with the same step counts.
 #[test]
 fn partitioned_run_equals_sequential_run() {
     let cases = [
@@ -135,8 +134,10 @@ fn partitioned_run_equals_sequential_run() {
         assert_ne!(part.gaps, seq.gaps, "{label}: identical bits");
         let (gap, vel) = differences(&part, &seq);
         assert!(gap <= 1e-12, "{label}: gaps differ by {gap:e} (relative)");
+        // The velocity solve's condition number grows with N (~ 4 mu h/(d·2eps)): at
+        // N = 300000 the two roundings differ by 1.4e-12 of max |u| (4e-14 at N = 20000).
         assert!(
-            vel <= 1e-12,
+            vel <= 1e-11,
             "{label}: velocities differ by {vel:e} of max |u|"
         );
     }
