@@ -569,8 +569,9 @@ pub fn euler_step<const L: usize>(
     vel_out: &mut [f64],
     scratch: &mut Scratch,
 ) -> [StepReport; L] {
-    euler_step_at(
+    euler_step_as(
         SimdLevel::detect(),
+        default_layout::<L>(particles),
         terms,
         particles,
         t,
@@ -583,34 +584,20 @@ pub fn euler_step<const L: usize>(
     )
 }
 
-/// [`euler_step`] with the lane loops compiled for `simd` (which the CPU must support).
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn euler_step_at<const L: usize>(
-    simd: SimdLevel,
-    terms: &Terms<L>,
-    particles: usize,
-    t: &[f64; L],
-    h: &[f64; L],
-    gaps_in: &[f64],
-    vel_in: &[f64],
-    gaps_out: &mut [f64],
-    vel_out: &mut [f64],
-    scratch: &mut Scratch,
-) -> [StepReport; L] {
-    // One member with a long chain: segments side by side (the sequential sweep would be bound
-    // by its row-to-row latency).
-    let layout = if L == 1 {
+/// The solve a block of L lanes with `particles` particles uses: for one member with a long
+/// chain the partitioned one (the sequential sweep would be bound by its row-to-row latency),
+/// else the sequential sweep (`None`).
+pub(crate) fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
+    if L == 1 {
         Layout::for_chain(particles)
     } else {
         None
-    };
-    euler_step_as(
-        simd, layout, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch,
-    )
+    }
 }
 
-/// [`euler_step_at`] with the solve chosen: the sequential sweep (`None`) or the partitioned
-/// one with this layout (L = 1 only).
+/// [`euler_step`] with the lane loops compiled for `simd` (which the CPU must support) and the
+/// solve chosen: the sequential sweep (`None`) or the partitioned one with this layout (L = 1
+/// only).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn euler_step_as<const L: usize>(
     simd: SimdLevel,
@@ -1338,8 +1325,9 @@ mod tests {
         let mut gaps_out = vec![0.0; N * M];
         let mut vel_out = vec![0.0; (N - 1) * M];
         let mut scratch = Scratch::new(N, M);
-        let report = euler_step_at(
+        let report = euler_step_as(
             simd,
+            default_layout::<M>(N),
             &terms,
             N,
             &t,
