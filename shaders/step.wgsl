@@ -25,7 +25,7 @@
 //    (adaptive with a fixed order);
 //    terms the plan leaves out are not compiled at all;
 //  - the marker line GENERATED is replaced by the generated code: REAL_MAX, GAP_FLOOR,
-//    LN_GAP_FLOOR, ENERGY_RTOL, LN_RATIO_SERIES, EXTRAPOLATES (order >= 2: the result is the
+//    LN_GAP_FLOOR, ENERGY_RTOL, TIME_RESOLUTION, LN_RATIO_SERIES, EXTRAPOLATES (order >= 2: the result is the
 //    tableau's T_kk, else row k), `exp_real`, `ln_real`, `power(r, gamma)`
 //    (integer gamma: a fixed square-and-multiply chain, the sequence of `powi_by_squaring`;
 //    per-member gamma: the same chain when gamma is an integer <= 1000 as `Power::of` does, else
@@ -823,7 +823,8 @@ fn conclude_attempt(c: ptr<function, Control>, h: real, r: Attempt) -> bool {
     } else {
         (*c).dt = h * REJECT_SHRINK;
     }
-    if (*c).dt < config.dt_min {
+    // Rules::step_floor: dt_min, or the time resolution at t where larger.
+    if (*c).dt < max(config.dt_min, TIME_RESOLUTION * abs((*c).t)) {
         // Failure::Inadmissible = 1, ErrorTooLarge = 2, EnergyRose = 3.
         if !r.admissible {
             (*c).failure = 1u;

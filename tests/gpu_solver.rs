@@ -652,6 +652,76 @@ fn f32_agrees_with_f64_within_the_derived_tolerance() {
     }
 }
 
+/// f32 runs the higher orders too. Fixed steps: T_kk = sum_j c_j T_j1 with the Aitken–Neville
+/// weights of the harmonic sequence, c_j = (-1)^(k-j) j^k / (j! (k-j)!), whose magnitudes sum to
+/// Lambda_k (28.3 at k = 4, 302 at k = 6); row j takes j substeps per step, so its rounding is at
+/// most j times that of the order 1 run over the same steps (measured here, d1). Hence
+/// |f32 - f64| <= Lambda_k · k · d1, with a factor 2 for the extrapolation's own rounding.
+/// Adaptive `auto` at tolerance 1e-4 (well above f32 rounding): both runs meet the tolerance
+/// (their error stays within ~1.2 times it on this chain in f64), so they agree within 10 times it.
+#[test]
+fn f32_higher_orders_agree_with_f64() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let chain = profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7"));
+    let members: Vec<MemberParams> = [(0.01, 1.0), (0.005, 2.0), (0.02, 2.0)]
+        .iter()
+        .map(|&(mu, gamma)| MemberParams { mu, gamma })
+        .collect();
+    let chains = vec![chain.clone(); members.len()];
+    let times = vec![0.0, 0.1, 0.2];
+    let fixed = Stepping::Fixed {
+        dt: 1e-3,
+        dt_min: 1e-9,
+    };
+    let diff = |order: Order, stepping: Stepping| {
+        let plan = plan_for(
+            &chain,
+            members.clone(),
+            order,
+            stepping,
+            times.clone(),
+            None,
+        );
+        let (cpu, cpu_reports) = run_cpu(&plan, &chains);
+        let (gpu32, reports32) = run_gpu(&ctx, &plan, &chains, Precision::F32);
+        for r in cpu_reports.iter().chain(&reports32) {
+            assert_eq!(r.status, MemberStatus::Ok, "{order:?}: {r:?}");
+        }
+        max_rel_diff(&gpu32, &cpu)
+    };
+    let (g1, v1) = diff(Order::Fixed(1), fixed);
+    let d1 = g1.max(v1).max(2f64.powi(-24));
+    let lambda = |k: i32| -> f64 {
+        let fact = |n: i32| (1..=n).map(f64::from).product::<f64>();
+        (1..=k)
+            .map(|j| f64::from(j).powi(k) / (fact(j) * fact(k - j)))
+            .sum()
+    };
+    for k in [3u8, 4, 6] {
+        let (dg, dv) = diff(Order::Fixed(k), fixed);
+        let bound = 2.0 * lambda(k as i32) * k as f64 * d1;
+        eprintln!("order {k}: f32 vs f64 gaps {dg:.2e}, velocities {dv:.2e}; bound {bound:.2e} (order 1: {d1:.2e})");
+        assert!(
+            dg <= bound && dv <= bound,
+            "order {k}: {dg:e} {dv:e} > {bound:e}"
+        );
+    }
+    let tolerance = 1e-4;
+    let adaptive = Stepping::Adaptive {
+        tolerance,
+        dt_initial: 1e-4,
+        dt_min: 1e-12,
+    };
+    let (dg, dv) = diff(Order::Auto, adaptive);
+    eprintln!("auto at {tolerance:e}: f32 vs f64 gaps {dg:.2e}, velocities {dv:.2e}");
+    assert!(
+        dg <= 10.0 * tolerance && dv <= 10.0 * tolerance,
+        "auto: {dg:e} {dv:e}"
+    );
+}
+
 /// N = 10^6 in one member: runs and agrees with the CPU where the device allows one invocation to
 /// sweep a million particles; on lavapipe (a loop budget of 65535 iterations per invocation) it
 /// is refused with an error naming the limit and what to change, and the largest N the error

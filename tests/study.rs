@@ -29,12 +29,13 @@ use {roughlub::backend::cpu::CpuSolver, roughlub::backend::MemberStatus};
 const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
 
 /// Scalar observables and fields a study summarises (`study::SCALARS`, `study::FIELDS`).
-const SCALARS: [&str; 5] = [
+const SCALARS: [&str; 6] = [
     "max_density",
     "min_gap",
     "energy",
     "dissipation",
     "peak_centre",
+    "error_estimate",
 ];
 const FIELDS: [&str; 3] = ["rho", "u", "rho_star"];
 
@@ -1013,6 +1014,120 @@ fn stored_member_arrays_land_in_out() {
         }
     }
     assert_eq!(total, 96, "one stored row per member");
+}
+
+/// An adaptive study records each member's error estimate at every output time: the stored
+/// [member, T] array equals the estimates of the same members solved directly with the library,
+/// its statistics per time are those of that array, and members.csv holds the last column. An
+/// order 1 fixed-step study has none (count 0, NaN in the stored array).
+#[test]
+fn error_estimates_per_member_and_output_time() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = scene_variant(
+        "study_basic.toml",
+        &[
+            ("dt = 1e-3", "tolerance = 1e-6"),
+            ("order = 1", "order = \"auto\""),
+            ("jitter = 0.05", "jitter = 0.05\nstore_members = true"),
+        ],
+        tmp.path(),
+        "estimates.toml",
+    );
+    let dir = tmp.path().join("estimates");
+    assert_success(
+        &run(&scene, &dir, &[]),
+        "adaptive study with stored members",
+    );
+
+    // Independent: every member rebuilt and solved in one CpuSolver.
+    let parsed = Scene::from_file(&scene).unwrap();
+    let spec = parsed.ensemble.clone().unwrap();
+    let members = EnsembleMembers::new(&parsed, &spec).unwrap();
+    let (mut chains, mut params) = (Vec::new(), Vec::new());
+    for m in 0..members.total() {
+        let inputs = members.member(m).unwrap();
+        chains.push(inputs.chain);
+        params.push(inputs.params);
+    }
+    let mut plan = Plan::new(&parsed, &chains[0]);
+    plan.members = params;
+    plan.repulsion = true;
+    plan.fields.rho_star = true;
+    plan.fields.rho = true;
+    plan.fields.u = true;
+    let mut solver = CpuSolver::new(plan, chains);
+    while solver.next_output(&|_| {}).unwrap().is_some() {}
+    let want: Vec<Vec<f64>> = solver
+        .reports()
+        .iter()
+        .map(|r| r.error_estimate.clone().expect("adaptive runs estimate"))
+        .collect();
+    let t = want[0].len();
+    assert_eq!(t, 3);
+    assert!(want.iter().all(|e| e[0] == 0.0 && e[t - 1] > 0.0));
+
+    // The stored arrays, chunk by chunk in member order.
+    let mut names: Vec<PathBuf> = std::fs::read_dir(dir.join("members"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.to_string_lossy().ends_with("_error_estimate.npy"))
+        .collect();
+    names.sort();
+    let mut stored = Vec::new();
+    for p in &names {
+        let (shape, values) = npy(p);
+        assert_eq!(shape[1], t as u64, "[member, T] of {p:?}");
+        stored.extend(values);
+    }
+    let flat: Vec<f64> = want.iter().flatten().copied().collect();
+    assert_identical("stored error estimates", &stored, &flat);
+
+    // Statistics per output time, over members.
+    let per_time: Vec<Vec<f64>> = (0..t)
+        .map(|k| want.iter().map(|e| e[k]).collect())
+        .collect();
+    let (shape, max) = stat(&dir, "error_estimate_max");
+    assert_eq!(shape, [1, t as u64]);
+    let want_max: Vec<f64> = per_time
+        .iter()
+        .map(|v| v.iter().copied().fold(f64::NEG_INFINITY, f64::max))
+        .collect();
+    assert_identical("error_estimate_max", &max, &want_max);
+    let want_mean: Vec<f64> = per_time.iter().map(|v| mean(v)).collect();
+    assert_all_close(
+        "error_estimate_mean",
+        &stat(&dir, "error_estimate_mean").1,
+        &want_mean,
+        1e-12,
+        0.0,
+    );
+    assert_identical(
+        "error_estimate_count",
+        &stat(&dir, "error_estimate_count").1,
+        &vec![want.len() as f64; t],
+    );
+
+    // members.csv: the estimate at the end.
+    let (header, rows) = members_csv(&dir);
+    let c = column(&header, "error_estimate");
+    let last: Vec<f64> = rows.iter().map(|r| r[c].parse().unwrap()).collect();
+    let want_last: Vec<f64> = want.iter().map(|e| e[t - 1]).collect();
+    assert_all_close("members.csv error_estimate", &last, &want_last, 1e-15, 0.0);
+
+    // Order 1 with fixed steps has no estimate: empty statistics.
+    let plain = scene_variant(
+        "study_basic.toml",
+        &[("jitter = 0.05", "jitter = 0.05\nstore_members = true")],
+        tmp.path(),
+        "plain.toml",
+    );
+    let plain_dir = tmp.path().join("plain");
+    assert_success(&run(&plain, &plain_dir, &[]), "order 1 study");
+    assert_identical(
+        "error_estimate_count without estimates",
+        &stat(&plain_dir, "error_estimate_count").1,
+        &[0.0; 3],
+    );
 }
 
 /// A rerun into a directory that holds a complete study, killed, is finished by --resume from

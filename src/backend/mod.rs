@@ -48,6 +48,15 @@ impl Precision {
             Precision::F32 => "f32",
         }
     }
+
+    /// The fraction of |t| below which a step is lost in the rounding of t
+    /// (`control::step_floor`).
+    pub fn time_resolution(self) -> f64 {
+        match self {
+            Precision::F64 => cpu::control::TIME_RESOLUTION_F64,
+            Precision::F32 => cpu::control::TIME_RESOLUTION_F32,
+        }
+    }
 }
 
 /// Told how many member-intervals were completed (called from the solver's worker threads).

@@ -1,5 +1,7 @@
 //! What every backend reports about its members: status, failure reason, step counts.
 
+use crate::backend::cpu::control::step_floor;
+
 /// Why a member stopped.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(tag = "status", rename_all = "lowercase")]
@@ -93,11 +95,20 @@ impl Failure {
 
 impl FailureRecord {
     /// The sentence the manifest gives for this failure of member `member` with gamma `gamma`.
-    pub fn describe(&self, dt_min: f64, member: usize, gamma: f64) -> String {
+    pub fn describe(&self, dt_min: f64, time_resolution: f64, member: usize, gamma: f64) -> String {
         let t = self.time;
+        let floor = step_floor(dt_min, time_resolution, t);
+        let below = if floor > dt_min {
+            format!(
+                "the time resolution at t = {t} ({floor:e} = 2^{} t; dt_min = {dt_min:e})",
+                time_resolution.log2()
+            )
+        } else {
+            format!("dt_min = {dt_min:e} at t = {t}")
+        };
         let collapse = |why: &str| {
             format!(
-                "step size collapsed below dt_min = {dt_min:e} at t = {t}: {why} (smallest gap: d_{} = e^{:.4} = {:e})",
+                "step size collapsed below {below}: {why} (smallest gap: d_{} = e^{:.4} = {:e})",
                 self.index,
                 self.detail,
                 self.detail.exp()

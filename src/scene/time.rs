@@ -25,7 +25,9 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
             Range::of("dt_min").gt(0.0).lt(end).upper_text("end"),
             "a member whose step falls below dt_min is marked failed",
         )?,
-        None => 1e-12 * end,
+        // Far below any step a run needs: in practice the floor is the time resolution
+        // (control::step_floor), which follows t.
+        None => 1e-18 * end,
     };
     let stepping =
         match (t.dt, t.tolerance) {

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use super::files::{ChunkFile, MemberRow, StudyHeader};
 use super::state::StudyState;
-use super::{FIELDS, SCALARS};
+use super::{ERROR_ESTIMATE, FIELDS, SCALARS};
 use crate::backend::gpu::solver::GpuStats;
 use crate::backend::{Engine, MemberReport, MemberStatus};
 use crate::ensemble::members::{EnsembleMembers, MemberInputs};
@@ -122,6 +122,8 @@ pub(super) fn solve_chunk(
     // Per member, per output time (None once failed), in member order.
     let mut recorded: Vec<Vec<Option<RecordedObservables>>> = Vec::with_capacity(count);
     let mut kept_snapshots: Vec<Vec<Snapshot>> = Vec::new();
+    // Each kept member's error estimate at each output time (NaN once failed, or without one).
+    let mut kept_estimates: Vec<Vec<f64>> = Vec::new();
     let mut reports: Vec<MemberReport> = Vec::with_capacity(count);
     for (a, b) in batch_groups(&inputs, members)? {
         let setup = members.setup(inputs[a].point)?;
@@ -138,6 +140,7 @@ pub(super) fn solve_chunk(
         let mut group_recorded: Vec<Vec<Option<RecordedObservables>>> =
             (a..b).map(|_| Vec::with_capacity(t_count)).collect();
         let mut group_kept: Vec<Vec<Snapshot>> = (a..b).map(|_| Vec::new()).collect();
+        let mut group_estimates: Vec<Vec<f64>> = (a..b).map(|_| Vec::new()).collect();
         let mut solver = engine.solver(plan, chains)?;
         let mut k = 0;
         while let Some(snaps) = solver.next_output(&|_| {})? {
@@ -146,10 +149,17 @@ pub(super) fn solve_chunk(
             let t = header.times[k];
             for (g, s) in snaps.iter().enumerate() {
                 let i = a + g;
+                let ok_now = reports_now[g].status == MemberStatus::Ok;
+                // The estimate of the state at this output time (the last one recorded).
+                let estimate = match (&reports_now[g].error_estimate, ok_now) {
+                    (Some(e), true) => e.last().copied().unwrap_or(f64::NAN),
+                    _ => f64::NAN,
+                };
                 if keep {
                     group_kept[g].push(s.clone());
+                    group_estimates[g].push(estimate);
                 }
-                if reports_now[g].status != MemberStatus::Ok {
+                if !ok_now {
                     group_recorded[g].push(None);
                     continue;
                 }
@@ -163,7 +173,14 @@ pub(super) fn solve_chunk(
                     first_hit[i] = t;
                 }
                 group_recorded[g].push(Some(RecordedObservables {
-                    scalars: [s.max_density, s.min_gap, s.energy, s.dissipation, centre],
+                    scalars: [
+                        s.max_density,
+                        s.min_gap,
+                        s.energy,
+                        s.dissipation,
+                        centre,
+                        estimate,
+                    ],
                     fields: [s.rho.clone(), s.u.clone(), s.rho_star.clone()],
                 }));
             }
@@ -179,6 +196,7 @@ pub(super) fn solve_chunk(
         }
         recorded.extend(group_recorded);
         kept_snapshots.extend(group_kept);
+        kept_estimates.extend(group_estimates);
     }
     progress.inc(count as u64);
 
@@ -203,6 +221,10 @@ pub(super) fn solve_chunk(
             for (m, observed) in recorded[i..j].iter().enumerate() {
                 if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(k)) {
                     for (name, &v) in SCALARS.iter().zip(&o.scalars) {
+                        if *name == ERROR_ESTIMATE && v.is_nan() {
+                            // No estimate (order 1, fixed steps): the statistic stays empty.
+                            continue;
+                        }
                         stats.scalars.get_mut(*name).expect("known observable")[k].push(v);
                     }
                 }
@@ -274,6 +296,11 @@ pub(super) fn solve_chunk(
         write_npy(name("gaps"), &[c, t, n], &kept_gaps)?;
         write_npy(name("velocities"), &[c, t, n - 1], &kept_vel)?;
         write_npy(name("rho"), &[c, t, grid as u64], &kept_rho)?;
+        let estimates: Vec<f64> = kept_estimates
+            .iter()
+            .flat_map(|e| (0..t_count).map(|k| e.get(k).copied().unwrap_or(f64::NAN)))
+            .collect();
+        write_npy(name("error_estimate"), &[c, t], &estimates)?;
     }
 
     let mut rows = Vec::with_capacity(count);

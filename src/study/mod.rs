@@ -56,13 +56,16 @@ pub use merge::merge_studies;
 pub use state::StudyState;
 
 /// Scalar observables summarised at every output time.
-pub const SCALARS: [&str; 5] = [
+pub const SCALARS: [&str; 6] = [
     "max_density",
     "min_gap",
     "energy",
     "dissipation",
     "peak_centre",
+    "error_estimate",
 ];
+/// The scalar that is absent (count 0) where the scheme gives no estimate (order 1, fixed steps).
+pub const ERROR_ESTIMATE: &str = "error_estimate";
 /// Fields summarised pointwise over the grid at every output time.
 pub const FIELDS: [&str; 3] = ["rho", "u", "rho_star"];
 /// Relative accuracy of the scalar quantile sketches (values near 1, like densities, are then

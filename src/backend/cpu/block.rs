@@ -214,7 +214,13 @@ impl<const L: usize> Block<L> {
             Stepping::Fixed { dt, .. } => Some(dt),
             Stepping::Adaptive { .. } => None,
         };
-        let rules = Rules::new(t_start, t_end, fixed_dt, plan.stepping.dt_min());
+        let rules = Rules::new(
+            t_start,
+            t_end,
+            fixed_dt,
+            plan.stepping.dt_min(),
+            TIME_RESOLUTION_F64,
+        );
         for lane in self.lanes.iter_mut() {
             lane.control.begin_interval(&rules);
         }
@@ -555,7 +561,12 @@ impl<const L: usize> Block<L> {
                                 index: lane.control.failure_index,
                                 detail: lane.control.failure_detail,
                             }
-                            .describe(dt_min, m, params[m].gamma),
+                            .describe(
+                                dt_min,
+                                TIME_RESOLUTION_F64,
+                                m,
+                                params[m].gamma,
+                            ),
                             time: lane.control.failure_time,
                         },
                     },

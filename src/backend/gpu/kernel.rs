@@ -249,6 +249,11 @@ fn generated(spec: &KernelSpec) -> String {
     );
     let _ = writeln!(
         out,
+        "const TIME_RESOLUTION: real = {};",
+        literal(spec.precision.time_resolution(), float)
+    );
+    let _ = writeln!(
+        out,
         "const LN_RATIO_SERIES: real = {};\nconst EXTRAPOLATES: bool = {};",
         literal(LN_RATIO_SERIES, float),
         spec.scheme.extrapolates

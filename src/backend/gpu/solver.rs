@@ -433,7 +433,13 @@ impl<'a> GpuSolver<'a> {
             Stepping::Fixed { dt, .. } => Some(dt),
             Stepping::Adaptive { .. } => None,
         };
-        let rules = Rules::new(t_start, t_end, fixed_dt, stepping.dt_min());
+        let rules = Rules::new(
+            t_start,
+            t_end,
+            fixed_dt,
+            stepping.dt_min(),
+            self.precision.time_resolution(),
+        );
         ConfigF64 {
             batch: self.plan.members.len() as u32,
             particles: self.plan.particles as u32,
@@ -559,7 +565,12 @@ impl<'a> GpuSolver<'a> {
                             index: c.failure_index,
                             detail: c.failure_detail,
                         }
-                        .describe(dt_min, m, self.plan.members[m].gamma),
+                        .describe(
+                            dt_min,
+                            self.precision.time_resolution(),
+                            m,
+                            self.plan.members[m].gamma,
+                        ),
                         time: c.failure_time,
                     },
                 },
