@@ -7,6 +7,7 @@ mod tableau;
 
 use super::control::{
     energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl, ENERGY_RTOL_F64,
+    TIME_RESOLUTION_F64,
 };
 use super::step::{
     conclude, euler_step, state_energy, stored_ln, Gamma, HardFailure, Scratch, StepReport, Terms,
