@@ -77,8 +77,9 @@ struct LaneModel<T: Real, const L: usize> {
     gamma: Gamma<L>,
     dstar: Option<Vec<T>>,
     bonded: Option<Vec<bool>>,
-    /// sum d_i of each lane's initial chain (kept by every step's projection).
-    total_gap: [T; L],
+    /// sum d_i of each lane's initial chain (kept by every step's projection; f64 in either
+    /// precision, see `step::conclude_impl`).
+    total_gap: [f64; L],
     /// The energy check's relative slack per lane (`energy_rtol`).
     energy_rtol: [f64; L],
     /// See `Terms::contact_repulsion`.
@@ -198,7 +199,7 @@ impl<T: Real, const L: usize> Block<T, L> {
                     .map(|p| energy_rtol::<T>(if plan.repulsion { p.gamma } else { 1.0 })),
                 dstar,
                 bonded,
-                total_gap: total_gap.map(T::c),
+                total_gap,
                 contact_repulsion,
                 members,
             },

@@ -167,8 +167,9 @@ pub fn stored_ln<T: Real>(stored: T) -> T {
 pub struct Terms<'a, const L: usize, T: Real = f64> {
     pub eps: T,
     pub mu: [T; L],
-    /// sum d_i of each lane's initial chain, kept by the projection.
-    pub total_gap: [T; L],
+    /// sum d_i of each lane's initial chain, kept by the projection (f64 in either precision:
+    /// see `conclude_impl`).
+    pub total_gap: [f64; L],
     /// The largest repulsion a gap of the lane can reach, max_i ((d*_i + 2eps)/2eps)^gamma (0
     /// without repulsion), for the energy certificate ([`StepReport::certified`]).
     pub contact_repulsion: [f64; L],
@@ -526,8 +527,9 @@ where
 {
     let eps2 = T::c(2.0) * terms.eps;
     let inputs = Inputs::of(terms, gaps);
-    let mut kinetic = [T::ZERO; L];
-    let mut energy = [T::ZERO; L];
+    // Sums in f64 in either precision (as `conclude_impl`'s).
+    let mut kinetic = [0.0f64; L];
+    let mut energy = [0.0f64; L];
     for i in 0..n {
         let k = i * L;
         let (dstar, bonded) = inputs.row::<L, CLU>(k);
@@ -536,20 +538,20 @@ where
             let phi =
                 potential_of::<T, REP, P, Q>(law, l, eps2, dstar[l], stored[l].max_real(T::ZERO));
             if !bonded[l] {
-                energy[l] += phi;
+                energy[l] += phi.to_f64();
             }
         }
         if i + 1 < n {
             let u = lanes::<L, T>(vel, k);
             for l in 0..L {
-                kinetic[l] += u[l] * u[l];
+                kinetic[l] += (u[l] * u[l]).to_f64();
             }
         }
     }
     for l in 0..L {
-        energy[l] += terms.eps * kinetic[l];
+        energy[l] += terms.eps.to_f64() * kinetic[l];
     }
-    energy.map(T::to_f64)
+    energy
 }
 
 /// F_i = ∫_{q_i - eps}^{q_i + eps} f(t, x) dx by Gauss–Legendre.
@@ -836,7 +838,8 @@ where
     let mut needs_fixup = [T::Flag::default(); L];
     let mut opening = [zero; L];
     let mut closing = [T::NEG_INFINITY; L];
-    let mut sum = [zero; L];
+    // The new gaps' sum, for the projection: in f64 in either precision (see `conclude_impl`).
+    let mut sum = [0.0f64; L];
     let mut u_next = [zero; L];
     let gamma2: [T; L] = std::array::from_fn(|l| -((law.gamma)(l) + T::c(2.0)));
     let taylor = T::c(GAP_EXP_TAYLOR);
@@ -898,7 +901,7 @@ where
                 fixup_w[j] |= flag(!fast(grown[j], x[j]));
             }
             for j in (0..W).rev() {
-                sum[0] += fmax(grown[j], zero);
+                sum[0] += fmax(grown[j], zero).to_f64();
             }
             vel_out[lo - 1..lo - 1 + W].copy_from_slice(&u);
             scratch.ls[lo - 1..lo - 1 + W].copy_from_slice(&rates);
@@ -945,7 +948,7 @@ where
         for l in 0..L {
             let grown = old[l] * e[l];
             grown_row[l] = grown;
-            sum[l] += fmax(grown, zero);
+            sum[l] += fmax(grown, zero).to_f64();
             if old[l] > zero {
                 opening[l] = fmax(x[l], opening[l]);
             }
@@ -977,7 +980,7 @@ where
         let grown = old * gap_exp(x);
         gaps_out[l] = grown;
         rate_first[l] = rate;
-        sum[l] += fmax(grown, zero);
+        sum[l] += fmax(grown, zero).to_f64();
         if old > zero {
             opening[l] = fmax(x, opening[l]);
         }
@@ -1114,10 +1117,10 @@ where
 }
 
 /// The sum of lane l's gaps (in the back sweep's order: from the last gap down).
-fn lane_sum<T: Real, const L: usize>(n: usize, l: usize, gaps: &[T]) -> T {
-    let mut sum = T::ZERO;
+fn lane_sum<T: Real, const L: usize>(n: usize, l: usize, gaps: &[T]) -> f64 {
+    let mut sum = 0.0;
     for i in (0..n).rev() {
-        sum += gaps[i * L + l].max_real(T::ZERO);
+        sum += gaps[i * L + l].max_real(T::ZERO).to_f64();
     }
     sum
 }
@@ -1165,13 +1168,13 @@ fn fixed_up<T: Real>(old: T, x: T, grown: T) -> T {
 /// rare).
 fn shift_logged<T: Real, const L: usize>(
     n: usize,
-    scale: &[T; L],
+    scale: &[f64; L],
     logged: &[T::Flag; L],
     gaps: &mut [T],
 ) {
     for l in 0..L {
         if logged[l] != T::Flag::default() {
-            let shift = scale[l].ln_real();
+            let shift = T::c(twin_math::ln(scale[l]));
             for i in 0..n {
                 let k = i * L + l;
                 if gaps[k] < T::ZERO {
@@ -1194,7 +1197,7 @@ pub fn conclude<T: Real, const L: usize>(
     vel: &[T],
     report: &mut [StepReport; L],
 ) {
-    let mut total = [T::ZERO; L];
+    let mut total = [0.0f64; L];
     for (l, t) in total.iter_mut().enumerate() {
         *t = lane_sum::<T, L>(n, l, gaps);
     }
@@ -1220,7 +1223,7 @@ simd_versions!(conclude_simd, conclude_avx2, conclude_impl, (
     terms: &Terms<L, T>,
     n: usize,
     h: &[T; L],
-    sum: [T; L],
+    sum: [f64; L],
     gaps: &mut [T],
     vel: &[T],
     force: Option<&[T]>,
@@ -1233,7 +1236,7 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
     terms: &Terms<L, T>,
     n: usize,
     h: &[T; L],
-    sum: [T; L],
+    sum: [f64; L],
     gaps: &mut [T],
     vel: &[T],
     force: Option<&[T]>,
@@ -1246,7 +1249,12 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
     assert_eq!(gaps.len(), n * L);
     let zero = T::ZERO;
     let eps2 = T::c(2.0) * terms.eps;
-    let mut scale = [T::ONE; L];
+    // The sum, the scale and the sums of the energy in f64 in either precision: in f32 a scale
+    // with the rounding of a sum of N gaps (sqrt(N) ulps) moves every gap by as much, and G by
+    // gamma times that (~1e-3 at gamma = 1000, N = 200: measured, steps of every size were then
+    // rejected by the energy check, down to dt_min); from the f64 sum the projected gaps are a
+    // fixed point of the next projection, so a vanishing step changes nothing.
+    let mut scale = [1.0f64; L];
     for l in 0..L {
         scale[l] = terms.total_gap[l] / sum[l];
     }
@@ -1255,7 +1263,7 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
     let flag = T::Flag::from;
     let mut logged = [T::Flag::default(); L];
     let mut nonfinite = [T::Flag::default(); L];
-    let mut work = [zero; L];
+    let mut work = [0.0f64; L];
     if report.iter().all(|r| r.certified) {
         // Only the projection (and the forcing's work, which a later energy check of a
         // Richardson step adds up): no lane needs its energy.
@@ -1265,13 +1273,17 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
                 let v = row[l];
                 logged[l] |= flag(v < zero);
                 nonfinite[l] |= flag(!v.is_finite());
-                row[l] = if v > zero { v * scale[l] } else { v };
+                row[l] = if v > zero {
+                    T::c(v.to_f64() * scale[l])
+                } else {
+                    v
+                };
             }
         }
         if let Some(f) = force {
             for (u, f) in vel.chunks_exact(L).zip(f.chunks_exact(L)) {
                 for l in 0..L {
-                    work[l] += u[l] * f[l];
+                    work[l] += (u[l] * f[l]).to_f64();
                 }
             }
         }
@@ -1279,14 +1291,14 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
         for l in 0..L {
             report[l].admissible &= nonfinite[l] == T::Flag::default();
             report[l].energy = -1.0;
-            report[l].work = (h[l] * work[l]).to_f64();
+            report[l].work = h[l].to_f64() * work[l];
         }
         return;
     }
     let dstar_all: &[T] = terms.repulsion.map_or(&[], |r| r.0);
     let bonded_all: &[bool] = terms.bonded.unwrap_or(&[]);
-    let mut potential = [zero; L];
-    let mut kinetic = [zero; L];
+    let mut potential = [0.0f64; L];
+    let mut kinetic = [0.0f64; L];
     for i in 0..n {
         let k = i * L;
         let dstar = if REP {
@@ -1302,24 +1314,24 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
         let row = lanes_mut::<L, T>(gaps, k);
         for l in 0..L {
             let v = row[l];
-            let scaled = v * scale[l];
+            let scaled = T::c(v.to_f64() * scale[l]);
             logged[l] |= flag(v < zero);
             nonfinite[l] |= flag(!v.is_finite());
             row[l] = if v > zero { scaled } else { v };
             let phi = potential_of::<T, REP, P, Q>(law, l, eps2, dstar[l], scaled.max_real(zero));
             if !bonded[l] {
-                potential[l] += phi;
+                potential[l] += phi.to_f64();
             }
         }
         if i + 1 < n {
             let u = lanes::<L, T>(vel, k);
             for l in 0..L {
-                kinetic[l] += u[l] * u[l];
+                kinetic[l] += (u[l] * u[l]).to_f64();
             }
             if let Some(f) = force {
                 let f = lanes::<L, T>(f, k);
                 for l in 0..L {
-                    work[l] += u[l] * f[l];
+                    work[l] += (u[l] * f[l]).to_f64();
                 }
             }
         }
@@ -1327,8 +1339,8 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
     shift_logged::<T, L>(n, &scale, &logged, gaps);
     for l in 0..L {
         report[l].admissible &= nonfinite[l] == T::Flag::default();
-        report[l].energy = (potential[l] + terms.eps * kinetic[l]).to_f64();
-        report[l].work = (h[l] * work[l]).to_f64();
+        report[l].energy = potential[l] + terms.eps.to_f64() * kinetic[l];
+        report[l].work = h[l].to_f64() * work[l];
         report[l].admissible &= report[l].energy.is_finite();
         report[l].certified = false;
     }
@@ -1416,11 +1428,9 @@ mod tests {
             eps: T::c(eps),
             mu: lanes.map(|l| T::c(c.mu[l])),
             total_gap: std::array::from_fn(|m| {
-                T::c(
-                    (0..N)
-                        .map(|i| stored_gap::decode(gaps[i * M + m].to_f64()))
-                        .sum(),
-                )
+                (0..N)
+                    .map(|i| stored_gap::decode(gaps[i * M + m].to_f64()))
+                    .sum()
             }),
             contact_repulsion: [5.0; M],
             repulsion: gamma.map(|g| (dstar.as_slice(), g)),
