@@ -186,14 +186,23 @@ fn f32_agrees_with_f64_within_the_derived_tolerance() {
     }
 }
 
-/// Adaptive steps (order 2, order 4 and auto at tolerance 1e-5): every member completes in f32,
-/// and its error against an independent reference (f64, order 4, fixed dt = 1e-4) is at most
-/// twice f64's at the same tolerance plus 20 tolerances (the controller's local estimates add
-/// up over the steps in either precision; f32 rounding, ~1e-6 per step, stays below them).
+/// Adaptive steps (order 2, order 4 and auto at tolerance 1e-4): every member completes in f32
+/// with the step counts of f64 to 5 % plus 3 steps per member (the estimates differ by rounding,
+/// ~1e-6, far below the tolerance, but one decision taken the other way shifts the sequence;
+/// auto: at most twice f64's, since its high columns' estimates carry the extrapolation's
+/// amplified rounding, gain(6) ≈ 1400 ulps ≈ 1e-4, as large as the tolerance), and
+/// its error against an independent reference (f64, order 4, fixed dt = 1e-4) is at most 1.5
+/// times f64's (both held to the same tolerance by step sequences that differ as much; measured
+/// at most 1.21) plus the order-1 rounding bound 2·steps·(gamma_max + 1)·u32 at the steps taken
+/// (the rows' rounding is correlated: the fixed-step test at order 4 stays within it). f32
+/// rounding grows with the step count, so at tighter tolerances f32 falls behind f64: measured
+/// at 1e-5, order 2, case 1 (~2300 steps per member): f32 1.7e-3 against f64 9.1e-5 on gaps.
 #[test]
-fn adaptive_f32_is_as_accurate_as_adaptive_f64() {
-    let tol = 1e-5;
+fn adaptive_f32_is_as_accurate_as_adaptive_f64_up_to_rounding() {
+    let tol = 1e-4;
+    let u32_eps = 2f64.powi(-24);
     for (label, chain, members) in scenes() {
+        let gamma_max = members.iter().fold(1.0f64, |m, p| m.max(p.gamma));
         let reference = plan(
             &chain,
             members.clone(),
@@ -217,20 +226,23 @@ fn adaptive_f32_is_as_accurate_as_adaptive_f64() {
                 r32.iter().all(|r| r.status == MemberStatus::Ok),
                 "{label} {order:?}: {r32:?}"
             );
+            let total = |r: &[MemberReport]| r.iter().map(|m| m.steps_accepted).sum::<u64>() as f64;
+            let (s64, s32) = (total(&r64), total(&r32));
+            let steps = r32.iter().map(|m| m.steps_accepted).max().unwrap() as f64;
             let (e64g, e64v) = max_rel_diff(&f64_run, &exact);
             let (e32g, e32v) = max_rel_diff(&f32_run, &exact);
-            let steps = |r: &[MemberReport]| -> (u64, u64) {
-                r.iter().fold((0, 0), |s, m| {
-                    (s.0 + m.steps_accepted, s.1 + m.steps_rejected)
-                })
-            };
+            let rounding = 2.0 * steps * (gamma_max + 1.0) * u32_eps;
             eprintln!(
-                "{label} {order:?}: error f64 gaps {e64g:.2e} velocities {e64v:.2e} ({:?} steps), f32 gaps {e32g:.2e} velocities {e32v:.2e} ({:?} steps)",
-                steps(&r64),
-                steps(&r32)
+                "{label} {order:?}: error f64 gaps {e64g:.2e} velocities {e64v:.2e} ({s64} steps), f32 gaps {e32g:.2e} velocities {e32v:.2e} ({s32} steps); rounding bound {rounding:.2e}"
             );
             assert!(
-                e32g <= 2.0 * e64g + 20.0 * tol && e32v <= 2.0 * e64v + 20.0 * tol,
+                (s32 - s64).abs()
+                    <= if order == Order::Auto { 1.0 } else { 0.05 } * s64
+                        + 3.0 * members.len() as f64,
+                "{label} {order:?}: {s32} steps in f32, {s64} in f64"
+            );
+            assert!(
+                e32g <= 1.5 * e64g + rounding && e32v <= 1.5 * e64v + rounding,
                 "{label} {order:?}: f32 error {e32g:e} {e32v:e} vs f64 {e64g:e} {e64v:e}"
             );
         }
