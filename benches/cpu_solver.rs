@@ -1,19 +1,27 @@
 //! Particle-steps per second (members × particles × steps / wall time) of the batched CPU
 //! solver: order 1, fixed steps, integer gamma (repulsion on, gamma = 2), no forcing.
 //! B1_N1000000 and B4_N1000000 are the few-members-huge-N cases, which take the partitioned
-//! solve (`ROUGHLUB_CPU_PARTITION=off` measures the sequential sweep instead).
+//! solve in f64 (`ROUGHLUB_CPU_PARTITION=off` measures the sequential sweep instead); f32 has
+//! the sequential sweep only. The f64 rows are the group `cpu_order1_fixed_integer_gamma`, the
+//! f32 rows `cpu_f32_order1_fixed_integer_gamma` (`cargo bench --bench cpu_solver -- f32`).
 
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use roughlub::backend::cpu::CpuSolver;
-use roughlub::backend::BatchSolver;
+use roughlub::backend::{BatchSolver, Precision};
 use roughlub::expr::Expr;
 use roughlub::model::params::{MemberParams, OutputFields, Stepping};
 use roughlub::model::plan::Plan;
 use roughlub::scene::initial::chain_from_profiles;
 
-fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver {
+fn solver(
+    members: usize,
+    particles: usize,
+    steps: usize,
+    dt: f64,
+    precision: Precision,
+) -> CpuSolver {
     let chain = chain_from_profiles(
         particles,
         &Expr::parse("0.7").unwrap(),
@@ -41,13 +49,18 @@ fn solver(members: usize, particles: usize, steps: usize, dt: f64) -> CpuSolver 
         fields: OutputFields::none(),
         grid: 2,
     };
-    let mut s = CpuSolver::new(plan, vec![chain; members]);
+    let mut s = CpuSolver::with_precision(plan, vec![chain; members], precision);
     s.next_output(&|_| {}).unwrap();
     s
 }
 
 fn particle_steps(c: &mut Criterion) {
-    let mut group = c.benchmark_group("cpu_order1_fixed_integer_gamma");
+    rows(c, "cpu_order1_fixed_integer_gamma", Precision::F64);
+    rows(c, "cpu_f32_order1_fixed_integer_gamma", Precision::F32);
+}
+
+fn rows(c: &mut Criterion, name: &str, precision: Precision) {
+    let mut group = c.benchmark_group(name);
     group
         .sample_size(10)
         .measurement_time(Duration::from_secs(8))
@@ -66,7 +79,7 @@ fn particle_steps(c: &mut Criterion) {
             &(members, particles, steps),
             |b, &(m, n, k)| {
                 b.iter_batched(
-                    || solver(m, n, k, dt),
+                    || solver(m, n, k, dt, precision),
                     |mut s| s.next_output(&|_| {}).unwrap(),
                     criterion::BatchSize::LargeInput,
                 )

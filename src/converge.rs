@@ -436,9 +436,6 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
     check_scene(scene)?;
     let requested = options.backend.unwrap_or(scene.backend);
     let precision = options.precision.unwrap_or(scene.precision);
-    if requested == Backend::Cpu && precision == Precision::F32 {
-        return Err(select::cpu_has_no_f32());
-    }
     let ns = &options.particles;
     let k_count = ns.len();
     let mut warnings = Vec::new();

@@ -68,8 +68,9 @@ enum Command {
         /// How many of the scene's first members to measure.
         #[arg(long, default_value_t = 1)]
         members: usize,
-        /// Backends and precisions of the ladder: a comma list of cpu, gpu (f64), gpu-f32, or
-        /// "available": the CPU, and the GPU in f64 and f32 where an adapter is found.
+        /// Backends and precisions of the ladder: a comma list of cpu (f64), cpu-f32, gpu (f64),
+        /// gpu-f32, or "available": the CPU in f64 and f32, and the GPU in f64 and f32 where an
+        /// adapter is found.
         #[arg(long, default_value = "available")]
         backends: String,
         /// No progress lines.
@@ -127,7 +128,7 @@ enum Command {
 /// `--backends cpu,gpu,gpu-f32` or `available`.
 fn parse_backends(text: &str) -> roughlub::Result<Vec<(Backend, Precision)>> {
     if text.trim() == "available" {
-        let mut found = vec![(Backend::Cpu, Precision::F64)];
+        let mut found = vec![(Backend::Cpu, Precision::F64), (Backend::Cpu, Precision::F32)];
         // An adapter is looked for once; its f64 support decides the f64 line.
         if let Ok(ctx) = roughlub::backend::gpu::GpuContext::acquire(false) {
             if ctx.f64 {
@@ -140,13 +141,14 @@ fn parse_backends(text: &str) -> roughlub::Result<Vec<(Backend, Precision)>> {
     text.split(',')
         .map(|b| match b.trim() {
             "cpu" | "cpu-f64" => Ok((Backend::Cpu, Precision::F64)),
+            "cpu-f32" => Ok((Backend::Cpu, Precision::F32)),
             "gpu" | "gpu-f64" => Ok((Backend::Gpu, Precision::F64)),
             "gpu-f32" => Ok((Backend::Gpu, Precision::F32)),
             other => Err(Error::invalid(
                 "--backends",
                 format!("\"{other}\""),
                 "a backend and precision of the ladder",
-                "a comma list of cpu, gpu (f64), gpu-f32, or available",
+                "a comma list of cpu (f64), cpu-f32, gpu (f64), gpu-f32, or available",
             )),
         })
         .collect()

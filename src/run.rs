@@ -155,10 +155,6 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let started = Instant::now();
     let requested = options.backend.unwrap_or(scene.backend);
     let precision = options.precision.unwrap_or(scene.precision);
-    if requested == Backend::Cpu && precision == Precision::F32 {
-        // Refused before the (possibly long) initial data are built.
-        return Err(select::cpu_has_no_f32());
-    }
 
     // Everything a user supplies is validated before the directory is touched.
     let chain = scene.initial_chain()?;

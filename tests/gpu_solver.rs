@@ -39,7 +39,15 @@ fn sweep() -> Vec<MemberParams> {
 }
 
 fn run_cpu(plan: &Plan, chains: &[Chain]) -> (Vec<Vec<Snapshot>>, Vec<MemberReport>) {
-    let mut solver = CpuSolver::new(plan.clone(), chains.to_vec());
+    run_cpu_in(plan, chains, Precision::F64)
+}
+
+fn run_cpu_in(
+    plan: &Plan,
+    chains: &[Chain],
+    precision: Precision,
+) -> (Vec<Vec<Snapshot>>, Vec<MemberReport>) {
+    let mut solver = CpuSolver::with_precision(plan.clone(), chains.to_vec(), precision);
     let mut out = Vec::new();
     while let Some(s) = solver.next_output(&|_| {}).unwrap() {
         out.push(s);
@@ -720,6 +728,51 @@ fn f32_higher_orders_agree_with_f64() {
         dg <= 10.0 * tolerance && dv <= 10.0 * tolerance,
         "auto: {dg:e} {dv:e}"
     );
+}
+
+/// CPU f32 against GPU f32, the two f32 twins of one kernel (orders 1 and 2, fixed steps): each
+/// is within the bound above of f64 (2·steps·(gamma_max + 1)·u32, times 5 at order 2, where
+/// T_22 = 2·T_2 − T_1 weighs the rows' rounding by |w_j|·n_j = 1 + 4), so they agree to twice
+/// it; they differ only by rounding (exp and ln: the GPU's native f32, the CPU's f64 twins
+/// rounded once; the step h: rounded from f64 on the CPU, computed in f32 on the GPU), with the
+/// same accepted steps.
+#[test]
+fn cpu_f32_agrees_with_gpu_f32() {
+    let Some(ctx) = acquire_for_tests(false) else {
+        return;
+    };
+    let u32_eps = 2f64.powi(-24);
+    let chain = profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7"));
+    let members = sweep();
+    let (dt, steps) = (1e-3, 200.0);
+    let gamma_max = members.iter().fold(1.0f64, |m, p| m.max(p.gamma));
+    for (order, gain) in [(1u8, 1.0), (2, 5.0)] {
+        let plan = plan_for(
+            &chain,
+            members.clone(),
+            order,
+            Stepping::Fixed { dt, dt_min: 1e-9 },
+            vec![0.0, 0.1, 0.2],
+            None,
+        );
+        let chains = vec![chain.clone(); members.len()];
+        let (cpu32, cpu_reports) = run_cpu_in(&plan, &chains, Precision::F32);
+        let (gpu32, gpu_reports) = run_gpu(&ctx, &plan, &chains, Precision::F32);
+        for (c, g) in cpu_reports.iter().zip(&gpu_reports) {
+            assert_eq!(c.status, MemberStatus::Ok, "{c:?}");
+            assert_eq!(g.status, MemberStatus::Ok, "{g:?}");
+            assert_eq!(c.steps_accepted, g.steps_accepted, "member {}", c.index);
+        }
+        let tolerance = 2.0 * 2.0 * steps * (gamma_max + 1.0) * u32_eps * gain;
+        let (dg, dv) = max_rel_diff(&cpu32, &gpu32);
+        eprintln!(
+            "order {order}: CPU f32 vs GPU f32 gaps {dg:.2e}, velocities {dv:.2e}; tolerance {tolerance:.2e}"
+        );
+        assert!(
+            dg <= tolerance && dv <= tolerance,
+            "order {order}: {dg:e} {dv:e} > {tolerance:e}"
+        );
+    }
 }
 
 /// N = 10^6 in one member: runs and agrees with the CPU where the device allows one invocation to

@@ -134,7 +134,11 @@ impl Engine {
     /// A solver for `chains` (`chains[m]` is member m's initial chain) on this engine.
     pub fn solver(&self, plan: Plan, chains: Vec<Chain>) -> Result<Box<dyn BatchSolver + '_>> {
         Ok(match &self.gpu {
-            None => Box::new(CpuSolver::new(plan, chains)),
+            None => Box::new(CpuSolver::with_precision(
+                plan,
+                chains,
+                self.record.precision,
+            )),
             Some(ctx) => Box::new(
                 GpuSolver::new(ctx, plan, chains, self.record.precision).map_err(|e| {
                     Error::gpu(
@@ -174,38 +178,11 @@ fn gpu_acquire_error(e: GpuError, precision: Precision) -> Error {
     }
 }
 
-pub fn cpu_has_no_f32() -> Error {
-    Error::invalid(
-        "solver.precision",
-        "\"f32\"",
-        "the CPU reference path computes in f64 only",
-        "\"f64\" with backend \"cpu\"; \"f32\" with backend \"gpu\" or \"auto\" and a GPU adapter",
-    )
-}
-
-fn auto_f32_error(why: &str) -> Error {
-    Error::invalid(
-        "solver.precision",
-        "\"f32\"",
-        format!(
-            "backend \"auto\" cannot use the GPU ({why}) and the CPU path computes in f64 only"
-        ),
-        "\"f64\" without a usable GPU adapter",
-    )
-}
-
 /// Chooses the backend for batches like `plan` (for a study: its largest chunk). With
 /// `Backend::Auto`, the GPU when an adapter is found that can run the plan at `precision`, else
-/// the CPU with the reason recorded; f32 has no CPU path, so auto + f32 without a GPU is an
-/// error.
+/// the CPU (in the same precision) with the reason recorded.
 pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<Engine> {
     let cpu = |fallback: Option<String>| -> Result<Engine> {
-        if precision == Precision::F32 {
-            return Err(match &fallback {
-                Some(why) => auto_f32_error(why),
-                None => cpu_has_no_f32(),
-            });
-        }
         Ok(Engine {
             gpu: None,
             record: BackendRecord::cpu(requested, precision, fallback),

@@ -1,17 +1,18 @@
 //! A block of L members advanced together: the CPU twin of one GPU invocation per member, with
 //! the L lanes' sweeps side by side (`step::euler_step`), the extrapolation tableau and its
 //! error estimates (`extrapolate`: twin of the same function in `shaders/step.wgsl`), and
-//! per-lane step and order control (`control`).
+//! per-lane step and order control (`control`). The state and the step compute in T (f64 or
+//! f32, [`Real`]); the control (times, steps, energies, estimates) in f64 (see `real.rs`).
 
 mod tableau;
 
 use super::control::{
-    energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl, ENERGY_RTOL_F64,
+    energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl,
     TIME_RESOLUTION_F64,
 };
+use super::real::{energy_rtol, Real};
 use super::step::{
     conclude, euler_step, state_energy, stored_ln, Gamma, HardFailure, Scratch, StepReport, Terms,
-    GAP_FLOOR,
 };
 use crate::backend::layout::interleave;
 use crate::backend::report::{
@@ -74,23 +75,26 @@ impl Scheme {
 
 /// What the lanes' model is made of: the owned data behind a step's [`Terms`]. Kept apart from
 /// the state buffers so that the terms can be borrowed while the step writes those.
-struct LaneModel<const L: usize> {
-    mu: [f64; L],
+struct LaneModel<T: Real, const L: usize> {
+    mu: [T; L],
     gamma: Gamma<L>,
-    dstar: Option<Vec<f64>>,
+    dstar: Option<Vec<T>>,
     bonded: Option<Vec<bool>>,
-    /// sum d_i of each lane's initial chain (kept by every step's projection).
+    /// sum d_i of each lane's initial chain (kept by every step's projection; f64 in either
+    /// precision, see `step::conclude_impl`).
     total_gap: [f64; L],
+    /// The energy check's relative slack per lane (`energy_rtol`).
+    energy_rtol: [f64; L],
     /// See `Terms::contact_repulsion`.
     contact_repulsion: [f64; L],
     /// Each lane's member (for its forcing parameters).
     members: [Option<usize>; L],
 }
 
-impl<const L: usize> LaneModel<L> {
-    fn terms<'a>(&'a self, plan: &'a Plan) -> Terms<'a, L> {
-        Terms::<L> {
-            eps: plan.eps,
+impl<T: Real, const L: usize> LaneModel<T, L> {
+    fn terms<'a>(&'a self, plan: &'a Plan) -> Terms<'a, L, T> {
+        Terms::<L, T> {
+            eps: T::c(plan.eps),
             mu: self.mu,
             total_gap: self.total_gap,
             contact_repulsion: self.contact_repulsion,
@@ -107,28 +111,34 @@ impl<const L: usize> LaneModel<L> {
     }
 }
 
-pub(super) struct Block<const L: usize> {
+pub(super) struct Block<T: Real, const L: usize> {
     pub(super) lanes: [Lane; L],
-    model: LaneModel<L>,
-    /// Gaps in the stored form (`stored_gap`): d, or ln d below GAP_FLOOR, or 0 when bonded.
-    gaps: Vec<f64>,
-    vel: Vec<f64>,
-    cand_gaps: Vec<f64>,
-    cand_vel: Vec<f64>,
+    model: LaneModel<T, L>,
+    /// Gaps in the stored form (`stored_gap`): d, or ln d below T's GAP_FLOOR, or 0 when bonded.
+    gaps: Vec<T>,
+    vel: Vec<T>,
+    cand_gaps: Vec<T>,
+    cand_vel: Vec<T>,
     /// The tableau's rows: row j's result (j substeps of H/j) at index j - 1 ...
-    row_gaps: Vec<Vec<f64>>,
-    row_vel: Vec<Vec<f64>>,
+    row_gaps: Vec<Vec<T>>,
+    row_vel: Vec<Vec<T>>,
     /// ... and the states between a row's substeps (two, used in turn).
-    sub_gaps: [Vec<f64>; 2],
-    sub_vel: [Vec<f64>; 2],
-    scratch: Scratch,
+    sub_gaps: [Vec<T>; 2],
+    sub_vel: [Vec<T>; 2],
+    scratch: Scratch<T>,
 }
 
-fn lane_values<const L: usize>(data: &[f64], l: usize) -> Vec<f64> {
-    data.iter().skip(l).step_by(L).copied().collect()
+/// Lane l's values, in f64 for the observables.
+fn lane_values<T: Real, const L: usize>(data: &[T], l: usize) -> Vec<f64> {
+    data.iter().skip(l).step_by(L).map(|v| v.to_f64()).collect()
 }
 
-impl<const L: usize> Block<L> {
+/// Interleaved f64 values in T (rounded once).
+fn to_real<T: Real>(v: Vec<f64>) -> Vec<T> {
+    v.into_iter().map(T::c).collect()
+}
+
+impl<T: Real, const L: usize> Block<T, L> {
     pub(super) fn new(
         plan: &Plan,
         chains: &[&Chain; L],
@@ -145,15 +155,17 @@ impl<const L: usize> Block<L> {
                 Power::of(params[l].gamma).apply((widest + 2.0 * plan.eps) / (2.0 * plan.eps))
             })
         });
+        // As the GPU uploads them: encoded in f64 with T's floor, then rounded to T.
         let mut gaps = interleave::<f64>(&chains.map(|c| c.gaps.as_slice()));
         for d in gaps.iter_mut() {
-            *d = stored_gap::encode(*d, GAP_FLOOR);
+            *d = stored_gap::encode(*d, T::GAP_FLOOR_F64);
         }
-        let vel = interleave::<f64>(&chains.map(|c| c.velocities.as_slice()));
+        let gaps: Vec<T> = to_real(gaps);
+        let vel: Vec<T> = to_real(interleave::<f64>(&chains.map(|c| c.velocities.as_slice())));
         let dstar = plan.repulsion.then(|| {
-            interleave::<f64>(
-                &chains.map(|c| c.dstar.as_deref().expect("plan.repulsion implies d*")),
-            )
+            to_real(interleave::<f64>(&chains.map(|c| {
+                c.dstar.as_deref().expect("plan.repulsion implies d*")
+            })))
         });
         let no_bonds = vec![false; n];
         let bonded = plan
@@ -177,14 +189,17 @@ impl<const L: usize> Block<L> {
             let rows = scheme.rows(plan.order.columns());
             (rows, if rows > 1 { 2 } else { 0 })
         };
-        let states = |count: usize, len: usize| vec![vec![0.0; len]; count];
+        let states = |count: usize, len: usize| vec![vec![T::ZERO; len]; count];
         let mut sub_g = states(subs, gaps.len()).into_iter();
         let mut sub_v = states(subs, vel.len()).into_iter();
         let mut block = Block {
             lanes: members.map(lane),
             model: LaneModel {
-                mu: params.map(|p| p.mu),
+                mu: params.map(|p| T::c(p.mu)),
                 gamma,
+                // gamma_of_member: 1 without repulsion.
+                energy_rtol: params
+                    .map(|p| energy_rtol::<T>(if plan.repulsion { p.gamma } else { 1.0 })),
                 dstar,
                 bonded,
                 total_gap,
@@ -227,8 +242,8 @@ impl<const L: usize> Block<L> {
         }
         loop {
             let mut active = [false; L];
-            let mut h = [0.0; L];
-            let mut t = [0.0; L];
+            let mut h = [0.0f64; L];
+            let mut t = [0.0f64; L];
             for (l, lane) in self.lanes.iter().enumerate() {
                 active[l] = lane.member.is_some() && lane.control.running(&rules);
                 t[l] = lane.control.t;
@@ -272,7 +287,7 @@ impl<const L: usize> Block<L> {
                     keep_old[l] = true;
                     if control.failure != Failure::None {
                         let (index, ln_d) =
-                            smallest_gap::<L>(&self.gaps, self.model.bonded.as_deref(), l);
+                            smallest_gap::<T, L>(&self.gaps, self.model.bonded.as_deref(), l);
                         control.failure_index = index;
                         control.failure_detail = ln_d;
                     }
@@ -305,7 +320,7 @@ impl<const L: usize> Block<L> {
 
     /// The energy the step started from, where the previous step was certified and did not
     /// compute it.
-    fn start_energy(&self, terms: &Terms<L>, n: usize) -> [f64; L] {
+    fn start_energy(&self, terms: &Terms<L, T>, n: usize) -> [f64; L] {
         let known: [f64; L] = std::array::from_fn(|l| self.lanes[l].control.energy);
         if known.iter().all(|&e| e >= 0.0) {
             return known;
@@ -332,11 +347,12 @@ impl<const L: usize> Block<L> {
     ) -> ([Outcome; L], [Option<HardFailure>; L], [f64; L]) {
         let n = plan.particles;
         let terms = self.model.terms(plan);
+        let h_real = h.map(T::c);
         let r = euler_step(
             &terms,
             n,
             t,
-            h,
+            &h_real,
             &self.gaps,
             &self.vel,
             &mut self.cand_gaps,
@@ -351,7 +367,7 @@ impl<const L: usize> Block<L> {
         let outcome = std::array::from_fn(|l| Outcome {
             admissible: r[l].admissible,
             energy_ok: r[l].certified
-                || energy_acceptable(before[l], r[l].energy, r[l].work, ENERGY_RTOL_F64),
+                || energy_acceptable(before[l], r[l].energy, r[l].work, self.model.energy_rtol[l]),
             err: 0.0,
             factor: 1.0,
             order_next: 1,
@@ -392,6 +408,7 @@ impl<const L: usize> Block<L> {
         let mut row_energy = [[0.0; L]; MAX_ORDER as usize + 1];
         for j in 1..=rows {
             let hj: [f64; L] = std::array::from_fn(|l| h[l] / j as f64);
+            let hj_real = hj.map(T::c);
             // The last energy computed along the row, and the work done since.
             let mut known: [f64; L] = std::array::from_fn(|l| self.lanes[l].control.energy);
             let mut since = [0.0; L];
@@ -409,7 +426,7 @@ impl<const L: usize> Block<L> {
                     &terms,
                     n,
                     &ts,
-                    &hj,
+                    &hj_real,
                     src_g,
                     src_v,
                     dst_g,
@@ -434,8 +451,12 @@ impl<const L: usize> Block<L> {
                             let e = *start.get_or_insert_with(|| self.start_energy(&terms, n));
                             known[l] = e[l];
                         }
-                        energy_ok[l] &=
-                            energy_acceptable(known[l], r[l].energy, since[l], ENERGY_RTOL_F64);
+                        energy_ok[l] &= energy_acceptable(
+                            known[l],
+                            r[l].energy,
+                            since[l],
+                            self.model.energy_rtol[l],
+                        );
                         known[l] = r[l].energy;
                         since[l] = 0.0;
                     }
@@ -460,8 +481,8 @@ impl<const L: usize> Block<L> {
             // projection computes its energy, which must not exceed the start's plus the
             // finest row's work.
             let mut report = [StepReport::START; L];
-            let unit = [1.0; L];
-            conclude::<L>(
+            let unit = [T::ONE; L];
+            conclude::<T, L>(
                 &terms,
                 n,
                 &unit,
@@ -473,8 +494,12 @@ impl<const L: usize> Block<L> {
             for l in 0..L {
                 let k = lane_columns[l];
                 admissible[l] &= report[l].admissible;
-                energy_ok[l] &=
-                    energy_acceptable(before[l], report[l].energy, row_work[k][l], ENERGY_RTOL_F64);
+                energy_ok[l] &= energy_acceptable(
+                    before[l],
+                    report[l].energy,
+                    row_work[k][l],
+                    self.model.energy_rtol[l],
+                );
                 energy[l] = report[l].energy;
             }
         }
@@ -520,7 +545,7 @@ impl<const L: usize> Block<L> {
                 out.push((member, Snapshot::failed(plan)));
                 continue;
             }
-            let dstar = self.model.dstar.as_ref().map(|d| lane_values::<L>(d, l));
+            let dstar = self.model.dstar.as_ref().map(|d| lane_values::<T, L>(d, l));
             let bonded = self
                 .model
                 .bonded
@@ -531,8 +556,8 @@ impl<const L: usize> Block<L> {
                 observe(
                     plan,
                     &params[member],
-                    lane_values::<L>(&self.gaps, l),
-                    lane_values::<L>(&self.vel, l),
+                    lane_values::<T, L>(&self.gaps, l),
+                    lane_values::<T, L>(&self.vel, l),
                     dstar.as_deref(),
                     bonded.as_deref(),
                     grid_x,
@@ -583,13 +608,17 @@ impl<const L: usize> Block<L> {
 }
 
 /// Index (1-based) and ln d of lane l's smallest free gap.
-fn smallest_gap<const L: usize>(gaps: &[f64], bonded: Option<&[bool]>, l: usize) -> (u32, f64) {
+fn smallest_gap<T: Real, const L: usize>(
+    gaps: &[T],
+    bonded: Option<&[bool]>,
+    l: usize,
+) -> (u32, f64) {
     let mut best = (0u32, f64::INFINITY);
     for (i, &v) in gaps.iter().skip(l).step_by(L).enumerate() {
         if bonded.is_some_and(|b| b[i * L + l]) {
             continue;
         }
-        let s = stored_ln(v);
+        let s = stored_ln(v).to_f64();
         if s < best.1 {
             best = (i as u32 + 1, s);
         }

@@ -1,21 +1,24 @@
 //! The CPU reference backend: members packed into blocks of L lanes (interleaved like the GPU
 //! batch, so the Thomas sweeps of L members run side by side in SIMD registers), rayon across
-//! blocks, each lane with its own time, step size and status.
+//! blocks, each lane with its own time, step size and status. It computes in f64 or in f32
+//! ([`real::Real`]; the f32 path is the twin of the GPU's f32 kernel).
 
 mod block;
 pub mod control;
+pub mod real;
 pub mod step;
 pub mod twin_math;
 
 use rayon::prelude::*;
 
-use crate::backend::{BatchSolver, MemberReport, Progress};
+use crate::backend::{BatchSolver, MemberReport, Precision, Progress};
 use crate::error::Result;
 use crate::model::chain::Chain;
 use crate::model::observables::{grid_points, Snapshot};
 use crate::model::params::{MemberParams, Stepping};
 use crate::model::plan::Plan;
 use block::Block;
+use real::Real;
 
 /// The instruction set of the CPU step's lane loops, chosen once per process at run time (the
 /// build targets baseline x86-64). Both levels run the same operations in the same order (Rust
@@ -58,22 +61,29 @@ pub fn simd_level() -> &'static str {
     SimdLevel::detect().name()
 }
 
-/// Blocks as wide as the batch allows: 16 lanes keep several independent sweeps in flight per
-/// core (the forward sweep's divisions have a long latency); a lane's result does not depend on
-/// its block, so the width changes speed only.
+/// Blocks as wide as the batch allows: 16 f64 lanes (four AVX2 registers) keep several
+/// independent sweeps in flight per core (the forward sweep's divisions have a long latency);
+/// f32 lanes are half as wide, so its widest blocks have 32 lanes, again four registers. A lane's
+/// result does not depend on its block, so the width changes speed only.
 enum Blocks {
-    Single(Vec<Block<1>>),
-    Eight(Vec<Block<8>>),
-    Sixteen(Vec<Block<16>>),
+    Single(Vec<Block<f64, 1>>),
+    Eight(Vec<Block<f64, 8>>),
+    Sixteen(Vec<Block<f64, 16>>),
+    SingleF32(Vec<Block<f32, 1>>),
+    EightF32(Vec<Block<f32, 8>>),
+    ThirtyTwoF32(Vec<Block<f32, 32>>),
 }
 
-/// `$body` with `$bs` bound to the blocks, whatever their width.
+/// `$body` with `$bs` bound to the blocks, whatever their type and width.
 macro_rules! with_blocks {
     ($blocks:expr, $bs:ident => $body:expr) => {
         match $blocks {
             Blocks::Single($bs) => $body,
             Blocks::Eight($bs) => $body,
             Blocks::Sixteen($bs) => $body,
+            Blocks::SingleF32($bs) => $body,
+            Blocks::EightF32($bs) => $body,
+            Blocks::ThirtyTwoF32($bs) => $body,
         }
     };
 }
@@ -86,7 +96,11 @@ pub struct CpuSolver {
     time_index: usize,
 }
 
-fn build_blocks<const L: usize>(plan: &Plan, chains: &[Chain], dt0: f64) -> Vec<Block<L>> {
+fn build_blocks<T: Real, const L: usize>(
+    plan: &Plan,
+    chains: &[Chain],
+    dt0: f64,
+) -> Vec<Block<T, L>> {
     let b = plan.members.len();
     (0..b.div_ceil(L))
         .map(|k| {
@@ -104,19 +118,27 @@ fn build_blocks<const L: usize>(plan: &Plan, chains: &[Chain], dt0: f64) -> Vec<
 }
 
 impl CpuSolver {
-    /// `chains[m]` is member m's initial chain (all with the plan's N and eps).
+    /// `chains[m]` is member m's initial chain (all with the plan's N and eps); computes in f64.
     pub fn new(plan: Plan, chains: Vec<Chain>) -> CpuSolver {
+        CpuSolver::with_precision(plan, chains, Precision::F64)
+    }
+
+    /// As [`CpuSolver::new`], computing in `precision` (f32: the twin of the GPU's f32 kernel;
+    /// outputs are f64 either way).
+    pub fn with_precision(plan: Plan, chains: Vec<Chain>, precision: Precision) -> CpuSolver {
         assert_eq!(chains.len(), plan.members.len(), "one chain per member");
         let dt0 = match plan.stepping {
             Stepping::Fixed { dt, .. } => dt,
             Stepping::Adaptive { dt_initial, .. } => dt_initial,
         };
-        let blocks = if plan.members.len() >= 16 {
-            Blocks::Sixteen(build_blocks::<16>(&plan, &chains, dt0))
-        } else if plan.members.len() >= 8 {
-            Blocks::Eight(build_blocks::<8>(&plan, &chains, dt0))
-        } else {
-            Blocks::Single(build_blocks::<1>(&plan, &chains, dt0))
+        let b = plan.members.len();
+        let blocks = match precision {
+            Precision::F64 if b >= 16 => Blocks::Sixteen(build_blocks(&plan, &chains, dt0)),
+            Precision::F64 if b >= 8 => Blocks::Eight(build_blocks(&plan, &chains, dt0)),
+            Precision::F64 => Blocks::Single(build_blocks(&plan, &chains, dt0)),
+            Precision::F32 if b >= 32 => Blocks::ThirtyTwoF32(build_blocks(&plan, &chains, dt0)),
+            Precision::F32 if b >= 8 => Blocks::EightF32(build_blocks(&plan, &chains, dt0)),
+            Precision::F32 => Blocks::SingleF32(build_blocks(&plan, &chains, dt0)),
         };
         let grid_x = grid_points(plan.grid);
         CpuSolver {
@@ -158,8 +180,8 @@ impl CpuSolver {
     }
 }
 
-fn advance_all<const L: usize>(
-    blocks: &mut [Block<L>],
+fn advance_all<T: Real, const L: usize>(
+    blocks: &mut [Block<T, L>],
     plan: &Plan,
     grid: &[f64],
     t_start: f64,

@@ -38,9 +38,10 @@
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
 
-use self::partitioned::{euler_partitioned, Layout};
+use self::partitioned::euler_partitioned;
+pub use self::partitioned::Layout;
+use super::real::Real;
 use super::{twin_math, SimdLevel};
-use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};
 
 /// Gaps smaller than this are stored as ln d, and enter the linear solve as this value (the
@@ -48,7 +49,7 @@ use crate::model::plan::{Forcing, Power};
 pub const GAP_FLOOR: f64 = 1e-250;
 /// ln(GAP_FLOOR).
 pub const LN_GAP_FLOOR: f64 = -575.646_273_248_511_4;
-/// GAP_FLOOR of the f32 GPU kernel: far enough above f32's smallest normal (1.2e-38) that
+/// GAP_FLOOR of the f32 kernels (GPU and CPU): far enough above f32's smallest normal (1.2e-38) that
 /// mu/GAP_FLOOR and the sweep's products stay finite for mu up to 1e12.
 pub const GAP_FLOOR_F32: f64 = 1e-24;
 /// ln(GAP_FLOOR_F32).
@@ -70,9 +71,9 @@ pub const MAX_OPENING: f64 = 5.0;
 /// (`small` != 0; the loop then stays branch-free), else value by value. Either way each value
 /// gets gap_exp(x).
 #[inline(always)]
-fn exp_row<const W: usize>(x: &[f64; W], small: u64) -> [f64; W] {
-    let mut e = [0.0; W];
-    if small != 0 {
+fn exp_row<T: Real, const W: usize>(x: &[T; W], small: T::Flag) -> [T; W] {
+    let mut e = [T::ZERO; W];
+    if small != T::Flag::default() {
         for j in 0..W {
             e[j] = gap_exp_taylor(x[j]);
         }
@@ -88,12 +89,25 @@ fn exp_row<const W: usize>(x: &[f64; W], small: u64) -> [f64; W] {
 /// polynomial to x^8, whose truncation error x^9/9! < 2e-16 is at rounding; else the kernel's
 /// exp. The GPU kernel computes the same (`gap_exp` in shaders/step.wgsl).
 #[inline(always)]
-pub fn gap_exp(x: f64) -> f64 {
-    if x.abs() < GAP_EXP_TAYLOR {
+pub fn gap_exp<T: Real>(x: T) -> T {
+    if x.abs() < T::c(GAP_EXP_TAYLOR) {
         gap_exp_taylor(x)
     } else {
-        twin_math::exp_in_range(x.clamp(-EXP_FAST_MAX, EXP_FAST_MAX))
+        clamp(x, T::c(-EXP_FAST_MAX), T::c(EXP_FAST_MAX)).exp_in_range()
     }
+}
+
+/// `f64::clamp` in any [`Real`] (its operations: NaN passes through).
+#[inline(always)]
+fn clamp<T: Real>(x: T, min: T, max: T) -> T {
+    let mut x = x;
+    if x < min {
+        x = min;
+    }
+    if x > max {
+        x = max;
+    }
+    x
 }
 
 /// ln r as the extrapolation tableau computes it for the ratio of two rows' gaps: for r within
@@ -102,16 +116,19 @@ pub fn gap_exp(x: f64) -> f64 {
 /// error z¹²/13 < 1e-19 relative is below rounding; else the kernel's ln. The GPU kernel
 /// computes the same (`ln_ratio` in shaders/step.wgsl).
 #[inline(always)]
-pub fn ln_ratio(r: f64) -> f64 {
-    if (r - 1.0).abs() < LN_RATIO_SERIES {
-        let z = (r - 1.0) / (r + 1.0);
+pub fn ln_ratio<T: Real>(r: T) -> T {
+    let one = T::ONE;
+    if (r - one).abs() < T::c(LN_RATIO_SERIES) {
+        let z = (r - one) / (r + one);
         let z2 = z * z;
-        2.0 * z
-            * (1.0
-                + z2 * (1.0 / 3.0
-                    + z2 * (0.2 + z2 * (1.0 / 7.0 + z2 * (1.0 / 9.0 + z2 * (1.0 / 11.0))))))
+        T::c(2.0)
+            * z
+            * (one
+                + z2 * (T::c(1.0 / 3.0)
+                    + z2 * (T::c(0.2)
+                        + z2 * (T::c(1.0 / 7.0) + z2 * (T::c(1.0 / 9.0) + z2 * T::c(1.0 / 11.0))))))
     } else {
-        twin_math::ln(r)
+        r.ln_real()
     }
 }
 
@@ -127,9 +144,9 @@ const EXP_FAST_MAX: f64 = 700.0;
 
 /// The stored value of a gap given its logarithm.
 #[inline(always)]
-pub fn encode_ln_gap(s: f64) -> f64 {
-    if s > LN_GAP_FLOOR {
-        twin_math::exp(s)
+pub fn encode_ln_gap<T: Real>(s: T) -> T {
+    if s > T::LN_GAP_FLOOR {
+        s.exp_real()
     } else {
         s
     }
@@ -137,25 +154,27 @@ pub fn encode_ln_gap(s: f64) -> f64 {
 
 /// ln d of a stored free gap (`stored_gap::ln` with the kernel's ln).
 #[inline(always)]
-pub fn stored_ln(stored: f64) -> f64 {
-    if stored > 0.0 {
-        twin_math::ln(stored)
+pub fn stored_ln<T: Real>(stored: T) -> T {
+    if stored > T::ZERO {
+        stored.ln_real()
     } else {
         stored
     }
 }
 
-/// What the plan says exists, for one block. Absent terms cost nothing.
-pub struct Terms<'a, const L: usize> {
-    pub eps: f64,
-    pub mu: [f64; L],
-    /// sum d_i of each lane's initial chain, kept by the projection.
+/// What the plan says exists, for one block, in the step's element type T. Absent terms cost
+/// nothing.
+pub struct Terms<'a, const L: usize, T: Real = f64> {
+    pub eps: T,
+    pub mu: [T; L],
+    /// sum d_i of each lane's initial chain, kept by the projection (f64 in either precision:
+    /// see `conclude_impl`).
     pub total_gap: [f64; L],
     /// The largest repulsion a gap of the lane can reach, max_i ((d*_i + 2eps)/2eps)^gamma (0
     /// without repulsion), for the energy certificate ([`StepReport::certified`]).
     pub contact_repulsion: [f64; L],
     /// d* (interleaved, length N·L) and how G is evaluated: present iff the model has repulsion.
-    pub repulsion: Option<(&'a [f64], Gamma<L>)>,
+    pub repulsion: Option<(&'a [T], Gamma<L>)>,
     /// Bonded gaps (interleaved, length N·L): present iff some member has clusters.
     pub bonded: Option<&'a [bool]>,
     pub forcing: Option<&'a Forcing>,
@@ -185,21 +204,21 @@ impl<const L: usize> Gamma<L> {
 /// r_{i+1} = ls_i u_{i+1} - ys_i (the back sweep overwrites ls with the rate r_{i+1}, which the
 /// log-gap fix-up reads), and the forces F_i (only with forcing, for the work h Σ u' F).
 #[derive(Debug, Clone)]
-pub struct Scratch {
-    pub w: Vec<f64>,
-    pub ls: Vec<f64>,
-    pub ys: Vec<f64>,
-    pub force: Vec<f64>,
+pub struct Scratch<T: Real = f64> {
+    pub w: Vec<T>,
+    pub ls: Vec<T>,
+    pub ys: Vec<T>,
+    pub force: Vec<T>,
 }
 
-impl Scratch {
-    pub fn new(particles: usize, lanes: usize) -> Scratch {
+impl<T: Real> Scratch<T> {
+    pub fn new(particles: usize, lanes: usize) -> Scratch<T> {
         let len = (particles - 1) * lanes;
         Scratch {
-            w: vec![0.0; len],
-            ls: vec![0.0; len],
-            ys: vec![0.0; len],
-            force: vec![0.0; len],
+            w: vec![T::ZERO; len],
+            ls: vec![T::ZERO; len],
+            ys: vec![T::ZERO; len],
+            force: vec![T::ZERO; len],
         }
     }
 }
@@ -264,14 +283,14 @@ fn lanes_mut<const L: usize, T>(s: &mut [T], at: usize) -> &mut [T; L] {
 
 /// The per-element inputs of the model, as interleaved slices: d* (the gaps themselves without
 /// repulsion, never read then) and the bonded flags (empty without clusters, never read then).
-struct Inputs<'a> {
-    dstar: &'a [f64],
+struct Inputs<'a, T> {
+    dstar: &'a [T],
     bonded: &'a [bool],
 }
 
-impl<'a> Inputs<'a> {
+impl<'a, T: Real> Inputs<'a, T> {
     #[inline(always)]
-    fn of<const L: usize>(terms: &Terms<'a, L>, gaps: &'a [f64]) -> Inputs<'a> {
+    fn of<const L: usize>(terms: &Terms<'a, L, T>, gaps: &'a [T]) -> Inputs<'a, T> {
         Inputs {
             dstar: terms.repulsion.map_or(gaps, |r| r.0),
             bonded: terms.bonded.unwrap_or(&[]),
@@ -280,13 +299,13 @@ impl<'a> Inputs<'a> {
 
     /// Row `at` of d* and of the bonded flags (all free without clusters).
     #[inline(always)]
-    fn row<const L: usize, const CLU: bool>(&self, at: usize) -> (&'a [f64; L], [bool; L]) {
+    fn row<const L: usize, const CLU: bool>(&self, at: usize) -> (&'a [T; L], [bool; L]) {
         let bonded = if CLU {
             *lanes::<L, bool>(self.bonded, at)
         } else {
             [false; L]
         };
-        (lanes::<L, f64>(self.dstar, at), bonded)
+        (lanes::<L, T>(self.dstar, at), bonded)
     }
 }
 
@@ -294,125 +313,136 @@ impl<'a> Inputs<'a> {
 /// (eps2 = 2eps; `dstar` is d* of the gap, read only with repulsion).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn gap_terms<const REP: bool, const CLU: bool, P, Q>(
+fn gap_terms<T: Real, const REP: bool, const CLU: bool, P, Q>(
     law: Law<P, Q>,
     l: usize,
-    mu: f64,
-    eps2: f64,
-    stored: f64,
-    dstar: f64,
+    mu: T,
+    eps2: T,
+    stored: T,
+    dstar: T,
     bonded: bool,
-    h: f64,
-) -> (f64, f64, f64)
+    h: T,
+) -> (T, T, T)
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
-    let d = fmax(stored, GAP_FLOOR);
+    let d = fmax(stored, T::GAP_FLOOR);
     if !REP {
-        return (mu, 0.0, d);
+        return (mu, T::ZERO, d);
     }
-    let inv_s = 1.0 / (d + eps2);
+    let inv_s = T::ONE / (d + eps2);
     let ratio = (dstar + eps2) * inv_s;
     let mut g = (law.power)(l, ratio);
     if CLU && bonded {
-        g = 0.0;
+        g = T::ZERO;
     }
     (mu + h * (law.gamma)(l) * g * d * inv_s, g, d)
 }
 
 /// Phi_i(d) of one free gap: (d + 2eps) G/(gamma - 1), or -(d* + 2eps) ln(d + 2eps) at gamma = 1.
 #[inline(always)]
-fn potential_of<const REP: bool, P, Q>(
+fn potential_of<T: Real, const REP: bool, P, Q>(
     law: Law<P, Q>,
     l: usize,
-    eps2: f64,
-    dstar: f64,
-    d: f64,
-) -> f64
+    eps2: T,
+    dstar: T,
+    d: T,
+) -> T
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
     if !REP {
-        return 0.0;
+        return T::ZERO;
     }
     let s = d + eps2;
     let s_star = dstar + eps2;
     let g = (law.gamma)(l);
-    if g == 1.0 {
-        -s_star * twin_math::ln(s)
+    if g == T::ONE {
+        -s_star * s.ln_real()
     } else {
-        s * (law.power)(l, s_star / s) / (g - 1.0)
+        s * (law.power)(l, s_star / s) / (g - T::ONE)
     }
 }
 
 /// The repulsion of gap `gap` (0-based; element `index`) overflowed at the effective gap d.
-fn repulsion_failure<const L: usize>(
-    terms: &Terms<L>,
+fn repulsion_failure<T: Real, const L: usize>(
+    terms: &Terms<L, T>,
     gap: usize,
     index: usize,
-    d: f64,
+    d: T,
 ) -> HardFailure {
-    let dstar = terms.repulsion.map_or(0.0, |r| r.0[index]);
+    let dstar = terms.repulsion.map_or(T::ZERO, |r| r.0[index]);
+    let eps2 = T::c(2.0) * terms.eps;
     HardFailure::Repulsion {
         gap: gap + 1,
-        ratio: (dstar + 2.0 * terms.eps) / (d + 2.0 * terms.eps),
+        ratio: ((dstar + eps2) / (d + eps2)).to_f64(),
     }
 }
 
-/// Calls `$f` (a function made by `simd_versions!`) with `$law` bound to the specialised [`Law`]
-/// for the block's gamma and the const generics REP (repulsion), FRC (forcing) and CLU
-/// (clusters) set from `$terms`.
+/// Calls `$f` (a function made by `simd_versions!`) for the element type `$t` with `$law` bound
+/// to the specialised [`Law`] for the block's gamma and the const generics REP (repulsion), FRC
+/// (forcing) and CLU (clusters) set from `$terms`. `specialised!(f64 only: ...)` calls an `$f`
+/// that is written for f64 alone (no type parameter: the partitioned solve).
 macro_rules! specialised {
-    ($terms:expr, $f:ident, ($($arg:expr),*)) => {{
+    (f64 only: $terms:expr, $f:ident, $args:tt) => {
+        specialised!(@go f64, [], $terms, $f, $args)
+    };
+    ($t:ty, $terms:expr, $f:ident, $args:tt) => {
+        specialised!(@go $t, [$t,], $terms, $f, $args)
+    };
+    (@go $t:ty, [$($pre:tt)*], $terms:expr, $f:ident, ($($arg:expr),*)) => {{
         let terms = $terms;
         macro_rules! with_flags {
             ($rep:literal, $law:expr) => {
                 match (terms.forcing.is_some(), terms.bonded.is_some()) {
-                    (false, false) => $f::<L, $rep, false, false, _, _>($($arg,)* $law),
-                    (true, false) => $f::<L, $rep, true, false, _, _>($($arg,)* $law),
-                    (false, true) => $f::<L, $rep, false, true, _, _>($($arg,)* $law),
-                    (true, true) => $f::<L, $rep, true, true, _, _>($($arg,)* $law),
+                    (false, false) => $f::<$($pre)* L, $rep, false, false, _, _>($($arg,)* $law),
+                    (true, false) => $f::<$($pre)* L, $rep, true, false, _, _>($($arg,)* $law),
+                    (false, true) => $f::<$($pre)* L, $rep, false, true, _, _>($($arg,)* $law),
+                    (true, true) => $f::<$($pre)* L, $rep, true, true, _, _>($($arg,)* $law),
                 }
             };
         }
         match terms.repulsion.map(|r| r.1) {
-            None => with_flags!(false, Law { power: |_l: usize, _r: f64| 0.0, gamma: |_l: usize| 1.0 }),
+            None => with_flags!(false, Law { power: |_l: usize, _r: $t| <$t as Real>::ZERO, gamma: |_l: usize| <$t as Real>::ONE }),
             Some(Gamma::Uniform(Power::Integer(1))) => {
-                with_flags!(true, Law { power: |_l: usize, r: f64| r, gamma: |_l: usize| 1.0 })
+                with_flags!(true, Law { power: |_l: usize, r: $t| r, gamma: |_l: usize| <$t as Real>::ONE })
             }
             Some(Gamma::Uniform(Power::Integer(2))) => {
-                with_flags!(true, Law { power: |_l: usize, r: f64| r * r, gamma: |_l: usize| 2.0 })
+                with_flags!(true, Law { power: |_l: usize, r: $t| r * r, gamma: |_l: usize| <$t as Real>::c(2.0) })
             }
             Some(Gamma::Uniform(Power::Integer(3))) => with_flags!(
                 true,
-                Law { power: |_l: usize, r: f64| r * r * r, gamma: |_l: usize| 3.0 }
+                Law { power: |_l: usize, r: $t| r * r * r, gamma: |_l: usize| <$t as Real>::c(3.0) }
             ),
             Some(Gamma::Uniform(Power::Integer(4))) => with_flags!(
                 true,
                 Law {
-                    power: |_l: usize, r: f64| {
+                    power: |_l: usize, r: $t| {
                         let r2 = r * r;
                         r2 * r2
                     },
-                    gamma: |_l: usize| 4.0
+                    gamma: |_l: usize| <$t as Real>::c(4.0)
                 }
             ),
             Some(Gamma::Uniform(p)) => {
-                let g = match p {
+                let g = <$t as Real>::c(match p {
                     Power::Integer(k) => k as f64,
                     Power::Real(g) => g,
-                };
-                with_flags!(true, Law { power: move |_l: usize, r: f64| p.apply(r), gamma: move |_l: usize| g })
+                });
+                with_flags!(true, Law { power: move |_l: usize, r: $t| <$t as Real>::power(p, r), gamma: move |_l: usize| g })
             }
-            Some(Gamma::PerLane(gs)) => with_flags!(
-                true,
-                Law {
-                    power: move |l: usize, r: f64| Power::of(gs[l]).apply(r),
-                    gamma: move |l: usize| gs[l]
-                }
-            ),
+            Some(Gamma::PerLane(gs)) => {
+                let gt: [$t; L] = gs.map(<$t as Real>::c);
+                with_flags!(
+                    true,
+                    Law {
+                        power: move |l: usize, r: $t| <$t as Real>::power(Power::of(gs[l]), r),
+                        gamma: move |l: usize| gt[l]
+                    }
+                )
+            }
         }
     }};
 }
@@ -421,87 +451,105 @@ macro_rules! specialised {
 /// set `simd` names: the same source, so the same operations in the same order at every level
 /// (bitwise equal results), only wider registers. `$avx` is the AVX2 + FMA instance.
 macro_rules! simd_versions {
-    ($name:ident, $avx:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
+    // For f64 alone (the partitioned solve's AVX2 tiles are f64).
+    (f64: $($rest:tt)*) => {
+        simd_versions!(@go [] [] f64; $($rest)*);
+    };
+    // Generic over the element type T: Real.
+    ($name:ident, $($rest:tt)*) => {
+        simd_versions!(@go [T: Real,] [T,] T; $name, $($rest)*);
+    };
+    (@go [$($tp:tt)*] [$($ta:tt)*] $elem:ty; $name:ident, $avx:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
         #[allow(clippy::too_many_arguments)]
-        fn $name<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+        fn $name<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
             simd: SimdLevel,
             $($arg: $ty,)*
             law: Law<P, Q>,
         ) -> $ret
         where
-            P: Fn(usize, f64) -> f64 + Copy,
-            Q: Fn(usize) -> f64 + Copy,
+            P: Fn(usize, $elem) -> $elem + Copy,
+            Q: Fn(usize) -> $elem + Copy,
         {
             #[cfg(target_arch = "x86_64")]
             if simd == SimdLevel::Avx2Fma {
                 // SAFETY: SimdLevel::Avx2Fma is only chosen where the CPU has AVX2 and FMA.
-                return unsafe { $avx::<L, REP, FRC, CLU, P, Q>($($arg,)* law) };
+                return unsafe { $avx::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law) };
             }
             let _ = simd;
-            $body::<L, REP, FRC, CLU, P, Q>($($arg,)* law)
+            $body::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law)
         }
 
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx2,fma")]
         #[allow(clippy::too_many_arguments)]
-        unsafe fn $avx<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+        unsafe fn $avx<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
             $($arg: $ty,)*
             law: Law<P, Q>,
         ) -> $ret
         where
-            P: Fn(usize, f64) -> f64 + Copy,
-            Q: Fn(usize) -> f64 + Copy,
+            P: Fn(usize, $elem) -> $elem + Copy,
+            Q: Fn(usize) -> $elem + Copy,
         {
-            $body::<L, REP, FRC, CLU, P, Q>($($arg,)* law)
+            $body::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law)
         }
     };
 }
 
 /// Discrete energy E = eps Σ u_i² + Σ Phi_i(d_i) of every lane's state (the same sums, in the
 /// same order, as a step's report, so that the energy check compares like with like).
-pub fn state_energy<const L: usize>(
-    terms: &Terms<L>,
+pub fn state_energy<T: Real, const L: usize>(
+    terms: &Terms<L, T>,
     n: usize,
-    gaps: &[f64],
-    vel: &[f64],
+    gaps: &[T],
+    vel: &[T],
 ) -> [f64; L] {
-    specialised!(terms, state_energy_impl, (terms, n, gaps, vel))
+    specialised!(T, terms, state_energy_impl, (terms, n, gaps, vel))
 }
 
-fn state_energy_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
-    terms: &Terms<L>,
+fn state_energy_impl<
+    T: Real,
+    const L: usize,
+    const REP: bool,
+    const FRC: bool,
+    const CLU: bool,
+    P,
+    Q,
+>(
+    terms: &Terms<L, T>,
     n: usize,
-    gaps: &[f64],
-    vel: &[f64],
+    gaps: &[T],
+    vel: &[T],
     law: Law<P, Q>,
 ) -> [f64; L]
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
-    let eps2 = 2.0 * terms.eps;
+    let eps2 = T::c(2.0) * terms.eps;
     let inputs = Inputs::of(terms, gaps);
-    let mut kinetic = [0.0; L];
-    let mut energy = [0.0; L];
+    // Sums in f64 in either precision (as `conclude_impl`'s).
+    let mut kinetic = [0.0f64; L];
+    let mut energy = [0.0f64; L];
     for i in 0..n {
         let k = i * L;
         let (dstar, bonded) = inputs.row::<L, CLU>(k);
-        let stored = lanes::<L, f64>(gaps, k);
+        let stored = lanes::<L, T>(gaps, k);
         for l in 0..L {
-            let phi = potential_of::<REP, P, Q>(law, l, eps2, dstar[l], stored[l].max(0.0));
+            let phi =
+                potential_of::<T, REP, P, Q>(law, l, eps2, dstar[l], stored[l].max_real(T::ZERO));
             if !bonded[l] {
-                energy[l] += phi;
+                energy[l] += phi.to_f64();
             }
         }
         if i + 1 < n {
-            let u = lanes::<L, f64>(vel, k);
+            let u = lanes::<L, T>(vel, k);
             for l in 0..L {
-                kinetic[l] += u[l] * u[l];
+                kinetic[l] += (u[l] * u[l]).to_f64();
             }
         }
     }
     for l in 0..L {
-        energy[l] += terms.eps * kinetic[l];
+        energy[l] += terms.eps.to_f64() * kinetic[l];
     }
     energy
 }
@@ -520,7 +568,7 @@ fn particle_force(forcing: &Forcing, params: &[f64], eps: f64, t: f64, q: f64) -
 /// either argument costs a compare and a blend per use). Callers pass the value that may be NaN
 /// as `a` and a never-NaN bound or accumulator as `b`, so the result is `f64::max`'s.
 #[inline(always)]
-fn fmax(a: f64, b: f64) -> f64 {
+fn fmax<T: Real>(a: T, b: T) -> T {
     if a > b {
         a
     } else {
@@ -530,7 +578,7 @@ fn fmax(a: f64, b: f64) -> f64 {
 
 /// min(a, b) as one packed min, b when a is NaN (see [`fmax`]).
 #[inline(always)]
-fn fmin(a: f64, b: f64) -> f64 {
+fn fmin<T: Real>(a: T, b: T) -> T {
     if a < b {
         a
     } else {
@@ -541,37 +589,39 @@ fn fmin(a: f64, b: f64) -> f64 {
 /// The Taylor branch of [`gap_exp`] (|x| < GAP_EXP_TAYLOR), branch-free for the lane loop.
 #[allow(clippy::excessive_precision)]
 #[inline(always)]
-fn gap_exp_taylor(x: f64) -> f64 {
-    // Horner, 1/k! as the nearest f64 (the WGSL twin writes the same literals).
-    1.0 + x
-        * (1.0
-            + x * (0.5
-                + x * (1.666_666_666_666_666_6e-1
-                    + x * (4.166_666_666_666_666_4e-2
-                        + x * (8.333_333_333_333_333e-3
-                            + x * (1.388_888_888_888_889e-3
-                                + x * (1.984_126_984_126_984e-4
-                                    + x * 2.480_158_730_158_730_2e-5)))))))
+fn gap_exp_taylor<T: Real>(x: T) -> T {
+    // Horner, 1/k! as the nearest f64 (the WGSL twin writes the same literals; in f32 both round
+    // them once).
+    let c = T::c;
+    c(1.0)
+        + x * (c(1.0)
+            + x * (c(0.5)
+                + x * (c(1.666_666_666_666_666_6e-1)
+                    + x * (c(4.166_666_666_666_666_4e-2)
+                        + x * (c(8.333_333_333_333_333e-3)
+                            + x * (c(1.388_888_888_888_889e-3)
+                                + x * (c(1.984_126_984_126_984e-4)
+                                    + x * c(2.480_158_730_158_730_2e-5))))))))
 }
 
 /// Advances every lane by its own step `h[l]` from (gaps_in, vel_in) to (gaps_out, vel_out)
 /// (gaps in the stored form: d, or ln d below GAP_FLOOR). Lanes whose report is not admissible
 /// (or has a hard failure) must be rejected by the caller: their output is garbage.
 #[allow(clippy::too_many_arguments)]
-pub fn euler_step<const L: usize>(
-    terms: &Terms<L>,
+pub fn euler_step<T: Real, const L: usize>(
+    terms: &Terms<L, T>,
     particles: usize,
     t: &[f64; L],
-    h: &[f64; L],
-    gaps_in: &[f64],
-    vel_in: &[f64],
-    gaps_out: &mut [f64],
-    vel_out: &mut [f64],
-    scratch: &mut Scratch,
+    h: &[T; L],
+    gaps_in: &[T],
+    vel_in: &[T],
+    gaps_out: &mut [T],
+    vel_out: &mut [T],
+    scratch: &mut Scratch<T>,
 ) -> [StepReport; L] {
     euler_step_as(
         SimdLevel::detect(),
-        default_layout::<L>(particles),
+        default_layout::<T, L>(particles),
         terms,
         particles,
         t,
@@ -586,9 +636,10 @@ pub fn euler_step<const L: usize>(
 
 /// The solve a block of L lanes with `particles` particles uses: for one member with a long
 /// chain the partitioned one (the sequential sweep would be bound by its row-to-row latency),
-/// else the sequential sweep (`None`).
-pub(crate) fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
-    if L == 1 {
+/// else the sequential sweep (`None`). The partitioned solve exists in f64 only (its tiles are
+/// AVX2 f64 transposes): f32 always takes the sequential sweep.
+pub(crate) fn default_layout<T: Real, const L: usize>(particles: usize) -> Option<Layout> {
+    if L == 1 && T::PRECISION == crate::backend::Precision::F64 {
         Layout::for_chain(particles)
     } else {
         None
@@ -597,11 +648,42 @@ pub(crate) fn default_layout<const L: usize>(particles: usize) -> Option<Layout>
 
 /// [`euler_step`] with the lane loops compiled for `simd` (which the CPU must support) and the
 /// solve chosen: the sequential sweep (`None`) or the partitioned one with this layout (L = 1
-/// only).
+/// and f64 only; [`Real::partitioned_step`]).
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn euler_step_as<const L: usize>(
+pub(crate) fn euler_step_as<T: Real, const L: usize>(
     simd: SimdLevel,
     layout: Option<Layout>,
+    terms: &Terms<L, T>,
+    particles: usize,
+    t: &[f64; L],
+    h: &[T; L],
+    gaps_in: &[T],
+    vel_in: &[T],
+    gaps_out: &mut [T],
+    vel_out: &mut [T],
+    scratch: &mut Scratch<T>,
+) -> [StepReport; L] {
+    if let Some(layout) = layout {
+        let r = T::partitioned_step(
+            simd, layout, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch,
+        );
+        if let Some(r) = r {
+            return r;
+        }
+    }
+    specialised!(
+        T,
+        terms,
+        euler_simd,
+        (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch)
+    )
+}
+
+/// The partitioned solve ([`euler_step_as`] with a layout) in f64 (`Real::partitioned_step`).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn partitioned_f64<const L: usize>(
+    simd: SimdLevel,
+    layout: Layout,
     terms: &Terms<L>,
     particles: usize,
     t: &[f64; L],
@@ -612,59 +694,54 @@ pub(crate) fn euler_step_as<const L: usize>(
     vel_out: &mut [f64],
     scratch: &mut Scratch,
 ) -> [StepReport; L] {
-    if let Some(layout) = layout {
-        return specialised!(
-            terms,
-            euler_partitioned,
-            (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch, layout)
-        );
-    }
     specialised!(
-        terms,
-        euler_simd,
-        (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch)
+        f64 only: terms,
+        euler_partitioned,
+        (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch, layout)
     )
 }
 
 simd_versions!(euler_simd, euler_avx2, euler_impl, (
-    terms: &Terms<L>,
+    terms: &Terms<L, T>,
     n: usize,
     t: &[f64; L],
-    h: &[f64; L],
-    gaps_in: &[f64],
-    vel_in: &[f64],
-    gaps_out: &mut [f64],
-    vel_out: &mut [f64],
-    scratch: &mut Scratch
+    h: &[T; L],
+    gaps_in: &[T],
+    vel_in: &[T],
+    gaps_out: &mut [T],
+    vel_out: &mut [T],
+    scratch: &mut Scratch<T>
 ) -> [StepReport; L]);
 
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn euler_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
-    terms: &Terms<L>,
+fn euler_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+    terms: &Terms<L, T>,
     n: usize,
     t: &[f64; L],
-    h: &[f64; L],
-    gaps_in: &[f64],
-    vel_in: &[f64],
-    gaps_out: &mut [f64],
-    vel_out: &mut [f64],
-    scratch: &mut Scratch,
+    h: &[T; L],
+    gaps_in: &[T],
+    vel_in: &[T],
+    gaps_out: &mut [T],
+    vel_out: &mut [T],
+    scratch: &mut Scratch<T>,
     law: Law<P, Q>,
 ) -> [StepReport; L]
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
     let eps = terms.eps;
     assert_eq!(gaps_in.len(), n * L);
     assert_eq!(vel_in.len(), (n - 1) * L);
-    let mass = 2.0 * eps;
-    let eps2 = 2.0 * eps;
+    let zero = T::ZERO;
+    let floor = T::GAP_FLOOR;
+    let mass = T::c(2.0) * eps;
+    let eps2 = T::c(2.0) * eps;
     let mu = terms.mu;
     let inputs = Inputs::of(terms, gaps_in);
     let mut report = [StepReport::START; L];
-    let mut m_over_h = [0.0; L];
+    let mut m_over_h = [zero; L];
     for l in 0..L {
         m_over_h[l] = mass / h[l];
     }
@@ -672,25 +749,26 @@ where
     // Forward sweep. The wall (row 0, u_0 = 0) has an infinite pivot: lambda_0 = 1, so
     // ls_0 = 1/d_1 and ys_0 = 0. Non-finite G or F are noted per lane (a hard failure) and
     // looked up after the sweep, so the loop has no branches.
-    let mut a_prev = [0.0; L];
-    let mut g_prev = [0.0; L];
-    let mut ls_prev = [0.0; L];
-    let mut ys_prev = [0.0; L];
-    let mut q = [0.0; L];
-    let mut f = [0.0; L];
-    // Flags as 0/1 in u64 lanes (what a packed f64 comparison yields; bools cost packing).
-    let mut nonfinite = [0u64; L];
+    let mut a_prev = [zero; L];
+    let mut g_prev = [zero; L];
+    let mut ls_prev = [zero; L];
+    let mut ys_prev = [zero; L];
+    let mut q = [zero; L];
+    let mut f = [zero; L];
+    // Flags as 0/1 in lanes as wide as T (what a packed comparison yields; bools cost packing).
+    let flag = T::Flag::from;
+    let mut nonfinite = [T::Flag::default(); L];
     {
-        let stored = lanes::<L, f64>(gaps_in, 0);
+        let stored = lanes::<L, T>(gaps_in, 0);
         let (dstar, bonded) = inputs.row::<L, CLU>(0);
         for l in 0..L {
-            let (a, g, d) = gap_terms::<REP, CLU, P, Q>(
+            let (a, g, d) = gap_terms::<T, REP, CLU, P, Q>(
                 law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
             );
             a_prev[l] = a;
             g_prev[l] = g;
-            ls_prev[l] = 1.0 / d;
-            nonfinite[l] |= !g.is_finite() as u64;
+            ls_prev[l] = T::ONE / d;
+            nonfinite[l] |= flag(!g.is_finite());
         }
     }
     for i in 1..n {
@@ -699,27 +777,33 @@ where
         if FRC {
             if let Some(forcing) = terms.forcing {
                 // Not vectorisable (the expression is interpreted): a loop of its own.
-                let prev = lanes::<L, f64>(gaps_in, row);
-                let force = lanes_mut::<L, f64>(&mut scratch.force, row);
+                let prev = lanes::<L, T>(gaps_in, row);
+                let force = lanes_mut::<L, T>(&mut scratch.force, row);
                 for l in 0..L {
-                    q[l] += stored_gap::decode(prev[l]) + mass;
-                    f[l] = particle_force(forcing, terms.forcing_params[l], eps, t[l], q[l]);
+                    q[l] += prev[l].decode_stored() + mass;
+                    f[l] = T::c(particle_force(
+                        forcing,
+                        terms.forcing_params[l],
+                        eps.to_f64(),
+                        t[l],
+                        q[l].to_f64(),
+                    ));
                     force[l] = f[l];
                 }
             }
         }
         // The lane loop works on local copies of the rows (no aliasing for the vectoriser to
         // rule out) and stores whole rows after it.
-        let stored = *lanes::<L, f64>(gaps_in, next_gap);
+        let stored = *lanes::<L, T>(gaps_in, next_gap);
         let (dstar, bonded) = inputs.row::<L, CLU>(next_gap);
         let dstar = *dstar;
-        let vel = *lanes::<L, f64>(vel_in, row);
-        let mut w = [0.0; L];
+        let vel = *lanes::<L, T>(vel_in, row);
+        let mut w = [zero; L];
         for l in 0..L {
-            let (a_next, g_next, d_next) = gap_terms::<REP, CLU, P, Q>(
+            let (a_next, g_next, d_next) = gap_terms::<T, REP, CLU, P, Q>(
                 law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
             );
-            nonfinite[l] |= !(g_next + f[l]).is_finite() as u64;
+            nonfinite[l] |= flag(!(g_next + f[l]).is_finite());
             let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
             // The pivot excess·d + a, grouped as (m/h·d + a) + (a_prev·d)·ls_prev so that only
             // one multiplication and one addition wait for the previous row (a single member's
@@ -728,7 +812,7 @@ where
             let delta = rhs + a_prev[l] * ys_prev[l];
             let pivot_base = m_over_h[l] * d_next + a_next;
             let coupling = a_prev[l] * d_next;
-            let inv = 1.0 / (pivot_base + coupling * ls_prev[l]);
+            let inv = T::ONE / (pivot_base + coupling * ls_prev[l]);
             let ls = excess * inv;
             let ys = delta * inv;
             w[l] = a_next * inv;
@@ -737,12 +821,12 @@ where
             a_prev[l] = a_next;
             g_prev[l] = g_next;
         }
-        *lanes_mut::<L, f64>(&mut scratch.w, row) = w;
-        *lanes_mut::<L, f64>(&mut scratch.ls, row) = ls_prev;
-        *lanes_mut::<L, f64>(&mut scratch.ys, row) = ys_prev;
+        *lanes_mut::<L, T>(&mut scratch.w, row) = w;
+        *lanes_mut::<L, T>(&mut scratch.ls, row) = ls_prev;
+        *lanes_mut::<L, T>(&mut scratch.ys, row) = ys_prev;
     }
     for l in 0..L {
-        if nonfinite[l] != 0 {
+        if nonfinite[l] != T::Flag::default() {
             report[l].hard = find_hard_failure(terms, law, n, l, t[l], h[l], gaps_in);
         }
     }
@@ -751,12 +835,17 @@ where
     // ln d' = ln d + h r, and the sum of the new gaps (for the projection). Log-stored
     // gaps and gaps that leave [GAP_FLOOR, inf) are redone by the fix-up below (rare), from the rate
     // left in `ls`.
-    let mut needs_fixup = [0u64; L];
-    let mut opening = [0.0f64; L];
-    let mut closing = [f64::NEG_INFINITY; L];
-    let mut sum = [0.0; L];
-    let mut u_next = [0.0; L];
-    let gamma2: [f64; L] = std::array::from_fn(|l| -((law.gamma)(l) + 2.0));
+    let mut needs_fixup = [T::Flag::default(); L];
+    let mut opening = [zero; L];
+    let mut closing = [T::NEG_INFINITY; L];
+    // The new gaps' sum, for the projection: in f64 in either precision (see `conclude_impl`).
+    let mut sum = [0.0f64; L];
+    let mut u_next = [zero; L];
+    let gamma2: [T; L] = std::array::from_fn(|l| -((law.gamma)(l) + T::c(2.0)));
+    let taylor = T::c(GAP_EXP_TAYLOR);
+    let fast_max = T::c(EXP_FAST_MAX);
+    // Whether d·e^x is the update (else the fix-up redoes it in log form); NaN fails.
+    let fast = |grown: T, x: T| grown >= floor && grown < T::INFINITY && x <= fast_max;
     // Gaps i_top..1 are left to the loop over rows below.
     let mut i_top = n - 1;
     if L == 1 {
@@ -765,55 +854,54 @@ where
         // operations per gap as the loop below, and the sum in the same order.
         const W: usize = 4;
         let (h0, gamma0) = (h[0], gamma2[0]);
-        let mut open_w = [0.0f64; W];
-        let mut close_w = [f64::NEG_INFINITY; W];
-        let mut fixup_w = [0u64; W];
+        let mut open_w = [zero; W];
+        let mut close_w = [T::NEG_INFINITY; W];
+        let mut fixup_w = [T::Flag::default(); W];
         let mut un = u_next[0];
         while i_top >= W {
             // Gaps lo..=i_top, rows lo-1..i_top-1 (element i of the lane at i).
             let lo = i_top + 1 - W;
-            let old: [f64; W] = gaps_in[lo..lo + W].try_into().unwrap();
+            let old: [T; W] = gaps_in[lo..lo + W].try_into().unwrap();
             let bonded: [bool; W] = if CLU {
                 inputs.bonded[lo..lo + W].try_into().unwrap()
             } else {
                 [false; W]
             };
-            let w: [f64; W] = scratch.w[lo - 1..lo - 1 + W].try_into().unwrap();
-            let ys: [f64; W] = scratch.ys[lo - 1..lo - 1 + W].try_into().unwrap();
-            let ls: [f64; W] = scratch.ls[lo - 1..lo - 1 + W].try_into().unwrap();
-            let mut u = [0.0; W];
-            let mut u_right = [0.0; W];
+            let w: [T; W] = scratch.w[lo - 1..lo - 1 + W].try_into().unwrap();
+            let ys: [T; W] = scratch.ys[lo - 1..lo - 1 + W].try_into().unwrap();
+            let ls: [T; W] = scratch.ls[lo - 1..lo - 1 + W].try_into().unwrap();
+            let mut u = [zero; W];
+            let mut u_right = [zero; W];
             for j in (0..W).rev() {
                 u_right[j] = un;
-                let d = fmax(old[j], GAP_FLOOR);
+                let d = fmax(old[j], floor);
                 u[j] = d * ys[j] + w[j] * un;
                 if CLU && bonded[j] {
                     u[j] = un;
                 }
                 un = u[j];
             }
-            let mut rates = [0.0; W];
-            let mut x = [0.0; W];
-            let mut small = 1u64;
+            let mut rates = [zero; W];
+            let mut x = [zero; W];
+            let mut small = flag(true);
             for j in 0..W {
                 rates[j] = ls[j] * u_right[j] - ys[j];
                 x[j] = h0 * rates[j];
-                small &= (x[j].abs() < GAP_EXP_TAYLOR) as u64;
+                small &= flag(x[j].abs() < taylor);
             }
             let e = exp_row(&x, small);
-            let mut grown = [0.0; W];
+            let mut grown = [zero; W];
             for j in 0..W {
                 grown[j] = old[j] * e[j];
-                if old[j] > 0.0 {
+                if old[j] > zero {
                     open_w[j] = fmax(x[j], open_w[j]);
                 }
-                let d = fmax(old[j], GAP_FLOOR);
-                close_w[j] = fmax(d * (gamma0 * fmin(x[j], 0.0) - 1.0), close_w[j]);
-                fixup_w[j] |= !((GAP_FLOOR..f64::INFINITY).contains(&grown[j])
-                    && x[j] <= EXP_FAST_MAX) as u64;
+                let d = fmax(old[j], floor);
+                close_w[j] = fmax(d * (gamma0 * fmin(x[j], zero) - T::ONE), close_w[j]);
+                fixup_w[j] |= flag(!fast(grown[j], x[j]));
             }
             for j in (0..W).rev() {
-                sum[0] += fmax(grown[j], 0.0);
+                sum[0] += fmax(grown[j], zero).to_f64();
             }
             vel_out[lo - 1..lo - 1 + W].copy_from_slice(&u);
             scratch.ls[lo - 1..lo - 1 + W].copy_from_slice(&rates);
@@ -831,16 +919,16 @@ where
     for i in (1..=i_top).rev() {
         let row = (i - 1) * L;
         let gap = i * L;
-        let old = *lanes::<L, f64>(gaps_in, gap);
+        let old = *lanes::<L, T>(gaps_in, gap);
         let (_, bonded) = inputs.row::<L, CLU>(gap);
-        let w = *lanes::<L, f64>(&scratch.w, row);
-        let ys = *lanes::<L, f64>(&scratch.ys, row);
-        let ls = *lanes::<L, f64>(&scratch.ls, row);
-        let mut rates = [0.0; L];
-        let mut x = [0.0; L];
-        let mut small = 1u64;
+        let w = *lanes::<L, T>(&scratch.w, row);
+        let ys = *lanes::<L, T>(&scratch.ys, row);
+        let ls = *lanes::<L, T>(&scratch.ls, row);
+        let mut rates = [zero; L];
+        let mut x = [zero; L];
+        let mut small = flag(true);
         for l in 0..L {
-            let d = fmax(old[l], GAP_FLOOR);
+            let d = fmax(old[l], floor);
             let mut u = d * ys[l] + w[l] * u_next[l];
             if CLU && bonded[l] {
                 // Exactly the velocity of the body it is bonded to (the penalty gives it to
@@ -849,28 +937,27 @@ where
             }
             let rate = ls[l] * u_next[l] - ys[l];
             x[l] = h[l] * rate;
-            small &= (x[l].abs() < GAP_EXP_TAYLOR) as u64;
+            small &= flag(x[l].abs() < taylor);
             rates[l] = rate;
             u_next[l] = u;
         }
-        *lanes_mut::<L, f64>(vel_out, row) = u_next;
-        *lanes_mut::<L, f64>(&mut scratch.ls, row) = rates;
+        *lanes_mut::<L, T>(vel_out, row) = u_next;
+        *lanes_mut::<L, T>(&mut scratch.ls, row) = rates;
         let e = exp_row(&x, small);
-        let mut grown_row = [0.0; L];
+        let mut grown_row = [zero; L];
         for l in 0..L {
             let grown = old[l] * e[l];
             grown_row[l] = grown;
-            sum[l] += fmax(grown, 0.0);
-            if old[l] > 0.0 {
+            sum[l] += fmax(grown, zero).to_f64();
+            if old[l] > zero {
                 opening[l] = fmax(x[l], opening[l]);
             }
-            let d = fmax(old[l], GAP_FLOOR);
-            closing[l] = fmax(d * (gamma2[l] * fmin(x[l], 0.0) - 1.0), closing[l]);
+            let d = fmax(old[l], floor);
+            closing[l] = fmax(d * (gamma2[l] * fmin(x[l], zero) - T::ONE), closing[l]);
             // NaN fails the comparisons.
-            needs_fixup[l] |=
-                !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x[l] <= EXP_FAST_MAX) as u64;
+            needs_fixup[l] |= flag(!fast(grown, x[l]));
         }
-        *lanes_mut::<L, f64>(gaps_out, gap) = grown_row;
+        *lanes_mut::<L, T>(gaps_out, gap) = grown_row;
     }
     if CLU {
         if let Some(bonded) = terms.bonded {
@@ -880,32 +967,31 @@ where
                     if !bonded[i * L + l] {
                         break;
                     }
-                    vel_out[i * L + l] = 0.0;
+                    vel_out[i * L + l] = zero;
                 }
             }
         }
     }
-    let mut rate_first = [0.0; L];
+    let mut rate_first = [zero; L];
     for l in 0..L {
         let old = gaps_in[l];
-        let rate = u_next[l] / fmax(old, GAP_FLOOR);
+        let rate = u_next[l] / fmax(old, floor);
         let x = h[l] * rate;
         let grown = old * gap_exp(x);
         gaps_out[l] = grown;
         rate_first[l] = rate;
-        sum[l] += fmax(grown, 0.0);
-        if old > 0.0 {
+        sum[l] += fmax(grown, zero).to_f64();
+        if old > zero {
             opening[l] = fmax(x, opening[l]);
         }
-        let d = fmax(old, GAP_FLOOR);
-        closing[l] = fmax(d * (gamma2[l] * fmin(x, 0.0) - 1.0), closing[l]);
-        needs_fixup[l] |=
-            !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX) as u64;
+        let d = fmax(old, floor);
+        closing[l] = fmax(d * (gamma2[l] * fmin(x, zero) - T::ONE), closing[l]);
+        needs_fixup[l] |= flag(!fast(grown, x));
     }
 
     for l in 0..L {
-        if needs_fixup[l] != 0 {
-            fix_up_lane::<L>(
+        if needs_fixup[l] != T::Flag::default() {
+            fix_up_lane::<T, L>(
                 terms,
                 n,
                 l,
@@ -915,21 +1001,21 @@ where
                 &scratch.ls,
                 rate_first[l],
             );
-            sum[l] = lane_sum::<L>(n, l, gaps_out);
+            sum[l] = lane_sum::<T, L>(n, l, gaps_out);
         }
-        report[l].admissible &= opening[l] <= MAX_OPENING;
-        report[l].certified = needs_fixup[l] == 0
+        report[l].admissible &= opening[l] <= T::c(MAX_OPENING);
+        report[l].certified = needs_fixup[l] == T::Flag::default()
             && energy_certified(
                 REP,
-                closing[l],
-                opening[l],
-                2.0 * eps,
+                closing[l].to_f64(),
+                opening[l].to_f64(),
+                (T::c(2.0) * eps).to_f64(),
                 terms.contact_repulsion[l],
-                terms.mu[l] / h[l],
+                (terms.mu[l] / h[l]).to_f64(),
             );
     }
     let force = FRC.then_some(scratch.force.as_slice());
-    conclude_impl::<L, REP, FRC, CLU, P, Q>(
+    conclude_impl::<T, L, REP, FRC, CLU, P, Q>(
         terms,
         n,
         h,
@@ -973,38 +1059,49 @@ pub fn energy_certified(
 }
 
 /// The hard failure of a lane whose forward sweep met a non-finite G or F (outside the hot loop).
-fn find_hard_failure<const L: usize, P, Q>(
-    terms: &Terms<L>,
+fn find_hard_failure<T: Real, const L: usize, P, Q>(
+    terms: &Terms<L, T>,
     law: Law<P, Q>,
     n: usize,
     l: usize,
     t: f64,
-    h: f64,
-    gaps_in: &[f64],
+    h: T,
+    gaps_in: &[T],
 ) -> Option<HardFailure>
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
     let eps = terms.eps;
-    let mut q = 0.0;
+    let mut q = T::ZERO;
     for i in 0..n {
         let k = i * L + l;
         if i > 0 {
             if let Some(forcing) = terms.forcing {
-                q += stored_gap::decode(gaps_in[(i - 1) * L + l]) + 2.0 * eps;
-                if !particle_force(forcing, terms.forcing_params[l], eps, t, q).is_finite() {
-                    return Some(HardFailure::Forcing { particle: i, x: q });
+                // The forward sweep's q and F, operation for operation.
+                q += gaps_in[(i - 1) * L + l].decode_stored() + T::c(2.0) * eps;
+                let f = T::c(particle_force(
+                    forcing,
+                    terms.forcing_params[l],
+                    eps.to_f64(),
+                    t,
+                    q.to_f64(),
+                ));
+                if !f.is_finite() {
+                    return Some(HardFailure::Forcing {
+                        particle: i,
+                        x: q.to_f64(),
+                    });
                 }
             }
         }
         if let Some((dstar, _)) = terms.repulsion {
             if terms.bonded.is_none_or(|b| !b[k]) {
-                let (_, g, d) = gap_terms::<true, false, P, Q>(
+                let (_, g, d) = gap_terms::<T, true, false, P, Q>(
                     law,
                     l,
                     terms.mu[l],
-                    2.0 * eps,
+                    T::c(2.0) * eps,
                     gaps_in[k],
                     dstar[k],
                     false,
@@ -1020,10 +1117,10 @@ where
 }
 
 /// The sum of lane l's gaps (in the back sweep's order: from the last gap down).
-fn lane_sum<const L: usize>(n: usize, l: usize, gaps: &[f64]) -> f64 {
+fn lane_sum<T: Real, const L: usize>(n: usize, l: usize, gaps: &[T]) -> f64 {
     let mut sum = 0.0;
     for i in (0..n).rev() {
-        sum += gaps[i * L + l].max(0.0);
+        sum += gaps[i * L + l].max_real(T::ZERO).to_f64();
     }
     sum
 }
@@ -1031,20 +1128,20 @@ fn lane_sum<const L: usize>(n: usize, l: usize, gaps: &[f64]) -> f64 {
 /// Redoes the update of one lane's gaps in log form where the fast form d·e^{hr} does not apply
 /// (a log-stored gap, or a result outside [GAP_FLOOR, inf)).
 #[allow(clippy::too_many_arguments)]
-fn fix_up_lane<const L: usize>(
-    terms: &Terms<L>,
+fn fix_up_lane<T: Real, const L: usize>(
+    terms: &Terms<L, T>,
     n: usize,
     l: usize,
-    h: f64,
-    gaps_in: &[f64],
-    gaps_out: &mut [f64],
-    rates: &[f64],
-    rate_first: f64,
+    h: T,
+    gaps_in: &[T],
+    gaps_out: &mut [T],
+    rates: &[T],
+    rate_first: T,
 ) {
     for i in 0..n {
         let k = i * L + l;
         if terms.bonded.is_some_and(|b| b[k]) {
-            gaps_out[k] = 0.0;
+            gaps_out[k] = T::ZERO;
             continue;
         }
         let rate = if i == 0 {
@@ -1059,8 +1156,8 @@ fn fix_up_lane<const L: usize>(
 /// A free gap's stored value after the update to `grown` = old·e^x: kept, or redone in log form
 /// where the fast form does not apply (a log-stored gap, or a result outside [GAP_FLOOR, inf)).
 #[inline(always)]
-fn fixed_up(old: f64, x: f64, grown: f64) -> f64 {
-    if (GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX && old > 0.0 {
+fn fixed_up<T: Real>(old: T, x: T, grown: T) -> T {
+    if grown >= T::GAP_FLOOR && grown < T::INFINITY && x <= T::c(EXP_FAST_MAX) && old > T::ZERO {
         grown
     } else {
         encode_ln_gap(stored_ln(old) + x)
@@ -1069,13 +1166,18 @@ fn fixed_up(old: f64, x: f64, grown: f64) -> f64 {
 
 /// Shifts the log-stored gaps of the lanes that have some by ln(scale) (outside the hot loop:
 /// rare).
-fn shift_logged<const L: usize>(n: usize, scale: &[f64; L], logged: &[u64; L], gaps: &mut [f64]) {
+fn shift_logged<T: Real, const L: usize>(
+    n: usize,
+    scale: &[f64; L],
+    logged: &[T::Flag; L],
+    gaps: &mut [T],
+) {
     for l in 0..L {
-        if logged[l] != 0 {
-            let shift = twin_math::ln(scale[l]);
+        if logged[l] != T::Flag::default() {
+            let shift = T::c(twin_math::ln(scale[l]));
             for i in 0..n {
                 let k = i * L + l;
-                if gaps[k] < 0.0 {
+                if gaps[k] < T::ZERO {
                     gaps[k] += shift;
                 }
             }
@@ -1087,19 +1189,20 @@ fn shift_logged<const L: usize>(n: usize, scale: &[f64; L], logged: &[u64; L], g
 /// projection; log-stored gaps are shifted by the log of the factor) and reports the energy of
 /// the result and, given the forces F, the work h Σ u_i' F_i. Non-finite gaps make the lane
 /// inadmissible.
-pub fn conclude<const L: usize>(
-    terms: &Terms<L>,
+pub fn conclude<T: Real, const L: usize>(
+    terms: &Terms<L, T>,
     n: usize,
-    h: &[f64; L],
-    gaps: &mut [f64],
-    vel: &[f64],
+    h: &[T; L],
+    gaps: &mut [T],
+    vel: &[T],
     report: &mut [StepReport; L],
 ) {
-    let mut total = [0.0; L];
+    let mut total = [0.0f64; L];
     for (l, t) in total.iter_mut().enumerate() {
-        *t = lane_sum::<L>(n, l, gaps);
+        *t = lane_sum::<T, L>(n, l, gaps);
     }
     specialised!(
+        T,
         terms,
         conclude_simd,
         (
@@ -1117,43 +1220,50 @@ pub fn conclude<const L: usize>(
 }
 
 simd_versions!(conclude_simd, conclude_avx2, conclude_impl, (
-    terms: &Terms<L>,
+    terms: &Terms<L, T>,
     n: usize,
-    h: &[f64; L],
+    h: &[T; L],
     sum: [f64; L],
-    gaps: &mut [f64],
-    vel: &[f64],
-    force: Option<&[f64]>,
+    gaps: &mut [T],
+    vel: &[T],
+    force: Option<&[T]>,
     report: &mut [StepReport; L]
 ) -> ());
 
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
-    terms: &Terms<L>,
+fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+    terms: &Terms<L, T>,
     n: usize,
-    h: &[f64; L],
+    h: &[T; L],
     sum: [f64; L],
-    gaps: &mut [f64],
-    vel: &[f64],
-    force: Option<&[f64]>,
+    gaps: &mut [T],
+    vel: &[T],
+    force: Option<&[T]>,
     report: &mut [StepReport; L],
     law: Law<P, Q>,
 ) where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
     assert_eq!(gaps.len(), n * L);
-    let eps2 = 2.0 * terms.eps;
-    let mut scale = [1.0; L];
+    let zero = T::ZERO;
+    let eps2 = T::c(2.0) * terms.eps;
+    // The sum, the scale and the sums of the energy in f64 in either precision: in f32 a scale
+    // with the rounding of a sum of N gaps (sqrt(N) ulps) moves every gap by as much, and G by
+    // gamma times that (~1e-3 at gamma = 1000, N = 200: measured, steps of every size were then
+    // rejected by the energy check, down to dt_min); from the f64 sum the projected gaps are a
+    // fixed point of the next projection, so a vanishing step changes nothing.
+    let mut scale = [1.0f64; L];
     for l in 0..L {
         scale[l] = terms.total_gap[l] / sum[l];
     }
     let force = if FRC { force } else { None };
-    // 0/1 flags in u64 lanes, as in the sweep.
-    let mut logged = [0u64; L];
-    let mut nonfinite = [0u64; L];
-    let mut work = [0.0; L];
+    // 0/1 flags in lanes as wide as T, as in the sweep.
+    let flag = T::Flag::from;
+    let mut logged = [T::Flag::default(); L];
+    let mut nonfinite = [T::Flag::default(); L];
+    let mut work = [0.0f64; L];
     if report.iter().all(|r| r.certified) {
         // Only the projection (and the forcing's work, which a later energy check of a
         // Richardson step adds up): no lane needs its energy.
@@ -1161,72 +1271,76 @@ fn conclude_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bo
         for row in gaps.chunks_exact_mut(L) {
             for l in 0..L {
                 let v = row[l];
-                logged[l] |= (v < 0.0) as u64;
-                nonfinite[l] |= !v.is_finite() as u64;
-                row[l] = if v > 0.0 { v * scale[l] } else { v };
+                logged[l] |= flag(v < zero);
+                nonfinite[l] |= flag(!v.is_finite());
+                row[l] = if v > zero {
+                    T::c(v.to_f64() * scale[l])
+                } else {
+                    v
+                };
             }
         }
         if let Some(f) = force {
             for (u, f) in vel.chunks_exact(L).zip(f.chunks_exact(L)) {
                 for l in 0..L {
-                    work[l] += u[l] * f[l];
+                    work[l] += (u[l] * f[l]).to_f64();
                 }
             }
         }
-        shift_logged(n, &scale, &logged, gaps);
+        shift_logged::<T, L>(n, &scale, &logged, gaps);
         for l in 0..L {
-            report[l].admissible &= nonfinite[l] == 0;
+            report[l].admissible &= nonfinite[l] == T::Flag::default();
             report[l].energy = -1.0;
-            report[l].work = h[l] * work[l];
+            report[l].work = h[l].to_f64() * work[l];
         }
         return;
     }
-    let dstar_all: &[f64] = terms.repulsion.map_or(&[], |r| r.0);
+    let dstar_all: &[T] = terms.repulsion.map_or(&[], |r| r.0);
     let bonded_all: &[bool] = terms.bonded.unwrap_or(&[]);
-    let mut potential = [0.0; L];
-    let mut kinetic = [0.0; L];
+    let mut potential = [0.0f64; L];
+    let mut kinetic = [0.0f64; L];
     for i in 0..n {
         let k = i * L;
         let dstar = if REP {
-            *lanes::<L, f64>(dstar_all, k)
+            *lanes::<L, T>(dstar_all, k)
         } else {
-            [0.0; L]
+            [zero; L]
         };
         let bonded = if CLU {
             *lanes::<L, bool>(bonded_all, k)
         } else {
             [false; L]
         };
-        let row = lanes_mut::<L, f64>(gaps, k);
+        let row = lanes_mut::<L, T>(gaps, k);
         for l in 0..L {
             let v = row[l];
-            let scaled = v * scale[l];
-            logged[l] |= (v < 0.0) as u64;
-            nonfinite[l] |= !v.is_finite() as u64;
-            row[l] = if v > 0.0 { scaled } else { v };
-            let phi = potential_of::<REP, P, Q>(law, l, eps2, dstar[l], scaled.max(0.0));
+            let scaled = T::c(v.to_f64() * scale[l]);
+            logged[l] |= flag(v < zero);
+            nonfinite[l] |= flag(!v.is_finite());
+            row[l] = if v > zero { scaled } else { v };
+            let phi = potential_of::<T, REP, P, Q>(law, l, eps2, dstar[l], scaled.max_real(zero));
             if !bonded[l] {
-                potential[l] += phi;
+                potential[l] += phi.to_f64();
             }
         }
         if i + 1 < n {
-            let u = lanes::<L, f64>(vel, k);
+            let u = lanes::<L, T>(vel, k);
             for l in 0..L {
-                kinetic[l] += u[l] * u[l];
+                kinetic[l] += (u[l] * u[l]).to_f64();
             }
             if let Some(f) = force {
-                let f = lanes::<L, f64>(f, k);
+                let f = lanes::<L, T>(f, k);
                 for l in 0..L {
-                    work[l] += u[l] * f[l];
+                    work[l] += (u[l] * f[l]).to_f64();
                 }
             }
         }
     }
-    shift_logged(n, &scale, &logged, gaps);
+    shift_logged::<T, L>(n, &scale, &logged, gaps);
     for l in 0..L {
-        report[l].admissible &= nonfinite[l] == 0;
-        report[l].energy = potential[l] + terms.eps * kinetic[l];
-        report[l].work = h[l] * work[l];
+        report[l].admissible &= nonfinite[l] == T::Flag::default();
+        report[l].energy = potential[l] + terms.eps.to_f64() * kinetic[l];
+        report[l].work = h[l].to_f64() * work[l];
         report[l].admissible &= report[l].energy.is_finite();
         report[l].certified = false;
     }
@@ -1239,6 +1353,7 @@ mod partitioned;
 mod tests {
     use super::*;
     use crate::expr::Expr;
+    use crate::model::chain::stored_gap;
     use crate::model::quadrature::GaussLegendre;
 
     const N: usize = 37;
@@ -1287,8 +1402,9 @@ mod tests {
 
     type Outcome = (Vec<u64>, Vec<u64>, Vec<StepReport>);
 
-    /// One step of lanes `lanes` of the case as a block of M lanes at the given level.
-    fn step<const M: usize>(
+    /// One step of lanes `lanes` of the case as a block of M lanes at the given level, in T (the
+    /// case's values rounded to T; results as the bits of their exact f64 values).
+    fn step<T: Real, const M: usize>(
         simd: SimdLevel,
         c: &Case,
         lanes: [usize; M],
@@ -1296,9 +1412,9 @@ mod tests {
         clusters: bool,
         forcing: Option<&Forcing>,
     ) -> Outcome {
-        let pick = |v: &[f64], rows: usize| -> Vec<f64> {
+        let pick = |v: &[f64], rows: usize| -> Vec<T> {
             (0..rows * M)
-                .map(|k| v[(k / M) * L + lanes[k % M]])
+                .map(|k| T::c(v[(k / M) * L + lanes[k % M]]))
                 .collect()
         };
         let gaps = pick(&c.gaps, N);
@@ -1308,11 +1424,13 @@ mod tests {
             .map(|k| c.bonded[(k / M) * L + lanes[k % M]])
             .collect();
         let eps = 0.5 / N as f64;
-        let terms = Terms::<M> {
-            eps,
-            mu: lanes.map(|l| c.mu[l]),
+        let terms = Terms::<M, T> {
+            eps: T::c(eps),
+            mu: lanes.map(|l| T::c(c.mu[l])),
             total_gap: std::array::from_fn(|m| {
-                (0..N).map(|i| stored_gap::decode(gaps[i * M + m])).sum()
+                (0..N)
+                    .map(|i| stored_gap::decode(gaps[i * M + m].to_f64()))
+                    .sum()
             }),
             contact_repulsion: [5.0; M],
             repulsion: gamma.map(|g| (dstar.as_slice(), g)),
@@ -1320,14 +1438,14 @@ mod tests {
             forcing,
             forcing_params: [&[]; M],
         };
-        let h = lanes.map(|l| c.h[l]);
+        let h = lanes.map(|l| T::c(c.h[l]));
         let t = [0.25; M];
-        let mut gaps_out = vec![0.0; N * M];
-        let mut vel_out = vec![0.0; (N - 1) * M];
+        let mut gaps_out = vec![T::ZERO; N * M];
+        let mut vel_out = vec![T::ZERO; (N - 1) * M];
         let mut scratch = Scratch::new(N, M);
         let report = euler_step_as(
             simd,
-            default_layout::<M>(N),
+            default_layout::<T, M>(N),
             &terms,
             N,
             &t,
@@ -1339,8 +1457,8 @@ mod tests {
             &mut scratch,
         );
         (
-            gaps_out.iter().map(|x| x.to_bits()).collect(),
-            vel_out.iter().map(|x| x.to_bits()).collect(),
+            gaps_out.iter().map(|x| x.to_f64().to_bits()).collect(),
+            vel_out.iter().map(|x| x.to_f64().to_bits()).collect(),
             report.to_vec(),
         )
     }
@@ -1384,23 +1502,29 @@ mod tests {
             eprintln!("no AVX2 + FMA here (or ROUGHLUB_CPU_SIMD=portable): nothing to compare");
             return;
         }
+        avx2_equals_portable::<f64>();
+        avx2_equals_portable::<f32>();
+    }
+
+    fn avx2_equals_portable<T: Real>() {
         let all = std::array::from_fn(|l| l);
         for (label, gamma, clusters, forcing) in variants() {
             for mild in [false, true] {
                 let c = case(clusters, mild);
                 let f = forcing.as_ref();
-                let portable = step::<L>(SimdLevel::Portable, &c, all, gamma, clusters, f);
-                let avx2 = step::<L>(SimdLevel::Avx2Fma, &c, all, gamma, clusters, f);
+                let portable = step::<T, L>(SimdLevel::Portable, &c, all, gamma, clusters, f);
+                let avx2 = step::<T, L>(SimdLevel::Avx2Fma, &c, all, gamma, clusters, f);
+                let p = T::PRECISION.name();
                 assert!(
                     portable == avx2,
-                    "{label}, mild {mild}: AVX2 and portable differ"
+                    "{p}: {label}, mild {mild}: AVX2 and portable differ"
                 );
                 // Both ends of the step ran: the certified projection, the energy (a bonded
                 // gap goes through the fix-up, which the certificate leaves out).
                 assert_eq!(
                     portable.2.iter().all(|r| r.certified),
                     mild && !clusters,
-                    "{label}, mild {mild}"
+                    "{p}: {label}, mild {mild}"
                 );
             }
         }
@@ -1410,10 +1534,16 @@ mod tests {
     /// a block of 8 equals the same member stepped alone (L = 1), bit for bit.
     #[test]
     fn lanes_are_independent_of_their_block() {
+        lanes_independent::<f64>();
+        lanes_independent::<f32>();
+    }
+
+    fn lanes_independent<T: Real>() {
         for (label, gamma, clusters, forcing) in variants() {
+            let label = format!("{}: {label}", T::PRECISION.name());
             let c = case(clusters, false);
             let all = std::array::from_fn(|l| l);
-            let block = step::<L>(
+            let block = step::<T, L>(
                 SimdLevel::detect(),
                 &c,
                 all,
@@ -1428,7 +1558,7 @@ mod tests {
                         Gamma::Uniform(p) => p,
                     })
                 });
-                let alone = step::<1>(
+                let alone = step::<T, 1>(
                     SimdLevel::Portable,
                     &c,
                     [l],

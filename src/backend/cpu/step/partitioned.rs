@@ -74,7 +74,7 @@ const TINY: f64 = 1e-140;
 /// How the rows of a chain are cut: `groups` groups of SEGMENT_LANES segments of `seg` rows,
 /// segment 0 with `rem` more rows in front.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct Layout {
+pub struct Layout {
     groups: usize,
     seg: usize,
     rem: usize,
@@ -402,8 +402,9 @@ where
     let eps2 = 2.0 * c.eps;
     let mut w = [0.0; S];
     for l in 0..S {
-        let (a_next, g_next, d_next) =
-            gap_terms::<REP, CLU, P, Q>(law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h);
+        let (a_next, g_next, d_next) = gap_terms::<f64, REP, CLU, P, Q>(
+            law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
+        );
         st.nonfinite[l] |= !(g_next + f[l]).is_finite() as u64;
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
         // As in the sequential sweep (step.rs), operation for operation.
@@ -519,7 +520,7 @@ where
             [false; S]
         };
         for l in 0..S {
-            let (a, gg, _) = gap_terms::<REP, CLU, P, Q>(
+            let (a, gg, _) = gap_terms::<f64, REP, CLU, P, Q>(
                 law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
             );
             st.a_prev[l] = a;
@@ -530,7 +531,7 @@ where
         // Segment 0 starts from the left wall (lambda_0 = 1: ls_0 = 1/d_1, ys_0 = 0, no spike),
         // as the sequential sweep does, and sweeps the prologue's rows alone.
         let mut s0 = Sweep::<1>::new([0.0], 0.0);
-        let (a, gg, d) = gap_terms::<REP, CLU, P, Q>(
+        let (a, gg, d) = gap_terms::<f64, REP, CLU, P, Q>(
             law,
             0,
             c.mu,
@@ -619,7 +620,7 @@ where
     st
 }
 
-simd_versions!(ends_group_simd, ends_group_avx2, ends_group_impl, (
+simd_versions!(f64: ends_group_simd, ends_group_avx2, ends_group_impl, (
     terms: &Terms<L>,
     layout: &Layout,
     g: usize,
@@ -762,7 +763,7 @@ std::thread_local! {
     static ROWS: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-simd_versions!(solve_group_simd, solve_group_avx2, solve_group_impl, (
+simd_versions!(f64: solve_group_simd, solve_group_avx2, solve_group_impl, (
     terms: &Terms<L>,
     layout: &Layout,
     g: usize,
@@ -1117,7 +1118,7 @@ where
             terms.mu[0] / h0,
         );
     let force = FRC.then_some(scratch.force.as_slice());
-    super::conclude_simd::<L, REP, FRC, CLU, P, Q>(
+    super::conclude_simd::<f64, L, REP, FRC, CLU, P, Q>(
         simd,
         terms,
         n,
