@@ -153,6 +153,7 @@ fn stats_delta(after: GpuStats, before: GpuStats) -> GpuStats {
         bytes_written: after.bytes_written - before.bytes_written,
         attempts_per_dispatch: after.attempts_per_dispatch,
         dispatches_per_submit: after.dispatches_per_submit,
+        segments: after.segments,
     }
 }
 

@@ -39,6 +39,8 @@
 //! bonded gap is never updated.
 
 use self::partitioned::{euler_partitioned, Layout};
+/// The spike's flush threshold of the partitioned solve (the GPU twin's too).
+pub(crate) use self::partitioned::TINY as SPIKE_TINY;
 use super::{twin_math, SimdLevel};
 use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};

@@ -22,7 +22,7 @@ pub const LAVAPIPE_LOOP_LIMIT: u64 = 65_535;
 
 /// Whether the adapter is llvmpipe (lavapipe), which bounds the loop iterations of a shader
 /// invocation ([`LAVAPIPE_LOOP_LIMIT`]).
-fn is_lavapipe(ctx: &GpuContext) -> bool {
+pub(super) fn is_lavapipe(ctx: &GpuContext) -> bool {
     let d = &ctx.description;
     d.driver.to_lowercase().contains("llvmpipe") || d.name.to_lowercase().contains("llvmpipe")
 }

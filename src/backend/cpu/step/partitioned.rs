@@ -69,7 +69,8 @@ const SEGMENT_ROWS: usize = 256;
 /// Spike coefficients and the running product of w are set to 0 below this: their terms are
 /// then far below rounding, and letting them decay through the subnormals would cost a
 /// microcode assist per operation.
-const TINY: f64 = 1e-140;
+/// (Also the GPU twin's, `shaders/partitioned.wgsl`.)
+pub(crate) const TINY: f64 = 1e-140;
 
 /// How the rows of a chain are cut: `groups` groups of SEGMENT_LANES segments of `seg` rows,
 /// segment 0 with `rem` more rows in front.
