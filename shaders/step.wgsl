@@ -36,6 +36,9 @@
 // Bindings (group 0): 0 config (uniform), 1 gap sets, 2 velocity sets, 3 member parameters,
 // 4 controls, 5 scratch (w | ls | ys | force, each (N-1)·batch), 6 running counter (atomic),
 // 7 gathered gaps, 8 dstar (repulsion only), 9 bonded (u32, clusters only), 10 gathered velocities.
+// The partitioned kernel (shaders/partitioned.wgsl, few members with huge N) is appended to this
+// file and calls its functions (gap_terms, potential, extrapolate_gap, conclude_attempt, ...):
+// keep their signatures in step with it.
 // The host uploads and reads back Config, Param and Control (src/backend/gpu/wgsl_types.rs and
 // src/backend/gpu/buffers.rs): keep their layouts in sync.
 

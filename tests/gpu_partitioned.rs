@@ -9,8 +9,8 @@ mod common;
 
 use common::gpu::acquire_for_tests;
 use common::{plan_for, random_chain, Rng};
-use roughlub::backend::cpu::CpuSolver;
 use roughlub::backend::cpu::step::GAP_FLOOR;
+use roughlub::backend::cpu::CpuSolver;
 use roughlub::backend::gpu::partitioned::Segments;
 use roughlub::backend::gpu::solver::{GpuPartition, GpuSolver};
 use roughlub::backend::gpu::GpuContext;
@@ -102,7 +102,7 @@ fn assert_agreement(
     let (cpu, cpu_reports) = run_cpu(plan, chains);
     let (gpu, gpu_reports) = run_gpu(ctx, plan, chains, Precision::F64, partition);
     let (dg, dv) = differences(&gpu, &cpu);
-    eprintln!("{label}: GPU partitioned vs CPU sequential: gaps {dg:.2e}, velocities {dv:.2e}");
+    eprintln!("{label}: GPU partitioned vs CPU: gaps {dg:.2e}, velocities {dv:.2e}");
     for (g, c) in gpu_reports.iter().zip(&cpu_reports) {
         eprintln!(
             "{label}: member {}: accepted {} rejected {} order {} status {:?}",
@@ -295,7 +295,11 @@ fn clusters_and_near_contact_at_segment_boundaries_agree() {
             }
         }
         assert_eq!(last.velocities[0], 0.0, "{label}: glued to the left wall");
-        assert_eq!(last.velocities[n - 2], 0.0, "{label}: glued to the right wall");
+        assert_eq!(
+            last.velocities[n - 2],
+            0.0,
+            "{label}: glued to the right wall"
+        );
     }
 }
 
@@ -371,9 +375,13 @@ fn rejections_and_failures_agree() {
         None,
     );
     let (_, cpu) = run_cpu(&plan, &chains);
-    assert!(cpu.iter().any(|r| r.steps_rejected > 0), "test data: rejections");
     assert!(
-        cpu.iter().any(|r| matches!(r.status, MemberStatus::Failed { .. })),
+        cpu.iter().any(|r| r.steps_rejected > 0),
+        "test data: rejections"
+    );
+    assert!(
+        cpu.iter()
+            .any(|r| matches!(r.status, MemberStatus::Failed { .. })),
         "test data: a failure {cpu:?}"
     );
     assert_agreement(
@@ -464,6 +472,46 @@ fn f32_loses_no_more_than_the_sequential_f32_kernel() {
     eprintln!(
         "f32 vs CPU f64: partitioned gaps {dg:.2e}, velocities {dv:.2e}; one invocation per member gaps {sg:.2e}, velocities {sv:.2e}"
     );
-    assert!(dg <= 2.0 * sg && dv <= 2.0 * sv, "{dg:e} {dv:e} vs {sg:e} {sv:e}");
+    assert!(
+        dg <= 2.0 * sg && dv <= 2.0 * sv,
+        "{dg:e} {dv:e} vs {sg:e} {sv:e}"
+    );
     assert!(dg <= 1e-4 && dv <= 1e-4, "{dg:e} {dv:e}");
+}
+
+/// N = 10^6, one member (smooth profiles), order 2 adaptive, a few steps: runs on lavapipe and
+/// agrees with the CPU (whose partitioned solve takes this N) like the runs above. Ignored by
+/// default (slow here): `cargo test --release --test gpu_partitioned -- --ignored`.
+#[test]
+#[ignore]
+fn a_million_particles_order_2_adaptive() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let expr = |s: &str| roughlub::expr::Expr::parse(s).unwrap();
+    let chain = roughlub::scene::initial::chain_from_profiles(
+        1_000_000,
+        &expr("0.5 + 0.2*sin(2*pi*x)"),
+        &expr("0.3*sin(2*pi*x)"),
+        Some(&expr("0.6")),
+    )
+    .unwrap();
+    let members = vec![MemberParams {
+        mu: 0.01,
+        gamma: 2.0,
+    }];
+    let plan = plan_for(&chain, members, 2, ADAPTIVE, vec![0.0, 1e-3], None);
+    let chains = vec![chain];
+    let (_, cpu) = run_cpu(&plan, &chains);
+    assert!(
+        cpu[0].status == MemberStatus::Ok && cpu[0].steps_accepted >= 3,
+        "test data: {cpu:?}"
+    );
+    assert_agreement(
+        &ctx,
+        "N = 1e6, order 2 adaptive",
+        &plan,
+        &chains,
+        GpuPartition::Auto,
+    );
 }

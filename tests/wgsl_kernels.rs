@@ -138,7 +138,11 @@ fn every_partitioned_variant_validates() {
     use roughlub::backend::gpu::kernel::generate_partitioned_wgsl;
     use roughlub::backend::gpu::partitioned::{entry_points, struct_size};
     for precision in [Precision::F32, Precision::F64] {
-        for repulsion in [None, Some(GammaSpec::Integer(2)), Some(GammaSpec::PerMember)] {
+        for repulsion in [
+            None,
+            Some(GammaSpec::Integer(2)),
+            Some(GammaSpec::PerMember),
+        ] {
             for clusters in [false, true] {
                 for forced in [false, true] {
                     for (order, adaptive) in [
@@ -169,7 +173,11 @@ fn every_partitioned_variant_validates() {
                             );
                         }
                         assert!(!src.contains("//@"), "{label}: leftover marker");
-                        assert_eq!(src.contains("var<storage, read> glued"), clusters, "{label}");
+                        assert_eq!(
+                            src.contains("var<storage, read> glued"),
+                            clusters,
+                            "{label}"
+                        );
                         let real = match precision {
                             Precision::F32 => 4,
                             Precision::F64 => 8,

@@ -38,9 +38,9 @@
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
 
-use self::partitioned::{euler_partitioned, Layout};
 /// The spike's flush threshold of the partitioned solve (the GPU twin's too).
 pub(crate) use self::partitioned::TINY as SPIKE_TINY;
+use self::partitioned::{euler_partitioned, Layout};
 use super::{twin_math, SimdLevel};
 use crate::model::chain::stored_gap;
 use crate::model::plan::{Forcing, Power};

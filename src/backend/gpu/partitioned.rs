@@ -167,9 +167,11 @@ pub fn check_budget(
     let per_member = loops_per_segment(scheme) * u64::from(segments.segments) + 8;
     let iterations = per_segment.max(per_member);
     if iterations > LAVAPIPE_LOOP_LIMIT {
-        // The longest chain: the longest segments times the most segments that fit.
+        // The longest chain the default cut runs: the longest segments that fit, as many as
+        // fit up to MAX_SEGMENTS.
         let rows = (LAVAPIPE_LOOP_LIMIT - 8) / loops_per_row(scheme) - 1;
-        let count = (LAVAPIPE_LOOP_LIMIT - 8) / loops_per_segment(scheme);
+        let count =
+            ((LAVAPIPE_LOOP_LIMIT - 8) / loops_per_segment(scheme)).min(MAX_SEGMENTS as u64);
         return Err(GpuError::LoopLimit {
             adapter: ctx.description.short(),
             particles: n,
@@ -289,7 +291,13 @@ mod tests {
     /// The cut covers rows 1..n-1 once, in order, with segments of seg or seg + 1 rows.
     #[test]
     fn segments_cover_every_row_once() {
-        for (n, r) in [(2, 256), (100, 7), (1001, 256), (40_000, 256), (1_000_000, 256)] {
+        for (n, r) in [
+            (2, 256),
+            (100, 7),
+            (1001, 256),
+            (40_000, 256),
+            (1_000_000, 256),
+        ] {
             let s = Segments::new(n, r);
             let mut next = 1;
             for k in 0..s.segments {

@@ -17,21 +17,27 @@
 //! reads back one u32, the number of members still running; when it is 0, `gather` copies each
 //! member's current state into the read-back buffers, which are read once (readback only at
 //! output times).
+//!
+//! Few members with huge N (and any N beyond lavapipe's loop budget) take the partitioned kernel
+//! instead (`shaders/partitioned.wgsl`, see `super::partitioned`): the same state, controls and
+//! read-backs, but each trial step is a fixed sequence of dispatches over (segment, member) pairs
+//! and over members, `attempts_per_submit` trial steps per submit, then a count of the members
+//! still running.
 
 use super::attempts::{attempts_per_dispatch, check_loop_budget, dispatches_per_submit};
+pub use super::attempts::{ATTEMPTS_PER_SUBMIT, LAVAPIPE_LOOP_LIMIT, MAX_ATTEMPTS_PER_DISPATCH};
 use super::buffers::PartsData;
+use super::buffers::{BoundBuffers, BufferSizes, InitialData, StepBuffers};
+use super::context::GpuContext;
 use super::kernel::generate_partitioned_wgsl;
+use super::kernel::{
+    generate_step_wgsl, GammaSpec, KernelSpec, SchemeSpec, ADVANCE_ENTRY, BEGIN_ENTRY,
+    GATHER_ENTRY, STEP_WORKGROUP_SIZE,
+};
 pub use super::partitioned::GpuPartition;
 use super::partitioned::{
     attempt_sequence, attempts_per_submit, check_budget, choose, entry_points, struct_size,
     Dispatch, Over, Segments, BEGIN_SEQUENCE, SEGMENT_WORKGROUP_SIZE,
-};
-pub use super::attempts::{ATTEMPTS_PER_SUBMIT, LAVAPIPE_LOOP_LIMIT, MAX_ATTEMPTS_PER_DISPATCH};
-use super::buffers::{BoundBuffers, BufferSizes, InitialData, StepBuffers};
-use super::context::GpuContext;
-use super::kernel::{
-    generate_step_wgsl, GammaSpec, KernelSpec, SchemeSpec, ADVANCE_ENTRY, BEGIN_ENTRY,
-    GATHER_ENTRY, STEP_WORKGROUP_SIZE,
 };
 use super::wgsl_types::{
     config_bytes, control_size, controls_from_bytes, reals_from_bytes, ConfigF64, ControlF64,
