@@ -3,7 +3,14 @@
 //! steps, case-1 data (rho0 = 0.7, u0 = 0.5 sin(2 pi x), rho* = 0.7), f32 and f64.
 //!
 //! Group `gpu_order1_fixed_integer_gamma`: integer gamma 2 with repulsion, no forcing, for
-//! (members, N) = (1, 100000), (256, 1000), (4096, 100) — the sizes of `benches/cpu_solver.rs`.
+//! (members, N) = (256, 1000), (4096, 100), (1, 10^5), (1, 10^6), (4, 10^6). The kernel is the
+//! solver's own choice: one invocation per member for the first two, the partitioned kernel
+//! (`shaders/partitioned.wgsl`: fewer than 64 members with N >= 2^14, and any N beyond lavapipe's
+//! loop budget) for the others. Each row prints the kernel and the bytes it moves per
+//! particle-step ([`bytes_per_particle_step`], counted from the kernels' loads and stores).
+//!
+//! Group `partition_threshold`: (1, 8000) and (4, 8000) in f64, one invocation per member
+//! against the partitioned kernel (default segments), where both run on lavapipe.
 //!
 //! Group `specialisation`: (256, 1000) in f64, the base scene against one change at a time:
 //! a per-member gamma kernel (gamma 2 everywhere but one member at 3, so the kernel reads gamma
@@ -11,14 +18,12 @@
 //! and no repulsion (no d*). The time ratios say what each specialisation of the kernel saves.
 //!
 //! The solver (buffers, pipelines) is built and its t = 0 output taken outside the timed part;
-//! the timed part is one `next_output()` over an interval of `STEPS` fixed steps: one submit of
-//! `GpuStats::dispatches_per_submit` `advance` dispatches (each up to `attempts_per_dispatch`
-//! steps), the running-counter read-back, `gather`, the read-backs of controls, gaps and
-//! velocities, and the host-side observables.
+//! the timed part is one `next_output()` over an interval of fixed steps (64, fewer for the
+//! largest batches: [`steps_for`]): the submits of trial steps, the running-counter read-backs,
+//! the gather, the read-backs of controls, gaps and velocities, and the host-side observables.
 //!
-//! Without an adapter the benchmarks are skipped. On lavapipe (llvmpipe) one invocation per
-//! member may run at most 65535 loop iterations, so N > 32767 is refused
-//! (`GpuError::LoopLimit`); such a configuration is reported and skipped.
+//! Without an adapter the benchmarks are skipped; a configuration the adapter cannot run is
+//! reported and skipped.
 
 use std::time::Duration;
 
@@ -26,7 +31,7 @@ use criterion::{
     criterion_group, criterion_main, BatchSize, BenchmarkGroup, BenchmarkId, Criterion,
     SamplingMode, Throughput,
 };
-use roughlub::backend::gpu::solver::{GpuSolver, GpuStats};
+use roughlub::backend::gpu::solver::{GpuPartition, GpuSolver, GpuStats};
 use roughlub::backend::gpu::{GpuContext, GpuError};
 use roughlub::backend::{BatchSolver, Precision};
 use roughlub::error::{Error, Result};
@@ -37,10 +42,42 @@ use roughlub::model::plan::{Forcing, Plan};
 use roughlub::model::quadrature::GaussLegendre;
 use roughlub::scene::initial::chain_from_profiles;
 
-/// Fixed steps per timed interval: exactly one submit of 64 `advance` dispatches (one trial step
-/// per member per dispatch), so no dispatch of the submit is idle.
+/// Fixed steps per timed interval up to 2^20 elements: exactly one submit of 64 `advance`
+/// dispatches of one invocation per member (one trial step per member per dispatch), so no
+/// dispatch of the submit is idle.
 const STEPS: usize = 64;
 const DT: f64 = 1e-4;
+
+/// Steps per timed interval for B·N elements: [`STEPS`], or about 2^24 particle-steps for larger
+/// batches (4 to 64), so that an iteration of (4, 10^6) stays a few seconds on lavapipe.
+fn steps_for(members: usize, particles: usize) -> usize {
+    let elements = members * particles;
+    if elements <= 1 << 20 {
+        STEPS
+    } else {
+        ((1usize << 24) / elements).clamp(4, STEPS)
+    }
+}
+
+/// Bytes each kernel moves per particle and Euler step, counted from its loads and stores of
+/// per-element buffers (one real each; per-segment and per-member values are left out: a few
+/// per 256 rows) for the benchmarked scene (order 1, fixed steps, repulsion, no forcing, no
+/// clusters). Keep in sync with the kernels:
+/// - one invocation per member (shaders/step.wgsl, `euler` and `conclude`): the forward sweep
+///   reads gap, d*, u and writes w, ls, ys (3 + 3); the back sweep reads gap, w, ls, ys and writes
+///   u, gap and the rate (4 + 3); the projection reads gap, d*, u and writes the gap (3 + 1):
+///   17 reals.
+/// - partitioned (shaders/partitioned.wgsl): `p_forward` reads gap, d*, u (3); `p_solve` sweeps
+///   forward again (3 + 3) and back (4 + 2: no rate kept, the fix-up is in place); `p_project`
+///   as above (3 + 1): 19 reals.
+fn bytes_per_particle_step(segments: u64, precision: Precision) -> u64 {
+    let reals = if segments > 0 { 19 } else { 17 };
+    let size = match precision {
+        Precision::F32 => 4,
+        Precision::F64 => 8,
+    };
+    reals * size
+}
 
 /// One benchmarked scene.
 #[derive(Clone, Copy, Debug)]
@@ -54,6 +91,8 @@ struct Case {
     forcing: bool,
     /// Member 0 gets gamma = 3 instead of 2: the kernel reads gamma per member.
     per_member_gamma: bool,
+    /// Which kernel.
+    partition: GpuPartition,
 }
 
 impl Case {
@@ -61,10 +100,11 @@ impl Case {
         Case {
             members,
             particles,
-            steps: STEPS,
+            steps: steps_for(members, particles),
             repulsion: true,
             forcing: false,
             per_member_gamma: false,
+            partition: GpuPartition::Auto,
         }
     }
 
@@ -137,7 +177,7 @@ fn plan(case: &Case, eps: f64) -> Plan {
 fn solver<'a>(ctx: &'a GpuContext, case: &Case, precision: Precision) -> Result<GpuSolver<'a>> {
     let c = chain(case);
     let plan = plan(case, c.eps);
-    let mut s = GpuSolver::new(ctx, plan, vec![c; case.members], precision)
+    let mut s = GpuSolver::new_with(ctx, plan, vec![c; case.members], precision, case.partition)
         .map_err(|e| Error::gpu("GpuSolver::new", e, ""))?;
     s.next_output(&|_| {})?;
     Ok(s)
@@ -153,6 +193,7 @@ fn stats_delta(after: GpuStats, before: GpuStats) -> GpuStats {
         bytes_written: after.bytes_written - before.bytes_written,
         attempts_per_dispatch: after.attempts_per_dispatch,
         dispatches_per_submit: after.dispatches_per_submit,
+        segments: after.segments,
     }
 }
 
@@ -190,11 +231,21 @@ fn probe(ctx: &GpuContext, case: &Case, precision: Precision, id: &str) -> bool 
         .filter(|r| !matches!(r.status, roughlub::backend::MemberStatus::Ok))
         .count();
     let steps: u64 = reports.iter().map(|r| r.steps_accepted).sum();
+    let kernel = match d.segments {
+        0 => "one invocation per member".to_string(),
+        p => format!("partitioned, {p} segments per member"),
+    };
     println!(
-        "{id}: one interval of {} steps: {} dispatches, {} submits (+ one copy submit per \
-         read-back), {} read-backs ({} bytes), {} bytes written; {steps} member-steps accepted, \
-         {failed} members failed",
-        case.steps, d.dispatches, d.submits, d.readbacks, d.bytes_read, d.bytes_written
+        "{id}: {kernel}, {} bytes per particle-step; one interval of {} steps: {} dispatches, \
+         {} submits (+ one copy submit per read-back), {} read-backs ({} bytes), {} bytes \
+         written; {steps} member-steps accepted, {failed} members failed",
+        bytes_per_particle_step(d.segments, precision),
+        case.steps,
+        d.dispatches,
+        d.submits,
+        d.readbacks,
+        d.bytes_read,
+        d.bytes_written
     );
     assert_eq!(failed, 0, "{id}: members failed");
     assert_eq!(
@@ -267,7 +318,13 @@ fn gpu_benches(c: &mut Criterion) {
 
     let mut group = c.benchmark_group("gpu_order1_fixed_integer_gamma");
     configure(&mut group);
-    for (members, particles) in [(1usize, 100_000usize), (256, 1000), (4096, 100)] {
+    for (members, particles) in [
+        (256usize, 1000usize),
+        (4096, 100),
+        (1, 100_000),
+        (1, 1_000_000),
+        (4, 1_000_000),
+    ] {
         let case = Case::base(members, particles);
         for (precision, ctx) in [
             (Precision::F32, Some(&ctx32)),
@@ -288,8 +345,36 @@ fn gpu_benches(c: &mut Criterion) {
     }
     group.finish();
 
-    // One change at a time from the base scene (integer gamma 2, repulsion, no forcing).
     let Some(ctx) = ctx64.as_ref() else { return };
+    // Both kernels where both run on lavapipe (N <= 8191 for one invocation per member).
+    let mut group = c.benchmark_group("partition_threshold");
+    configure(&mut group);
+    for members in [1usize, 4] {
+        for (name, partition) in [
+            ("sequential", GpuPartition::Off),
+            (
+                "partitioned",
+                GpuPartition::SegmentRows(roughlub::backend::gpu::partitioned::SEGMENT_ROWS),
+            ),
+        ] {
+            let case = Case {
+                partition,
+                ..Case::base(members, 8000)
+            };
+            let label = format!("partition_threshold/{name}/f64_{}", case.size_label());
+            bench_case(
+                &mut group,
+                ctx,
+                case,
+                Precision::F64,
+                BenchmarkId::new(name, format!("f64_{}", case.size_label())),
+                &label,
+            );
+        }
+    }
+    group.finish();
+
+    // One change at a time from the base scene (integer gamma 2, repulsion, no forcing).
     let base = Case::base(256, 1000);
     let variants = [
         ("integer_gamma", base),

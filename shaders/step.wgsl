@@ -36,6 +36,9 @@
 // Bindings (group 0): 0 config (uniform), 1 gap sets, 2 velocity sets, 3 member parameters,
 // 4 controls, 5 scratch (w | ls | ys | force, each (N-1)·batch), 6 running counter (atomic),
 // 7 gathered gaps, 8 dstar (repulsion only), 9 bonded (u32, clusters only), 10 gathered velocities.
+// The partitioned kernel (shaders/partitioned.wgsl, few members with huge N) is appended to this
+// file and calls its functions (gap_terms, potential, extrapolate_gap, conclude_attempt, ...):
+// keep their signatures in step with it.
 // The host uploads and reads back Config, Param and Control (src/backend/gpu/wgsl_types.rs and
 // src/backend/gpu/buffers.rs): keep their layouts in sync.
 
@@ -527,83 +530,94 @@ fn noted(err: real, e: real) -> real {
 fn extrapolate(b: u32, cand: u32, k: u32) -> array<real, 7> {
     let batch = config.batch;
     let n = config.particles;
-    let rows = (n - 1u) * batch;
     var err: array<real, 7>;
     for (var i: u32 = 0u; i < n; i++) {
-        let idx = i * batch + b;
-        var y: array<real, 6>;
-        for (var j: u32 = 0u; j < k; j++) {
-            y[j] = gap_sets[(ROW_SET + j) * n * batch + idx];
-        }
-        let last = y[k - 1u];
-        if !is_free(idx) {
-            gap_sets[cand * n * batch + idx] = last;
-            continue;
-        }
-        var plain = true;
-        for (var j: u32 = 0u; j < k; j++) {
-            plain = plain && y[j] > 0.0;
-        }
-        var rho: array<real, 6>;
-        for (var j: u32 = 0u; j < k; j++) {
-            if plain {
-                rho[j] = ln_ratio(y[j] / last);
-            } else {
-                rho[j] = stored_ln(y[j]) - stored_ln(last);
-            }
-        }
-        var e: array<real, 7>;
-        // `neville`.
-        for (var c: u32 = 1u; c < k; c++) {
-            for (var j: u32 = k - 1u; j >= c; j--) {
-                let delta = (rho[j] - rho[j - 1u]) * (real(j + 1u - c) / real(c));
-                if j == c {
-                    e[c + 1u] = abs(delta);
-                }
-                rho[j] = rho[j] + delta;
-            }
-        }
-        var x: real = 0.0;
-        if EXTRAPOLATES {
-            x = rho[k - 1u];
-        }
-        let grown = last * gap_exp(x);
-        if plain && grown >= GAP_FLOOR && grown <= REAL_MAX {
-            gap_sets[cand * n * batch + idx] = grown;
-        } else {
-            gap_sets[cand * n * batch + idx] = encode_ln_gap(stored_ln(last) + x);
-        }
-        for (var j: u32 = 2u; j <= k; j++) {
-            err[j] = noted(err[j], e[j]);
-        }
+        extrapolate_gap(i * batch + b, cand, k, &err);
     }
     for (var i: u32 = 0u; i + 1u < n; i++) {
-        let idx = i * batch + b;
-        var t: array<real, 6>;
-        for (var j: u32 = 0u; j < k; j++) {
-            t[j] = vel_sets[(ROW_SET + j) * rows + idx];
-        }
-        let last = t[k - 1u];
-        var e: array<real, 7>;
-        for (var c: u32 = 1u; c < k; c++) {
-            for (var j: u32 = k - 1u; j >= c; j--) {
-                let delta = (t[j] - t[j - 1u]) * (real(j + 1u - c) / real(c));
-                if j == c {
-                    e[c + 1u] = abs(delta) / (1.0 + abs(t[j]));
-                }
-                t[j] = t[j] + delta;
-            }
-        }
-        if EXTRAPOLATES {
-            vel_sets[cand * rows + idx] = t[k - 1u];
-        } else {
-            vel_sets[cand * rows + idx] = last;
-        }
-        for (var j: u32 = 2u; j <= k; j++) {
-            err[j] = noted(err[j], e[j]);
-        }
+        extrapolate_velocity(i * batch + b, cand, k, &err);
     }
     return err;
+}
+
+// Gap `idx` of `extrapolate` (also called by the partitioned kernel, shaders/partitioned.wgsl):
+// writes it to set `cand` and notes its estimates in `err`.
+fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 7>>) {
+    let n = config.particles;
+    let batch = config.batch;
+    var y: array<real, 6>;
+    for (var j: u32 = 0u; j < k; j++) {
+        y[j] = gap_sets[(ROW_SET + j) * n * batch + idx];
+    }
+    let last = y[k - 1u];
+    if !is_free(idx) {
+        gap_sets[cand * n * batch + idx] = last;
+        return;
+    }
+    var plain = true;
+    for (var j: u32 = 0u; j < k; j++) {
+        plain = plain && y[j] > 0.0;
+    }
+    var rho: array<real, 6>;
+    for (var j: u32 = 0u; j < k; j++) {
+        if plain {
+            rho[j] = ln_ratio(y[j] / last);
+        } else {
+            rho[j] = stored_ln(y[j]) - stored_ln(last);
+        }
+    }
+    var e: array<real, 7>;
+    // `neville`.
+    for (var c: u32 = 1u; c < k; c++) {
+        for (var j: u32 = k - 1u; j >= c; j--) {
+            let delta = (rho[j] - rho[j - 1u]) * (real(j + 1u - c) / real(c));
+            if j == c {
+                e[c + 1u] = abs(delta);
+            }
+            rho[j] = rho[j] + delta;
+        }
+    }
+    var x: real = 0.0;
+    if EXTRAPOLATES {
+        x = rho[k - 1u];
+    }
+    let grown = last * gap_exp(x);
+    if plain && grown >= GAP_FLOOR && grown <= REAL_MAX {
+        gap_sets[cand * n * batch + idx] = grown;
+    } else {
+        gap_sets[cand * n * batch + idx] = encode_ln_gap(stored_ln(last) + x);
+    }
+    for (var j: u32 = 2u; j <= k; j++) {
+        (*err)[j] = noted((*err)[j], e[j]);
+    }
+}
+
+// Velocity `idx` of `extrapolate` (also called by the partitioned kernel).
+fn extrapolate_velocity(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 7>>) {
+    let rows = (config.particles - 1u) * config.batch;
+    var t: array<real, 6>;
+    for (var j: u32 = 0u; j < k; j++) {
+        t[j] = vel_sets[(ROW_SET + j) * rows + idx];
+    }
+    let last = t[k - 1u];
+    var e: array<real, 7>;
+    for (var c: u32 = 1u; c < k; c++) {
+        for (var j: u32 = k - 1u; j >= c; j--) {
+            let delta = (t[j] - t[j - 1u]) * (real(j + 1u - c) / real(c));
+            if j == c {
+                e[c + 1u] = abs(delta) / (1.0 + abs(t[j]));
+            }
+            t[j] = t[j] + delta;
+        }
+    }
+    if EXTRAPOLATES {
+        vel_sets[cand * rows + idx] = t[k - 1u];
+    } else {
+        vel_sets[cand * rows + idx] = last;
+    }
+    for (var j: u32 = 2u; j <= k; j++) {
+        (*err)[j] = noted((*err)[j], e[j]);
+    }
 }
 
 // `energy_acceptable` of src/backend/cpu/control.rs, with the rounding of G (about gamma ulps)

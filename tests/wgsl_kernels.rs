@@ -128,3 +128,70 @@ fn integer_power_is_the_square_and_multiply_chain() {
     assert_eq!(src.matches("base = base * base;").count(), 0);
     assert!(validate_wgsl("step0", &generate_step_wgsl(&spec(0))).is_ok());
 }
+
+/// The partitioned kernel (`shaders/partitioned.wgsl` after the step kernel) for every
+/// precision × repulsion × clusters × forcing × scheme: validates with naga, has every entry
+/// point its sequence of dispatches names, no leftover marker, and the glued-bodies buffer only
+/// with clusters; its GPU-only structs have a size.
+#[test]
+fn every_partitioned_variant_validates() {
+    use roughlub::backend::gpu::kernel::generate_partitioned_wgsl;
+    use roughlub::backend::gpu::partitioned::{entry_points, struct_size};
+    for precision in [Precision::F32, Precision::F64] {
+        for repulsion in [
+            None,
+            Some(GammaSpec::Integer(2)),
+            Some(GammaSpec::PerMember),
+        ] {
+            for clusters in [false, true] {
+                for forced in [false, true] {
+                    for (order, adaptive) in [
+                        (Order::Fixed(1), false),
+                        (Order::Fixed(6), false),
+                        (Order::Fixed(1), true),
+                        (Order::Fixed(2), true),
+                        (Order::Auto, true),
+                    ] {
+                        let scheme = SchemeSpec::of(order, adaptive);
+                        let spec = KernelSpec {
+                            precision,
+                            repulsion,
+                            clusters,
+                            forcing: forced.then(|| forcing_spec(3)),
+                            scheme,
+                        };
+                        let label = format!("{spec:?}");
+                        let src = generate_partitioned_wgsl(&spec);
+                        let module = match validate_wgsl("partitioned.wgsl", &src) {
+                            Ok(m) => m,
+                            Err(e) => panic!("{label}: {e}"),
+                        };
+                        for entry in entry_points(scheme, forced) {
+                            assert!(
+                                module.entry_points.iter().any(|e| e.name == entry),
+                                "{label}: no entry point {entry}"
+                            );
+                        }
+                        assert!(!src.contains("//@"), "{label}: leftover marker");
+                        assert_eq!(
+                            src.contains("var<storage, read> glued"),
+                            clusters,
+                            "{label}"
+                        );
+                        let real = match precision {
+                            Precision::F32 => 4,
+                            Precision::F64 => 8,
+                        };
+                        // Seg: 24 reals and 4 u32; PState: 28 reals and 20 u32.
+                        assert_eq!(struct_size(&module, "Seg"), Some(24 * real + 16), "{label}");
+                        assert_eq!(
+                            struct_size(&module, "PState"),
+                            Some(28 * real + 20 * 4),
+                            "{label}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+}

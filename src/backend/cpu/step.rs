@@ -40,6 +40,8 @@
 
 use self::partitioned::euler_partitioned;
 pub use self::partitioned::Layout;
+/// The spike's flush threshold of the partitioned solve (the GPU twin's too).
+pub(crate) use self::partitioned::TINY as SPIKE_TINY;
 use super::real::Real;
 use super::{twin_math, SimdLevel};
 use crate::model::plan::{Forcing, Power};

@@ -16,13 +16,15 @@ pub const MAX_ATTEMPTS_PER_DISPATCH: u32 = 16;
 /// llvmpipe (lavapipe) stops every shader invocation after 65535 loop iterations in total
 /// (measured: `gather` over 2 loops of N = 40000 left the tail unwritten; N = 20000 was right).
 /// One invocation per member sweeps the whole chain, so on that driver N is bounded; other
-/// drivers have no such limit. [`check_loop_budget`] returns a clear error instead of silently
-/// wrong results.
+/// drivers have no such limit. Beyond it the solver takes the partitioned kernel
+/// (`super::partitioned`), whose invocations loop over one segment or one member's segments;
+/// [`check_loop_budget`] (and `partitioned::check_budget`) return a clear error instead of
+/// silently wrong results where a kernel still would not fit.
 pub const LAVAPIPE_LOOP_LIMIT: u64 = 65_535;
 
 /// Whether the adapter is llvmpipe (lavapipe), which bounds the loop iterations of a shader
 /// invocation ([`LAVAPIPE_LOOP_LIMIT`]).
-fn is_lavapipe(ctx: &GpuContext) -> bool {
+pub(super) fn is_lavapipe(ctx: &GpuContext) -> bool {
     let d = &ctx.description;
     d.driver.to_lowercase().contains("llvmpipe") || d.name.to_lowercase().contains("llvmpipe")
 }

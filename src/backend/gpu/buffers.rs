@@ -5,6 +5,7 @@ use wgpu::util::DeviceExt;
 
 use super::context::GpuContext;
 use super::kernel::{binding, SchemeSpec};
+use super::partitioned::{PartsUniform, Segments};
 use super::wgsl_types::{controls_bytes, real_bytes, real_size, ControlF64, CONFIG_BUFFER_SIZE};
 use crate::backend::cpu::step::{GAP_FLOOR, GAP_FLOOR_F32};
 use crate::backend::error::GpuError;
@@ -73,6 +74,48 @@ pub struct InitialData {
     pub bonded: Option<Vec<u8>>,
     /// The forcing's symbolic parameter values, member-major (only when it has some).
     pub forcing_params: Option<Vec<u8>>,
+    /// The partitioned kernel's buffers (only with it).
+    pub parts: Option<PartsData>,
+}
+
+/// What the partitioned kernel's buffers hold at construction (shaders/partitioned.wgsl).
+pub struct PartsData {
+    /// `Parts` (uniform).
+    pub uniform: PartsUniform,
+    /// Bytes of `array<PState>` and `array<Seg>` (zeroed).
+    pub pstate_bytes: u64,
+    pub segs_bytes: u64,
+    /// Per member the number of bonded gaps from the left wall, as u32 (clusters only).
+    pub glued: Option<Vec<u8>>,
+}
+
+impl PartsData {
+    /// The data for `segments`, the structs' sizes taken from the kernel's module.
+    pub fn new(
+        segments: Segments,
+        members: usize,
+        pstate_size: u64,
+        seg_size: u64,
+        bonded: &[Option<Vec<bool>>],
+        clusters: bool,
+    ) -> PartsData {
+        let glued = clusters.then(|| {
+            let counts: Vec<u32> = bonded
+                .iter()
+                .map(|b| {
+                    b.as_deref()
+                        .map_or(0, |b| b.iter().take_while(|&&x| x).count() as u32)
+                })
+                .collect();
+            bytemuck::cast_slice(&counts).to_vec()
+        });
+        PartsData {
+            uniform: segments.into(),
+            pstate_bytes: pstate_size * members as u64,
+            segs_bytes: seg_size * members as u64 * u64::from(segments.segments),
+            glued,
+        }
+    }
 }
 
 impl InitialData {
@@ -136,6 +179,7 @@ impl InitialData {
             dstar,
             bonded,
             forcing_params,
+            parts: None,
         }
     }
 }
@@ -158,6 +202,15 @@ pub struct StepBuffers {
     dstar: Option<wgpu::Buffer>,
     bonded: Option<wgpu::Buffer>,
     forcing_params: Option<wgpu::Buffer>,
+    parts: Option<PartBuffers>,
+}
+
+/// The partitioned kernel's own buffers (bindings 12 to 15).
+struct PartBuffers {
+    uniform: wgpu::Buffer,
+    pstate: wgpu::Buffer,
+    segs: wgpu::Buffer,
+    glued: Option<wgpu::Buffer>,
 }
 
 /// The step kernel's buffers bound in group 0.
@@ -235,6 +288,16 @@ impl StepBuffers {
                 .forcing_params
                 .as_ref()
                 .map(|f| init("forcing parameters", f, storage)),
+            parts: initial.parts.as_ref().map(|p| PartBuffers {
+                uniform: init(
+                    "parts",
+                    bytemuck::bytes_of(&p.uniform),
+                    wgpu::BufferUsages::UNIFORM,
+                ),
+                pstate: empty("partitioned member state", p.pstate_bytes, storage),
+                segs: empty("segments", p.segs_bytes, storage),
+                glued: p.glued.as_ref().map(|g| init("glued", g, storage)),
+            }),
         };
         (buffers, bytes_written)
     }
@@ -263,6 +326,14 @@ impl StepBuffers {
         }
         if let Some(f) = &self.forcing_params {
             bindings.push((binding::FORCING_PARAMS, f, read_only));
+        }
+        if let Some(p) = &self.parts {
+            bindings.push((binding::PARTS, &p.uniform, Uniform));
+            bindings.push((binding::PSTATE, &p.pstate, read_write));
+            bindings.push((binding::SEGS, &p.segs, read_write));
+            if let Some(g) = &p.glued {
+                bindings.push((binding::GLUED, g, read_only));
+            }
         }
         bindings
     }

@@ -41,6 +41,12 @@ pub mod binding {
     pub const BONDED: u32 = 9;
     pub const GATHERED_VEL: u32 = 10;
     pub const FORCING_PARAMS: u32 = 11;
+    /// The partitioned kernel's (shaders/partitioned.wgsl): its cut (uniform), per-member
+    /// trial-step state, per-segment values, and (clusters only) the bodies glued to the left wall.
+    pub const PARTS: u32 = 12;
+    pub const PSTATE: u32 = 13;
+    pub const SEGS: u32 = 14;
+    pub const GLUED: u32 = 15;
 }
 
 /// The time scheme compiled into the kernel.
@@ -327,6 +333,23 @@ fn needs_f64_math(spec: &KernelSpec) -> bool {
     spec.precision == Precision::F64
 }
 
+/// Whether the kernel for `spec` keeps the template block `name`.
+fn keeps_block(spec: &KernelSpec, name: &str) -> bool {
+    match name {
+        "REPULSION" => spec.repulsion.is_some(),
+        "NOREPULSION" => spec.repulsion.is_none(),
+        "CLUSTERS" => spec.clusters,
+        "FREE" => !spec.clusters,
+        "FORCING" => spec.forcing.is_some(),
+        "EULER" => !spec.scheme.tableau(),
+        "TABLEAU" => spec.scheme.tableau(),
+        "ADAPTIVE" => spec.scheme.adaptive,
+        "AUTO" => spec.scheme.auto_order,
+        "FIXEDORDER" => !spec.scheme.auto_order,
+        other => panic!("unknown block {other} in a step kernel template"),
+    }
+}
+
 /// Keeps or removes the `//@BEGIN NAME` ... `//@END NAME` blocks of the template.
 fn select_blocks(template: &str, keep: impl Fn(&str) -> bool) -> String {
     let mut out = String::with_capacity(template.len());
@@ -360,19 +383,7 @@ fn select_blocks(template: &str, keep: impl Fn(&str) -> bool) -> String {
 /// The WGSL source of the step kernel for `spec` (entry points [`BEGIN_ENTRY`],
 /// [`ADVANCE_ENTRY`], [`GATHER_ENTRY`]).
 pub fn generate_step_wgsl(spec: &KernelSpec) -> String {
-    let body = select_blocks(STEP_TEMPLATE_WGSL, |name| match name {
-        "REPULSION" => spec.repulsion.is_some(),
-        "NOREPULSION" => spec.repulsion.is_none(),
-        "CLUSTERS" => spec.clusters,
-        "FREE" => !spec.clusters,
-        "FORCING" => spec.forcing.is_some(),
-        "EULER" => !spec.scheme.tableau(),
-        "TABLEAU" => spec.scheme.tableau(),
-        "ADAPTIVE" => spec.scheme.adaptive,
-        "AUTO" => spec.scheme.auto_order,
-        "FIXEDORDER" => !spec.scheme.auto_order,
-        other => panic!("unknown block {other} in step.wgsl"),
-    });
+    let body = select_blocks(STEP_TEMPLATE_WGSL, |name| keeps_block(spec, name));
     let real = match spec.precision {
         Precision::F32 => "alias real = f32;",
         Precision::F64 => "alias real = f64;",
@@ -393,4 +404,23 @@ pub fn generate_step_wgsl(spec: &KernelSpec) -> String {
     } else {
         body
     }
+}
+
+/// The template of the partitioned kernel (`shaders/partitioned.wgsl`).
+pub const PARTITIONED_TEMPLATE_WGSL: &str = include_str!("../../../shaders/partitioned.wgsl");
+
+/// The WGSL source of the partitioned kernel for `spec`: the step kernel (whose functions it
+/// calls) followed by `shaders/partitioned.wgsl` with the same blocks kept, and `TINY` (the
+/// flush threshold of the spike: the CPU's in f64, one far above f32's smallest normal in f32).
+pub fn generate_partitioned_wgsl(spec: &KernelSpec) -> String {
+    let tiny = match spec.precision {
+        Precision::F64 => crate::backend::cpu::step::SPIKE_TINY,
+        Precision::F32 => super::partitioned::SPIKE_TINY_F32,
+    };
+    format!(
+        "{}\nconst TINY: real = {};\n\n{}",
+        generate_step_wgsl(spec),
+        literal(tiny, wgsl_float(spec.precision)),
+        select_blocks(PARTITIONED_TEMPLATE_WGSL, |name| keeps_block(spec, name))
+    )
 }

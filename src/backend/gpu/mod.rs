@@ -4,6 +4,8 @@
 //! - [`kernel`]: the step kernel generated per plan from `shaders/step.wgsl`.
 //! - [`wgsl_types`]: the kernel's `real` arrays and its `Config` and `Control` structs on the
 //!   host side.
+//! - [`partitioned`]: the partitioned kernel for few members with huge N (which batches take
+//!   it, the segments, its sequence of dispatches).
 //! - [`solver`]: [`solver::GpuSolver`], the batch on the GPU, with its buffers (`buffers`) and
 //!   the trial steps per dispatch and per submit (`attempts`, lavapipe's loop budget).
 //! - [`F64_MATH_WGSL`]: f64 `exp/expm1/log/sin/cos/tan/tanh/pow` for WGSL kernels (the built-in
@@ -13,6 +15,7 @@ mod attempts;
 mod buffers;
 pub mod context;
 pub mod kernel;
+pub mod partitioned;
 pub mod solver;
 pub mod wgsl_types;
 

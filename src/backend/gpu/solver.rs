@@ -17,14 +17,27 @@
 //! reads back one u32, the number of members still running; when it is 0, `gather` copies each
 //! member's current state into the read-back buffers, which are read once (readback only at
 //! output times).
+//!
+//! Few members with huge N (and any N beyond lavapipe's loop budget) take the partitioned kernel
+//! instead (`shaders/partitioned.wgsl`, see `super::partitioned`): the same state, controls and
+//! read-backs, but each trial step is a fixed sequence of dispatches over (segment, member) pairs
+//! and over members, `attempts_per_submit` trial steps per submit, then a count of the members
+//! still running.
 
 use super::attempts::{attempts_per_dispatch, check_loop_budget, dispatches_per_submit};
 pub use super::attempts::{ATTEMPTS_PER_SUBMIT, LAVAPIPE_LOOP_LIMIT, MAX_ATTEMPTS_PER_DISPATCH};
+use super::buffers::PartsData;
 use super::buffers::{BoundBuffers, BufferSizes, InitialData, StepBuffers};
 use super::context::GpuContext;
+use super::kernel::generate_partitioned_wgsl;
 use super::kernel::{
     generate_step_wgsl, GammaSpec, KernelSpec, SchemeSpec, ADVANCE_ENTRY, BEGIN_ENTRY,
     GATHER_ENTRY, STEP_WORKGROUP_SIZE,
+};
+pub use super::partitioned::GpuPartition;
+use super::partitioned::{
+    attempt_sequence, attempts_per_submit, check_budget, choose, entry_points, struct_size,
+    Dispatch, Over, Segments, BEGIN_SEQUENCE, SEGMENT_WORKGROUP_SIZE,
 };
 use super::wgsl_types::{
     config_bytes, control_size, controls_from_bytes, reals_from_bytes, ConfigF64, ControlF64,
@@ -57,8 +70,10 @@ pub struct GpuStats {
     pub bytes_written: u64,
     /// Trial steps each member may take per `advance` dispatch.
     pub attempts_per_dispatch: u64,
-    /// `advance` dispatches per submit.
+    /// `advance` dispatches per submit (partitioned kernel: trial steps per submit).
     pub dispatches_per_submit: u64,
+    /// Segments per member of the partitioned kernel; 0: one invocation per member.
+    pub segments: u64,
 }
 
 impl GpuStats {
@@ -73,6 +88,7 @@ impl GpuStats {
         self.bytes_written += other.bytes_written;
         self.attempts_per_dispatch = self.attempts_per_dispatch.max(other.attempts_per_dispatch);
         self.dispatches_per_submit = self.dispatches_per_submit.max(other.dispatches_per_submit);
+        self.segments = self.segments.max(other.segments);
     }
 }
 
@@ -98,6 +114,32 @@ impl StepPipelines {
     }
 }
 
+/// The partitioned kernel's pipelines and its sequence of dispatches per trial step.
+struct PartKernel {
+    segments: Segments,
+    pipelines: std::collections::HashMap<&'static str, wgpu::ComputePipeline>,
+    attempt: Vec<Dispatch>,
+    attempts_per_submit: u32,
+}
+
+/// Which kernel runs the batch.
+enum Kernel {
+    /// One invocation per member (shaders/step.wgsl).
+    Sequential(StepPipelines),
+    /// Segments side by side (shaders/partitioned.wgsl).
+    Partitioned(PartKernel),
+}
+
+/// What [`GpuSolver::check`] found: the kernel's scheme, and how it runs the batch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct KernelChoice {
+    pub scheme: SchemeSpec,
+    /// Trial steps per member per `advance` dispatch (one invocation per member).
+    pub max_attempts: u32,
+    /// The partitioned kernel's cut, or None for one invocation per member.
+    pub segments: Option<Segments>,
+}
+
 pub struct GpuSolver<'a> {
     ctx: &'a GpuContext,
     plan: Plan,
@@ -111,7 +153,7 @@ pub struct GpuSolver<'a> {
     sizes: BufferSizes,
     buffers: StepBuffers,
     group: wgpu::BindGroup,
-    pipelines: StepPipelines,
+    kernel: Kernel,
     last_controls: Vec<ControlF64>,
     /// Each member's `error_sum` at each output time so far.
     error_estimates: Vec<Vec<f64>>,
@@ -251,12 +293,22 @@ fn initial_control(plan: &Plan) -> ControlF64 {
 impl<'a> GpuSolver<'a> {
     /// Whether this context can run `plan` at `precision` (f64 support, sizes, and on lavapipe
     /// the loop budget), without building anything: the selection policy asks this before
-    /// choosing the GPU. Returns the kernel's scheme and trial steps per dispatch.
+    /// choosing the GPU. Returns the kernel the solver would use ([`GpuPartition::Auto`]).
     pub fn check(
         ctx: &GpuContext,
         plan: &Plan,
         precision: Precision,
-    ) -> Result<(SchemeSpec, u32), GpuError> {
+    ) -> Result<KernelChoice, GpuError> {
+        Self::check_with(ctx, plan, precision, GpuPartition::Auto)
+    }
+
+    /// [`GpuSolver::check`] with the kernel chosen as `partition` says.
+    pub fn check_with(
+        ctx: &GpuContext,
+        plan: &Plan,
+        precision: Precision,
+        partition: GpuPartition,
+    ) -> Result<KernelChoice, GpuError> {
         if precision == Precision::F64 && !ctx.f64 {
             return Err(GpuError::NoF64 {
                 adapter: ctx.description.short(),
@@ -268,6 +320,9 @@ impl<'a> GpuSolver<'a> {
             return Err(invalid(format!(
                 "{bsz} members, N = {n}: need members >= 1, N >= 2"
             )));
+        }
+        if let GpuPartition::SegmentRows(0) = partition {
+            return Err(invalid("segments of 0 rows".to_string()));
         }
         // The kernel indexes its buffers with u32, and its buffer sets hold N·B reals each.
         let scheme = scheme_of(plan);
@@ -281,8 +336,17 @@ impl<'a> GpuSolver<'a> {
         }
         BufferSizes::of(n, bsz, scheme, precision).check(ctx)?;
         let max_attempts = attempts_per_dispatch(ctx, n, scheme);
-        check_loop_budget(ctx, n, scheme, max_attempts)?;
-        Ok((scheme, max_attempts))
+        let sequential = check_loop_budget(ctx, n, scheme, max_attempts);
+        let segments = choose(partition, bsz, n, sequential.is_ok());
+        match segments {
+            Some(s) => check_budget(ctx, n, scheme, s)?,
+            None => sequential?,
+        }
+        Ok(KernelChoice {
+            scheme,
+            max_attempts,
+            segments,
+        })
     }
 
     /// Uploads the batch (`chains[m]` is member m's initial chain) and builds the kernels.
@@ -292,16 +356,80 @@ impl<'a> GpuSolver<'a> {
         chains: Vec<Chain>,
         precision: Precision,
     ) -> Result<GpuSolver<'a>, GpuError> {
-        let (scheme, max_attempts) = Self::check(ctx, &plan, precision)?;
+        Self::new_with(ctx, plan, chains, precision, GpuPartition::Auto)
+    }
+
+    /// [`GpuSolver::new`] with the kernel chosen as `partition` says.
+    pub fn new_with(
+        ctx: &'a GpuContext,
+        plan: Plan,
+        chains: Vec<Chain>,
+        precision: Precision,
+        partition: GpuPartition,
+    ) -> Result<GpuSolver<'a>, GpuError> {
+        let choice = Self::check_with(ctx, &plan, precision, partition)?;
+        let (scheme, max_attempts) = (choice.scheme, choice.max_attempts);
         check_chains(&plan, &chains)?;
-        let source = generate_step_wgsl(&kernel_spec(&plan, precision, scheme));
+        let spec = kernel_spec(&plan, precision, scheme);
         let dstar = member_dstar(&plan, &chains);
         let bonded = member_bonded(&plan, &chains);
         let sizes = BufferSizes::of(plan.particles, plan.members.len(), scheme, precision);
         let control = initial_control(&plan);
-        let initial = InitialData::new(&plan, &chains, &dstar, &bonded, control, sizes, precision);
+        let mut initial =
+            InitialData::new(&plan, &chains, &dstar, &bonded, control, sizes, precision);
+        let source = match choice.segments {
+            None => generate_step_wgsl(&spec),
+            Some(segments) => {
+                let source = generate_partitioned_wgsl(&spec);
+                let module = super::validate_wgsl("partitioned.wgsl", &source)?;
+                let size = |name: &str| {
+                    struct_size(&module, name)
+                        .ok_or_else(|| invalid(format!("no struct {name} in the kernel")))
+                };
+                initial.parts = Some(PartsData::new(
+                    segments,
+                    plan.members.len(),
+                    size("PState")?,
+                    size("Seg")?,
+                    &bonded,
+                    plan.clusters,
+                ));
+                source
+            }
+        };
         let bound = BoundBuffers::create(ctx, &initial)?;
-        let pipelines = StepPipelines::build(ctx, &source, &bound.pipeline_layout)?;
+        let mut stats = GpuStats {
+            bytes_written: bound.bytes_written,
+            attempts_per_dispatch: max_attempts as u64,
+            dispatches_per_submit: dispatches_per_submit(max_attempts) as u64,
+            ..GpuStats::default()
+        };
+        let kernel = match choice.segments {
+            None => Kernel::Sequential(StepPipelines::build(ctx, &source, &bound.pipeline_layout)?),
+            Some(segments) => {
+                let forcing = spec.forcing.is_some();
+                let mut pipelines = std::collections::HashMap::new();
+                for entry in entry_points(scheme, forcing) {
+                    let pipeline = ctx.compute_pipeline(
+                        "partitioned.wgsl",
+                        &source,
+                        entry,
+                        Some(&bound.pipeline_layout),
+                    )?;
+                    pipelines.insert(entry, pipeline);
+                }
+                let attempts = attempts_per_submit(plan.particles, plan.members.len(), scheme);
+                stats.attempts_per_dispatch = 1;
+                stats.dispatches_per_submit = attempts as u64;
+                stats.segments = segments.segments as u64;
+                Kernel::Partitioned(PartKernel {
+                    segments,
+                    pipelines,
+                    attempt: attempt_sequence(scheme, forcing),
+                    attempts_per_submit: attempts,
+                })
+            }
+        };
         Ok(GpuSolver {
             ctx,
             grid_x: grid_points(plan.grid),
@@ -316,13 +444,8 @@ impl<'a> GpuSolver<'a> {
             sizes,
             buffers: bound.buffers,
             group: bound.group,
-            pipelines,
-            stats: GpuStats {
-                bytes_written: bound.bytes_written,
-                attempts_per_dispatch: max_attempts as u64,
-                dispatches_per_submit: dispatches_per_submit(max_attempts) as u64,
-                ..GpuStats::default()
-            },
+            kernel,
+            stats,
         })
     }
 
@@ -340,25 +463,50 @@ impl<'a> GpuSolver<'a> {
     }
 
     /// Encodes `begin_interval` (when `begin`) and `dispatches_per_submit` `advance`
-    /// dispatches, the running counter cleared before the last one, and submits them.
+    /// dispatches, the running counter cleared before the last one, and submits them
+    /// (partitioned kernel: `attempts_per_submit` trial steps, then the count).
     fn submit_advance(&mut self, begin: bool) -> Result<(), GpuError> {
         let ctx = self.ctx;
-        let ((), error) = ctx.scoped(|| {
+        let (dispatches, error) = ctx.scoped(|| {
             let mut encoder = ctx
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("advance"),
                 });
-            if begin {
-                self.encode_dispatches(&mut encoder, "begin_interval", &self.pipelines.begin, 1);
+            let mut dispatches = 0u64;
+            match &self.kernel {
+                Kernel::Sequential(pipelines) => {
+                    if begin {
+                        self.encode_dispatches(&mut encoder, "begin_interval", &pipelines.begin, 1);
+                    }
+                    let advance = &pipelines.advance;
+                    let count = self.stats.dispatches_per_submit as u32;
+                    self.encode_dispatches(&mut encoder, "advance", advance, count - 1);
+                    // The counter then holds the members still running after the last dispatch.
+                    encoder.clear_buffer(&self.buffers.running, 0, None);
+                    self.encode_dispatches(&mut encoder, "advance (last)", advance, 1);
+                    dispatches = u64::from(count + u32::from(begin));
+                }
+                Kernel::Partitioned(part) => {
+                    let mut sequence: Vec<Dispatch> = Vec::new();
+                    if begin {
+                        sequence.extend(BEGIN_SEQUENCE);
+                    }
+                    for _ in 0..part.attempts_per_submit {
+                        sequence.extend(part.attempt.iter().copied());
+                    }
+                    dispatches += self.encode_sequence(&mut encoder, "advance", part, &sequence);
+                    encoder.clear_buffer(&self.buffers.running, 0, None);
+                    dispatches += self.encode_sequence(
+                        &mut encoder,
+                        "count",
+                        part,
+                        &[(super::partitioned::entry::COUNT, Over::Members)],
+                    );
+                }
             }
-            let advance = &self.pipelines.advance;
-            let dispatches = self.stats.dispatches_per_submit as u32;
-            self.encode_dispatches(&mut encoder, "advance", advance, dispatches - 1);
-            // The counter then holds the members still running after the last dispatch.
-            encoder.clear_buffer(&self.buffers.running, 0, None);
-            self.encode_dispatches(&mut encoder, "advance (last)", advance, 1);
             ctx.queue.submit([encoder.finish()]);
+            dispatches
         });
         if let Some(message) = error {
             return Err(GpuError::Validation {
@@ -367,7 +515,7 @@ impl<'a> GpuSolver<'a> {
             });
         }
         self.stats.submits += 1;
-        self.stats.dispatches += self.stats.dispatches_per_submit + u64::from(begin);
+        self.stats.dispatches += dispatches;
         Ok(())
     }
 
@@ -380,7 +528,19 @@ impl<'a> GpuSolver<'a> {
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("gather"),
                 });
-            self.encode_dispatches(&mut encoder, "gather", &self.pipelines.gather, 1);
+            match &self.kernel {
+                Kernel::Sequential(pipelines) => {
+                    self.encode_dispatches(&mut encoder, "gather", &pipelines.gather, 1);
+                }
+                Kernel::Partitioned(part) => {
+                    self.encode_sequence(
+                        &mut encoder,
+                        "gather",
+                        part,
+                        &[(super::partitioned::entry::GATHER, Over::Segments)],
+                    );
+                }
+            }
             ctx.queue.submit([encoder.finish()]);
         });
         if let Some(message) = error {
@@ -392,6 +552,37 @@ impl<'a> GpuSolver<'a> {
         self.stats.submits += 1;
         self.stats.dispatches += 1;
         Ok(())
+    }
+
+    /// The dispatches of `sequence` of the partitioned kernel in one compute pass; returns
+    /// their count.
+    fn encode_sequence(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        label: &str,
+        part: &PartKernel,
+        sequence: &[Dispatch],
+    ) -> u64 {
+        let members = self.plan.members.len() as u32;
+        let member_groups = members.div_ceil(STEP_WORKGROUP_SIZE);
+        let segment_groups = (members * part.segments.segments).div_ceil(SEGMENT_WORKGROUP_SIZE);
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(label),
+            timestamp_writes: None,
+        });
+        pass.set_bind_group(0, &self.group, &[]);
+        for &(entry, over) in sequence {
+            pass.set_pipeline(&part.pipelines[entry]);
+            pass.dispatch_workgroups(
+                match over {
+                    Over::Members => member_groups,
+                    Over::Segments => segment_groups,
+                },
+                1,
+                1,
+            );
+        }
+        sequence.len() as u64
     }
 
     /// `count` dispatches of `pipeline` (one invocation per member) in one compute pass.

@@ -46,6 +46,11 @@
 //! gaps and velocities and out again (4×4 AVX2 transposes where available; only moves).
 //!
 //! `ROUGHLUB_CPU_PARTITION=off` keeps the sequential sweep at every N (for comparisons).
+//!
+//! GPU twin: `shaders/partitioned.wgsl` (`forward` is `forward_row` with and without SPIKE,
+//! `p_interface` is [`interfaces`], `p_solve`'s back sweep is `back_row`). It runs one pass per
+//! dispatch (no cache to keep rows in: it stores them) and cuts the rows into equal segments
+//! rather than giving segment 0 the leftover rows. Keep the sweeps' operations in sync.
 
 use rayon::prelude::*;
 
@@ -69,7 +74,8 @@ const SEGMENT_ROWS: usize = 256;
 /// Spike coefficients and the running product of w are set to 0 below this: their terms are
 /// then far below rounding, and letting them decay through the subnormals would cost a
 /// microcode assist per operation.
-const TINY: f64 = 1e-140;
+/// (Also the GPU twin's, `shaders/partitioned.wgsl`.)
+pub(crate) const TINY: f64 = 1e-140;
 
 /// How the rows of a chain are cut: `groups` groups of SEGMENT_LANES segments of `seg` rows,
 /// segment 0 with `rem` more rows in front.
