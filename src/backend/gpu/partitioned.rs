@@ -128,8 +128,7 @@ pub fn choose(
         GpuPartition::Auto => {
             let off = std::env::var("ROUGHLUB_GPU_PARTITION").is_ok_and(|v| v == "off");
             let wanted = members < PARTITION_MAX_MEMBERS && n >= PARTITION_MIN_PARTICLES;
-            ((!sequential_fits || wanted) && !(off && sequential_fits))
-                .then(|| Segments::default_for(n))
+            (!sequential_fits || (wanted && !off)).then(|| Segments::default_for(n))
         }
     }
 }
