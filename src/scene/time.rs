@@ -18,16 +18,19 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
         "the final time",
     )?;
     let output_times = output_times(&t.outputs, end)?;
-    let dt_min = match t.dt_min {
-        Some(v) => check_range(
-            "time.dt_min",
-            v,
-            Range::of("dt_min").gt(0.0).lt(end).upper_text("end"),
-            "a member whose step falls below dt_min is marked failed",
-        )?,
+    let (dt_min, dt_min_text) = match t.dt_min {
+        Some(v) => {
+            let v = check_range(
+                "time.dt_min",
+                v,
+                Range::of("dt_min").gt(0.0).lt(end).upper_text("end"),
+                "a member whose step falls below dt_min is marked failed",
+            )?;
+            (v, format!("{v:e}"))
+        }
         // Far below any step a run needs: in practice the floor is the time resolution
         // (control::step_floor), which follows t.
-        None => 1e-18 * end,
+        None => (1e-18 * end, "1e-18 end".to_string()),
     };
     let stepping =
         match (t.dt, t.tolerance) {
@@ -35,7 +38,7 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
                 let range = Range::of("dt")
                     .gt(dt_min)
                     .le(end)
-                    .lower_text(format!("{dt_min:e}"))
+                    .lower_text(dt_min_text.clone())
                     .upper_text(format!("end = {end}"));
                 let dt = check_range("time.dt", dt, range, "the fixed step")?;
                 if t.dt_initial.is_some() {
@@ -59,7 +62,7 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
                 let range = Range::of("dt_initial")
                     .gt(dt_min)
                     .le(end)
-                    .lower_text(format!("{dt_min:e}"))
+                    .lower_text(dt_min_text)
                     .upper_text("end");
                 let dt_initial = check_range(
                     "time.dt_initial",
