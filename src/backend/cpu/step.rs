@@ -846,6 +846,9 @@ where
     let fast_max = T::c(EXP_FAST_MAX);
     // Whether d·e^x is the update (else the fix-up redoes it in log form); NaN fails.
     let fast = |grown: T, x: T| grown >= floor && grown < T::INFINITY && x <= fast_max;
+    // f64 sums the new gaps inside the row's lane loop (measured: 7 % faster than a loop of its
+    // own at 256 × N = 1000), f32 after it; the same sums in the same order either way.
+    let sum_inline = T::PRECISION == crate::backend::Precision::F64;
     // Gaps i_top..1 are left to the loop over rows below.
     let mut i_top = n - 1;
     if L == 1 {
@@ -948,6 +951,9 @@ where
         for l in 0..L {
             let grown = old[l] * e[l];
             grown_row[l] = grown;
+            if sum_inline {
+                sum[l] += fmax(grown, zero).to_f64();
+            }
             if old[l] > zero {
                 opening[l] = fmax(x[l], opening[l]);
             }
@@ -956,9 +962,11 @@ where
             // NaN fails the comparisons.
             needs_fixup[l] |= flag(!fast(grown, x[l]));
         }
-        // A loop of its own: the f64 sum would narrow the loop above to the f64 width.
-        for l in 0..L {
-            sum[l] += fmax(grown_row[l], zero).to_f64();
+        if !sum_inline {
+            // A loop of its own in f32: the f64 sum would narrow the loop above to f64's width.
+            for l in 0..L {
+                sum[l] += fmax(grown_row[l], zero).to_f64();
+            }
         }
         *lanes_mut::<L, T>(gaps_out, gap) = grown_row;
     }
