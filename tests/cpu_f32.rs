@@ -194,7 +194,11 @@ fn f32_agrees_with_f64_within_the_derived_tolerance() {
 /// its error against an independent reference (f64, order 4, fixed dt = 1e-4) is at most 1.5
 /// times f64's (both held to the same tolerance by step sequences that differ as much; measured
 /// at most 1.21) plus the order-1 rounding bound 2·steps·(gamma_max + 1)·u32 at the steps taken
-/// (the rows' rounding is correlated: the fixed-step test at order 4 stays within it). f32
+/// (the rows' rounding is correlated: the fixed-step test at order 4 stays within it). Auto is
+/// the exception: its high columns' estimates are dominated by amplified rounding, so its choices
+/// follow rounding; measured on case 1, velocities 1.8e-2 in f32 against 2.8e-3 in f64 (3.3e-3
+/// with the projection rounded another way), so auto is only held to 10 times f64's error (a
+/// guard against a broken f32 path, not an accuracy claim: prefer a fixed order in f32). f32
 /// rounding grows with the step count, so at tighter tolerances f32 falls behind f64: measured
 /// at 1e-5, order 2, case 1 (~2300 steps per member): f32 1.7e-3 against f64 9.1e-5 on gaps.
 #[test]
@@ -241,8 +245,9 @@ fn adaptive_f32_is_as_accurate_as_adaptive_f64_up_to_rounding() {
                         + 3.0 * members.len() as f64,
                 "{label} {order:?}: {s32} steps in f32, {s64} in f64"
             );
+            let factor = if order == Order::Auto { 10.0 } else { 1.5 };
             assert!(
-                e32g <= 1.5 * e64g + rounding && e32v <= 1.5 * e64v + rounding,
+                e32g <= factor * e64g + rounding && e32v <= factor * e64v + rounding,
                 "{label} {order:?}: f32 error {e32g:e} {e32v:e} vs f64 {e64g:e} {e64v:e}"
             );
         }

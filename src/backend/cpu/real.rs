@@ -83,6 +83,10 @@ pub trait Real:
     fn power(p: Power, ratio: Self) -> Self;
     /// `stored_gap::decode` (the gap a stored value stands for; only the forcing's positions).
     fn decode_stored(self) -> Self;
+    /// The projection's self·scale for scale = 1 + delta (`delta` = scale − 1 in this type):
+    /// f64 multiplies; f32 adds self·delta, which rounds once like the product in f64 rounded
+    /// to f32 would, without leaving f32 registers.
+    fn scaled(self, scale: f64, delta: Self) -> Self;
     /// The partitioned solve of a one-member block with `layout` (`step::euler_step_as`); `None`
     /// where the type has none (f32: the sequential sweep is used).
     #[allow(clippy::too_many_arguments)]
@@ -157,6 +161,10 @@ impl Real for f64 {
     #[inline(always)]
     fn decode_stored(self) -> f64 {
         stored_gap::decode(self)
+    }
+    #[inline(always)]
+    fn scaled(self, scale: f64, _delta: f64) -> f64 {
+        self * scale
     }
     #[inline(always)]
     fn partitioned_step<const L: usize>(
@@ -241,6 +249,10 @@ impl Real for f32 {
     #[inline(always)]
     fn decode_stored(self) -> f32 {
         stored_gap::decode(self as f64) as f32
+    }
+    #[inline(always)]
+    fn scaled(self, _scale: f64, delta: f32) -> f32 {
+        self + self * delta
     }
     #[inline(always)]
     fn partitioned_step<const L: usize>(

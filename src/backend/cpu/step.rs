@@ -848,6 +848,9 @@ where
     let fast_max = T::c(EXP_FAST_MAX);
     // Whether d·e^x is the update (else the fix-up redoes it in log form); NaN fails.
     let fast = |grown: T, x: T| grown >= floor && grown < T::INFINITY && x <= fast_max;
+    // f64 sums the new gaps inside the row's lane loop (measured: 7 % faster than a loop of its
+    // own at 256 × N = 1000), f32 after it; the same sums in the same order either way.
+    let sum_inline = T::PRECISION == crate::backend::Precision::F64;
     // Gaps i_top..1 are left to the loop over rows below.
     let mut i_top = n - 1;
     if L == 1 {
@@ -950,7 +953,9 @@ where
         for l in 0..L {
             let grown = old[l] * e[l];
             grown_row[l] = grown;
-            sum[l] += fmax(grown, zero).to_f64();
+            if sum_inline {
+                sum[l] += fmax(grown, zero).to_f64();
+            }
             if old[l] > zero {
                 opening[l] = fmax(x[l], opening[l]);
             }
@@ -958,6 +963,12 @@ where
             closing[l] = fmax(d * (gamma2[l] * fmin(x[l], zero) - T::ONE), closing[l]);
             // NaN fails the comparisons.
             needs_fixup[l] |= flag(!fast(grown, x[l]));
+        }
+        if !sum_inline {
+            // A loop of its own in f32: the f64 sum would narrow the loop above to f64's width.
+            for l in 0..L {
+                sum[l] += fmax(grown_row[l], zero).to_f64();
+            }
         }
         *lanes_mut::<L, T>(gaps_out, gap) = grown_row;
     }
@@ -1254,11 +1265,14 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
     // The sum, the scale and the sums of the energy in f64 in either precision: in f32 a scale
     // with the rounding of a sum of N gaps (sqrt(N) ulps) moves every gap by as much, and G by
     // gamma times that (~1e-3 at gamma = 1000, N = 200: measured, steps of every size were then
-    // rejected by the energy check, down to dt_min); from the f64 sum the projected gaps are a
-    // fixed point of the next projection, so a vanishing step changes nothing.
+    // rejected by the energy check, down to dt_min). From the f64 sum, scale − 1 is below half
+    // an ulp after a projection, so the projected gaps are a fixed point of the next one and a
+    // vanishing step changes nothing. (`Real::scaled` applies the scale in f32 registers.)
     let mut scale = [1.0f64; L];
+    let mut delta = [zero; L];
     for l in 0..L {
         scale[l] = terms.total_gap[l] / sum[l];
+        delta[l] = T::c(scale[l] - 1.0);
     }
     let force = if FRC { force } else { None };
     // 0/1 flags in lanes as wide as T, as in the sweep.
@@ -1276,7 +1290,7 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
                 logged[l] |= flag(v < zero);
                 nonfinite[l] |= flag(!v.is_finite());
                 row[l] = if v > zero {
-                    T::c(v.to_f64() * scale[l])
+                    v.scaled(scale[l], delta[l])
                 } else {
                     v
                 };
@@ -1316,7 +1330,7 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
         let row = lanes_mut::<L, T>(gaps, k);
         for l in 0..L {
             let v = row[l];
-            let scaled = T::c(v.to_f64() * scale[l]);
+            let scaled = v.scaled(scale[l], delta[l]);
             logged[l] |= flag(v < zero);
             nonfinite[l] |= flag(!v.is_finite());
             row[l] = if v > zero { scaled } else { v };

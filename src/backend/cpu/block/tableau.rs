@@ -99,8 +99,8 @@ pub(super) fn extrapolate<T: Real, const L: usize>(
         } else {
             encode_ln_gap(stored_ln(last) + x)
         };
-        for j in 2..=k {
-            note(&mut err[l], j, e[j]);
+        for (j, &ej) in e.iter().enumerate().take(k + 1).skip(2) {
+            note(&mut err[l], j, ej);
         }
     }
     for (i, out) in cand_vel.iter_mut().enumerate() {
@@ -122,8 +122,8 @@ pub(super) fn extrapolate<T: Real, const L: usize>(
             }
         }
         *out = if extrapolating { t[k - 1] } else { last };
-        for j in 2..=k {
-            note(&mut err[l], j, e[j]);
+        for (j, &ej) in e.iter().enumerate().take(k + 1).skip(2) {
+            note(&mut err[l], j, ej);
         }
     }
     err
