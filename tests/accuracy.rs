@@ -194,7 +194,7 @@ fn accuracy_of_a_parameter_study_uses_the_first_point() {
             "--members",
             "5",
         ])
-        .args(["--out", out.to_str().unwrap()])
+        .args(["--out", out.to_str().unwrap(), "--backends", "cpu"])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
