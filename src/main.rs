@@ -128,7 +128,10 @@ enum Command {
 /// `--backends cpu,gpu,gpu-f32` or `available`.
 fn parse_backends(text: &str) -> roughlub::Result<Vec<(Backend, Precision)>> {
     if text.trim() == "available" {
-        let mut found = vec![(Backend::Cpu, Precision::F64), (Backend::Cpu, Precision::F32)];
+        let mut found = vec![
+            (Backend::Cpu, Precision::F64),
+            (Backend::Cpu, Precision::F32),
+        ];
         // An adapter is looked for once; its f64 support decides the f64 line.
         if let Ok(ctx) = roughlub::backend::gpu::GpuContext::acquire(false) {
             if ctx.f64 {

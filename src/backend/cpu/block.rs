@@ -7,8 +7,7 @@
 mod tableau;
 
 use super::control::{
-    energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl,
-    TIME_RESOLUTION_F64,
+    energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl, TIME_RESOLUTION_F64,
 };
 use super::real::{energy_rtol, Real};
 use super::step::{
