@@ -30,7 +30,7 @@ pub struct AdapterRecord {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threads: Option<usize>,
     /// CPU only: the instruction set of the step's lane loops ([`super::cpu::simd_level`]:
-    /// "avx2+fma" or "portable"); results do not depend on it, speed does.
+    /// "avx512", "avx2+fma" or "portable"); results do not depend on it, speed does.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cpu_simd: Option<String>,
     /// Why `backend = "auto"` did not use the GPU (`None` when it did, or was not asked).

@@ -4,7 +4,7 @@
 
 use crate::model::chain::stored_gap;
 use crate::model::params::MemberParams;
-use crate::model::plan::Plan;
+use crate::model::plan::{Plan, Power};
 
 /// One member at one output time.
 #[derive(Debug, Clone, PartialEq)]
@@ -77,6 +77,7 @@ pub fn energy(
 ) -> f64 {
     let kinetic: f64 = eps * velocities.iter().map(|u| u * u).sum::<f64>();
     let Some(dstar) = dstar else { return kinetic };
+    let power = Power::of(gamma);
     let mut potential = 0.0;
     for (i, (&d, &ds)) in gaps.iter().zip(dstar).enumerate() {
         if bonded.is_some_and(|b| b[i]) {
@@ -87,7 +88,9 @@ pub fn energy(
         potential += if gamma == 1.0 {
             -s_star * s.ln()
         } else {
-            s * (s_star / s).powf(gamma) / (gamma - 1.0)
+            // Integer gamma by multiplications (as the step computes G): powf cost more than
+            // the rest of an output together.
+            s * power.apply(s_star / s) / (gamma - 1.0)
         };
     }
     kinetic + potential
@@ -183,27 +186,27 @@ pub fn observe(
     // floor that every gap stored as d is above.
     let mut min_stored_d = f64::INFINITY;
     let mut min_stored_ln = f64::INFINITY;
-    for (i, &v) in stored_gaps.iter().enumerate() {
-        if bonded.is_none_or(|b| !b[i]) {
-            if v > 0.0 {
-                min_stored_d = min_stored_d.min(v);
-            } else {
-                min_stored_ln = min_stored_ln.min(stored_gap::ln(v));
-            }
-        }
-    }
-    let log_min_gap = min_stored_ln.min(stored_gap::ln(min_stored_d));
-    let gaps: Vec<f64> = stored_gaps.iter().map(|&v| stored_gap::decode(v)).collect();
     let mut min_gap = f64::INFINITY;
-    let mut max_density: f64 = 0.0;
-    for (i, &d) in gaps.iter().enumerate() {
+    let mut any_bonded = false;
+    let mut gaps = Vec::with_capacity(n);
+    for (i, &v) in stored_gaps.iter().enumerate() {
+        let d = stored_gap::decode(v);
+        gaps.push(d);
         if bonded.is_some_and(|b| b[i]) {
-            max_density = 1.0;
+            any_bonded = true;
             continue;
         }
+        if v > 0.0 {
+            min_stored_d = min_stored_d.min(v);
+        } else {
+            min_stored_ln = min_stored_ln.min(stored_gap::ln(v));
+        }
         min_gap = min_gap.min(d);
-        max_density = max_density.max(2.0 * eps / (d + 2.0 * eps));
     }
+    let log_min_gap = min_stored_ln.min(stored_gap::ln(min_stored_d));
+    // 2eps/(d + 2eps) falls with d, and so does its rounded value: the largest density is the
+    // smallest gap's, bit for bit (a bonded gap has density 1).
+    let max_density = (2.0 * eps / (min_gap + 2.0 * eps)).max(if any_bonded { 1.0 } else { 0.0 });
 
     let mut rho = Vec::new();
     let mut u = Vec::new();

@@ -451,7 +451,8 @@ macro_rules! specialised {
 
 /// Defines `$name`, which runs the `#[inline(always)]` body `$body` compiled for the instruction
 /// set `simd` names: the same source, so the same operations in the same order at every level
-/// (bitwise equal results), only wider registers. `$avx` is the AVX2 + FMA instance.
+/// (bitwise equal results), only wider registers. `$avx` is the AVX2 + FMA instance, `$avx512`
+/// the AVX-512 one.
 macro_rules! simd_versions {
     // For f64 alone (the partitioned solve's AVX2 tiles are f64).
     (f64: $($rest:tt)*) => {
@@ -461,7 +462,7 @@ macro_rules! simd_versions {
     ($name:ident, $($rest:tt)*) => {
         simd_versions!(@go [T: Real,] [T,] T; $name, $($rest)*);
     };
-    (@go [$($tp:tt)*] [$($ta:tt)*] $elem:ty; $name:ident, $avx:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
+    (@go [$($tp:tt)*] [$($ta:tt)*] $elem:ty; $name:ident, $avx:ident, $avx512:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
         #[allow(clippy::too_many_arguments)]
         fn $name<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
             simd: SimdLevel,
@@ -472,10 +473,17 @@ macro_rules! simd_versions {
             P: Fn(usize, $elem) -> $elem + Copy,
             Q: Fn(usize) -> $elem + Copy,
         {
+            // SAFETY (both arms): a level is only chosen where the CPU has its features
+            // (`SimdLevel::widest_here`).
             #[cfg(target_arch = "x86_64")]
-            if simd == SimdLevel::Avx2Fma {
-                // SAFETY: SimdLevel::Avx2Fma is only chosen where the CPU has AVX2 and FMA.
-                return unsafe { $avx::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law) };
+            match simd {
+                SimdLevel::Avx512 => {
+                    return unsafe { $avx512::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law) };
+                }
+                SimdLevel::Avx2Fma => {
+                    return unsafe { $avx::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law) };
+                }
+                SimdLevel::Portable => {}
             }
             let _ = simd;
             $body::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law)
@@ -485,6 +493,20 @@ macro_rules! simd_versions {
         #[target_feature(enable = "avx2,fma")]
         #[allow(clippy::too_many_arguments)]
         unsafe fn $avx<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+            $($arg: $ty,)*
+            law: Law<P, Q>,
+        ) -> $ret
+        where
+            P: Fn(usize, $elem) -> $elem + Copy,
+            Q: Fn(usize) -> $elem + Copy,
+        {
+            $body::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma,avx512f,avx512vl,avx512dq")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn $avx512<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
             $($arg: $ty,)*
             law: Law<P, Q>,
         ) -> $ret
@@ -703,7 +725,7 @@ pub(crate) fn partitioned_f64<const L: usize>(
     )
 }
 
-simd_versions!(euler_simd, euler_avx2, euler_impl, (
+simd_versions!(euler_simd, euler_avx2, euler_avx512, euler_impl, (
     terms: &Terms<L, T>,
     n: usize,
     t: &[f64; L],
@@ -1232,7 +1254,7 @@ pub fn conclude<T: Real, const L: usize>(
     )
 }
 
-simd_versions!(conclude_simd, conclude_avx2, conclude_impl, (
+simd_versions!(conclude_simd, conclude_avx2, conclude_avx512, conclude_impl, (
     terms: &Terms<L, T>,
     n: usize,
     h: &[T; L],
@@ -1510,30 +1532,37 @@ mod tests {
         out
     }
 
-    /// The run-time SIMD level changes the speed only: AVX2 + FMA gives the portable path's
-    /// results bit for bit (no contraction into fma, the same operations in the same order).
+    /// The run-time SIMD level changes the speed only: AVX2 + FMA and AVX-512 give the portable
+    /// path's results bit for bit (no contraction into fma, the same operations in the same
+    /// order).
     #[test]
-    fn avx2_path_equals_portable_path_bitwise() {
-        if SimdLevel::detect() != SimdLevel::Avx2Fma {
-            eprintln!("no AVX2 + FMA here (or ROUGHLUB_CPU_SIMD=portable): nothing to compare");
+    fn wide_simd_paths_equal_portable_path_bitwise() {
+        let levels: Vec<SimdLevel> = [SimdLevel::Avx2Fma, SimdLevel::Avx512]
+            .into_iter()
+            .filter(|&s| s <= SimdLevel::widest_here())
+            .collect();
+        if levels.is_empty() {
+            eprintln!("no AVX2 + FMA here: nothing to compare");
             return;
         }
-        avx2_equals_portable::<f64>();
-        avx2_equals_portable::<f32>();
+        for level in levels {
+            wide_equals_portable::<f64>(level);
+            wide_equals_portable::<f32>(level);
+        }
     }
 
-    fn avx2_equals_portable<T: Real>() {
+    fn wide_equals_portable<T: Real>(level: SimdLevel) {
         let all = std::array::from_fn(|l| l);
         for (label, gamma, clusters, forcing) in variants() {
             for mild in [false, true] {
                 let c = case(clusters, mild);
                 let f = forcing.as_ref();
                 let portable = step::<T, L>(SimdLevel::Portable, &c, all, gamma, clusters, f);
-                let avx2 = step::<T, L>(SimdLevel::Avx2Fma, &c, all, gamma, clusters, f);
-                let p = T::PRECISION.name();
+                let wide = step::<T, L>(level, &c, all, gamma, clusters, f);
+                let (p, name) = (T::PRECISION.name(), level.name());
                 assert!(
-                    portable == avx2,
-                    "{p}: {label}, mild {mild}: AVX2 and portable differ"
+                    portable == wide,
+                    "{p}: {label}, mild {mild}: {name} and portable differ"
                 );
                 // Both ends of the step ran: the certified projection, the energy (a bonded
                 // gap goes through the fix-up, which the certificate leaves out).

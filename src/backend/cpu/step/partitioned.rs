@@ -224,9 +224,9 @@ fn tile_in_f64<const S: usize>(
     tile: &mut [[f64; S]; TILE],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if simd == SimdLevel::Avx2Fma && S % 4 == 0 {
+    if simd.has_avx2() && S % 4 == 0 {
         assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
-        // SAFETY: AVX2 is there (SimdLevel::Avx2Fma); every read is within the lanes' ranges
+        // SAFETY: AVX2 is there (`has_avx2`); every read is within the lanes' ranges
         // checked above, every write within the tile.
         unsafe {
             transpose_avx2::<S, true>(
@@ -254,7 +254,7 @@ fn tile_out_f64<const S: usize>(
     tile: &[[f64; S]; TILE],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if simd == SimdLevel::Avx2Fma && S % 4 == 0 {
+    if simd.has_avx2() && S % 4 == 0 {
         assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
         // SAFETY: as in `tile_in_f64`; `dst` is borrowed mutably, the tile is only read.
         unsafe {
@@ -626,7 +626,7 @@ where
     st
 }
 
-simd_versions!(f64: ends_group_simd, ends_group_avx2, ends_group_impl, (
+simd_versions!(f64: ends_group_simd, ends_group_avx2, ends_group_avx512, ends_group_impl, (
     terms: &Terms<L>,
     layout: &Layout,
     g: usize,
@@ -769,7 +769,7 @@ std::thread_local! {
     static ROWS: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-simd_versions!(f64: solve_group_simd, solve_group_avx2, solve_group_impl, (
+simd_versions!(f64: solve_group_simd, solve_group_avx2, solve_group_avx512, solve_group_impl, (
     terms: &Terms<L>,
     layout: &Layout,
     g: usize,
