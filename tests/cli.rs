@@ -11,6 +11,7 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use roughlub::backend::cpu::SimdLevel;
 use serde_json::Value;
 
 const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
@@ -130,9 +131,10 @@ fn assert_png(path: &Path) {
     );
 }
 
-/// The CPU step's instruction set changes its speed only: a run forced onto the portable lane
-/// loops (ROUGHLUB_CPU_SIMD=portable) writes the same numbers, bit for bit, as one on the
-/// detected level (AVX2 + FMA where the CPU has them), and each manifest records its level.
+/// The CPU step's instruction set changes its speed only: runs capped at AVX2
+/// (ROUGHLUB_CPU_SIMD=avx2) or forced onto the portable lane loops (=portable) write the same
+/// numbers, bit for bit, as one on the detected level (AVX-512 or AVX2 + FMA where the CPU has
+/// them), and each manifest records its level.
 #[test]
 fn simd_level_does_not_change_results() {
     let tmp = tempfile::tempdir().unwrap();
@@ -145,7 +147,11 @@ fn simd_level_does_not_change_results() {
         );
     let scene_path = tmp.path().join("nine.toml");
     std::fs::write(&scene_path, scene).unwrap();
-    let runs = [("detected", None), ("portable", Some("portable"))];
+    let runs = [
+        ("detected", None),
+        ("avx2", Some("avx2")),
+        ("portable", Some("portable")),
+    ];
     let mut outputs = Vec::new();
     for (name, level) in runs {
         let out_dir = tmp.path().join(name);
@@ -160,7 +166,12 @@ fn simd_level_does_not_change_results() {
             .as_str()
             .unwrap_or("")
             .to_string();
-        let expected = level.unwrap_or(roughlub::backend::cpu::simd_level());
+        let widest = SimdLevel::widest_here();
+        let expected = match level {
+            None => roughlub::backend::cpu::simd_level(),
+            Some("avx2") => widest.min(SimdLevel::Avx2Fma).name(),
+            Some(_) => "portable",
+        };
         assert_eq!(simd, expected, "{name} run");
         let bits = |file: &str| -> Vec<u64> {
             read_npy(&out_dir.join(file))
@@ -175,7 +186,8 @@ fn simd_level_does_not_change_results() {
         .iter()
         .enumerate()
     {
-        assert_eq!(outputs[0][k], outputs[1][k], "{file}: detected vs portable");
+        assert_eq!(outputs[0][k], outputs[1][k], "{file}: detected vs avx2");
+        assert_eq!(outputs[0][k], outputs[2][k], "{file}: detected vs portable");
     }
 }
 
@@ -203,7 +215,7 @@ fn small_scene_end_to_end() {
     // The CPU step's instruction set, as the library detects it on this machine.
     let simd = m["adapter"]["cpu_simd"].as_str().unwrap_or("");
     assert!(
-        ["avx2+fma", "portable"].contains(&simd),
+        ["avx512", "avx2+fma", "portable"].contains(&simd),
         "cpu_simd {simd:?}"
     );
     assert_eq!(simd, roughlub::backend::cpu::simd_level());

@@ -312,7 +312,7 @@ fn cpu_f32_runs_and_the_manifest_says_f32() {
     assert!(m["gpu_stats"].is_null());
     let simd = m["adapter"]["cpu_simd"].as_str().unwrap_or_default();
     assert!(
-        simd == "avx2+fma" || simd == "portable",
+        ["avx512", "avx2+fma", "portable"].contains(&simd),
         "cpu_simd {simd:?}"
     );
     cpu_reference(&cpu);

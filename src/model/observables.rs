@@ -83,17 +83,23 @@ pub fn energy(
         if bonded.is_some_and(|b| b[i]) {
             continue;
         }
-        let s = d + 2.0 * eps;
-        let s_star = ds + 2.0 * eps;
-        potential += if gamma == 1.0 {
-            -s_star * s.ln()
-        } else {
-            // Integer gamma by multiplications (as the step computes G): powf cost more than
-            // the rest of an output together.
-            s * power.apply(s_star / s) / (gamma - 1.0)
-        };
+        potential += potential_of(eps, gamma, power, d, ds);
     }
     kinetic + potential
+}
+
+/// Φ_i(d) of a free gap with d* = `dstar` (see [`energy`]).
+#[inline(always)]
+fn potential_of(eps: f64, gamma: f64, power: Power, d: f64, dstar: f64) -> f64 {
+    let s = d + 2.0 * eps;
+    let s_star = dstar + 2.0 * eps;
+    if gamma == 1.0 {
+        -s_star * s.ln()
+    } else {
+        // Integer gamma by multiplications (as the step computes G): powf cost more than the
+        // rest of an output together.
+        s * power.apply(s_star / s) / (gamma - 1.0)
+    }
 }
 
 /// Dissipation rate mu Σ (u_i − u_{i−1})² / d_i over free gaps. A gap below the float range
@@ -105,13 +111,22 @@ pub fn dissipation(mu: f64, gaps: &[f64], velocities: &[f64], bonded: Option<&[b
         if bonded.is_some_and(|b| b[i]) {
             continue;
         }
-        let right = if i < n - 1 { velocities[i] } else { 0.0 };
-        let left = if i > 0 { velocities[i - 1] } else { 0.0 };
-        if gaps[i] > 0.0 {
-            s += (right - left).powi(2) / gaps[i];
-        }
+        s += dissipation_term(gaps, velocities, i, gaps[i]);
     }
     mu * s
+}
+
+/// (u_i − u_{i−1})² / d_i of gap i (0-based) with gap d (0 for d = 0; the walls are at rest).
+#[inline(always)]
+fn dissipation_term<G>(gaps: &[G], velocities: &[f64], i: usize, d: f64) -> f64 {
+    let n = gaps.len();
+    let right = if i < n - 1 { velocities[i] } else { 0.0 };
+    let left = if i > 0 { velocities[i - 1] } else { 0.0 };
+    if d > 0.0 {
+        (right - left).powi(2) / d
+    } else {
+        0.0
+    }
 }
 
 /// Centres (q_{i-1} + q_i)/2 of the cells whose widths q_i − q_{i-1} (i = 1..N) are given,
@@ -169,12 +184,14 @@ pub fn cubic_interpolated(nodes: &[f64], values: &[f64], grid_x: &[f64]) -> Vec<
 
 #[allow(clippy::too_many_arguments)]
 /// The snapshot of one member from its state as the solvers store it (`stored_gaps` in the
-/// `stored_gap` form).
+/// `stored_gap` form). One pass over the chain gives the minima, the energy and the dissipation
+/// (the same sums, in the same order, as [`energy`] and [`dissipation`]); only the fields the
+/// plan asks for are allocated.
 pub fn observe(
     plan: &Plan,
     params: &MemberParams,
-    stored_gaps: Vec<f64>,
-    velocities: Vec<f64>,
+    stored_gaps: &[f64],
+    velocities: &[f64],
     dstar: Option<&[f64]>,
     bonded: Option<&[bool]>,
     grid_x: &[f64],
@@ -182,31 +199,46 @@ pub fn observe(
     let eps = plan.eps;
     let n = stored_gaps.len();
     let f = &plan.fields;
+    let power = Power::of(params.gamma);
     // min_i ln d_i with one ln: ln is monotone, and a gap stored as ln d (< 0) lies below the
     // floor that every gap stored as d is above.
     let mut min_stored_d = f64::INFINITY;
     let mut min_stored_ln = f64::INFINITY;
     let mut min_gap = f64::INFINITY;
     let mut any_bonded = false;
-    let mut gaps = Vec::with_capacity(n);
+    let mut kinetic = 0.0;
+    let mut potential = 0.0;
+    let mut dissipation = 0.0;
     for (i, &v) in stored_gaps.iter().enumerate() {
-        let d = stored_gap::decode(v);
-        gaps.push(d);
+        if i + 1 < n {
+            kinetic += velocities[i] * velocities[i];
+        }
         if bonded.is_some_and(|b| b[i]) {
             any_bonded = true;
             continue;
         }
+        let d = stored_gap::decode(v);
         if v > 0.0 {
             min_stored_d = min_stored_d.min(v);
         } else {
             min_stored_ln = min_stored_ln.min(stored_gap::ln(v));
         }
         min_gap = min_gap.min(d);
+        if let Some(ds) = dstar {
+            potential += potential_of(eps, params.gamma, power, d, ds[i]);
+        }
+        dissipation += dissipation_term(stored_gaps, velocities, i, d);
     }
     let log_min_gap = min_stored_ln.min(stored_gap::ln(min_stored_d));
     // 2eps/(d + 2eps) falls with d, and so does its rounded value: the largest density is the
     // smallest gap's, bit for bit (a bonded gap has density 1).
     let max_density = (2.0 * eps / (min_gap + 2.0 * eps)).max(if any_bonded { 1.0 } else { 0.0 });
+    let energy = if dstar.is_some() {
+        eps * kinetic + potential
+    } else {
+        eps * kinetic
+    };
+    let gap = |i: usize| stored_gap::decode(stored_gaps[i]);
 
     let mut rho = Vec::new();
     let mut u = Vec::new();
@@ -219,14 +251,14 @@ pub fn observe(
         // Walk the grid and the cells together.
         let mut cell = 1; // cell i covers [q_{i-1}, q_i)
         let mut q_left = 0.0;
-        let mut q_right = gaps[0] + 2.0 * eps;
+        let mut q_right = gap(0) + 2.0 * eps;
         for &x in grid_x {
             while x >= q_right && cell < n {
                 cell += 1;
                 q_left = q_right;
-                q_right += gaps[cell - 1] + 2.0 * eps;
+                q_right += gap(cell - 1) + 2.0 * eps;
             }
-            let d = gaps[cell - 1];
+            let d = gap(cell - 1);
             if f.rho {
                 rho.push(2.0 * eps / (d + 2.0 * eps));
             }
@@ -247,16 +279,22 @@ pub fn observe(
             }
         }
     }
-    let energy = energy(eps, params.gamma, &gaps, &velocities, dstar, bonded);
-    let dissipation = dissipation(params.mu, &gaps, &velocities, bonded);
     Snapshot {
-        gaps: if f.gaps { gaps } else { Vec::new() },
-        velocities: if f.velocities { velocities } else { Vec::new() },
+        gaps: if f.gaps {
+            (0..n).map(gap).collect()
+        } else {
+            Vec::new()
+        },
+        velocities: if f.velocities {
+            velocities.to_vec()
+        } else {
+            Vec::new()
+        },
         rho,
         u,
         rho_star,
         energy,
-        dissipation,
+        dissipation: params.mu * dissipation,
         min_gap,
         log_min_gap,
         max_density,

@@ -555,8 +555,8 @@ impl<T: Real, const L: usize> Block<T, L> {
                 observe(
                     plan,
                     &params[member],
-                    lane_values::<T, L>(&self.gaps, l),
-                    lane_values::<T, L>(&self.vel, l),
+                    &lane_values::<T, L>(&self.gaps, l),
+                    &lane_values::<T, L>(&self.vel, l),
                     dstar.as_deref(),
                     bonded.as_deref(),
                     grid_x,

@@ -699,8 +699,8 @@ impl<'a> GpuSolver<'a> {
                 observe(
                     &self.plan,
                     &self.plan.members[b],
-                    member(gaps, b),
-                    member(vel, b),
+                    &member(gaps, b),
+                    &member(vel, b),
                     self.dstar[b].as_deref(),
                     self.bonded[b].as_deref(),
                     &self.grid_x,
