@@ -1,9 +1,9 @@
 //! Particle-steps per second (members × particles × steps / wall time) of the batched CPU
 //! solver: order 1, fixed steps, integer gamma (repulsion on, gamma = 2), no forcing.
 //! B1_N1000000 and B4_N1000000 are the few-members-huge-N cases, which take the partitioned
-//! solve in f64 (`ROUGHLUB_CPU_PARTITION=off` measures the sequential sweep instead); f32 has
-//! the sequential sweep only. The f64 rows are the group `cpu_order1_fixed_integer_gamma`, the
-//! f32 rows `cpu_f32_order1_fixed_integer_gamma` (`cargo bench --bench cpu_solver -- f32`).
+//! solve in f64 and in f32 (`ROUGHLUB_CPU_PARTITION=off` measures the sequential sweep instead).
+//! The f64 rows are the group `cpu_order1_fixed_integer_gamma`, the f32 rows
+//! `cpu_f32_order1_fixed_integer_gamma` (`cargo bench --bench cpu_solver -- f32`).
 
 use std::time::Duration;
 

@@ -1,8 +1,8 @@
 //! One member with a long chain (N = 300000, above the partitioned solve's threshold of 2^18)
 //! through the `roughlub` command, once with the partitioned tridiagonal solve (the default) and
 //! once forced onto the sequential sweep (`ROUGHLUB_CPU_PARTITION=off`): the same answers up to
-//! rounding and the same step counts. The step-level comparisons (clusters, near contact,
-//! thread counts) are the unit tests in `src/backend/cpu/step/partitioned.rs`.
+//! rounding and the same step counts, in f64 and in f32. The step-level comparisons (clusters,
+//! near contact, thread counts) are the unit tests in `src/backend/cpu/step/partitioned.rs`.
 
 use std::fs::File;
 use std::path::Path;
@@ -15,6 +15,11 @@ const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
 /// Paper case 1's density with a sharper velocity (three compressions; gaps shrink from 1.5e-5
 /// to ~1e-8), gamma = 2, one member; `time` is the [time] table.
 fn scene(time: &str, order: u32) -> String {
+    scene_in(time, order, "f64")
+}
+
+/// [`scene`] in `precision`.
+fn scene_in(time: &str, order: u32, precision: &str) -> String {
     format!(
         r#"name = "partitioned"
 [model]
@@ -30,6 +35,7 @@ rho_star = "0.7"
 [solver]
 order = {order}
 backend = "cpu"
+precision = "{precision}"
 [output]
 grid = 50
 "#
@@ -163,4 +169,73 @@ fn long_adaptive_run_keeps_step_counts() {
     let (gap, vel) = differences(&part, &seq);
     assert!(gap <= 1e-10, "gaps differ by {gap:e} (relative)");
     assert!(vel <= 1e-10, "velocities differ by {vel:e} of max |u|");
+}
+
+/// The fixed and adaptive runs of [`partitioned_run_equals_sequential_run`] in f32: the same
+/// step counts, and values within 2^-12 (2048 ulps of f32) on gaps (relatively) and
+/// velocities (relative to max |u|): per step the two f32 solves differ by their rounding
+/// amplified by the velocity solve's conditioning (the unit tests, <= 2^-12), and over the
+/// run both differences feed the next steps (f64, the same setting: 1e-12, 4500 ulps of f64).
+#[test]
+fn f32_partitioned_run_equals_sequential_run() {
+    let cases = [
+        (
+            "fixed",
+            scene_in("end = 0.002\noutputs = 3\ndt = 1e-4", 1, "f32"),
+        ),
+        (
+            "adaptive",
+            scene_in(
+                "end = 0.005\noutputs = 3\ntolerance = 1e-3\ndt_initial = 0.005",
+                2,
+                "f32",
+            ),
+        ),
+    ];
+    for (label, text) in cases {
+        let part = run(&text, None);
+        let seq = run(&text, Some("off"));
+        assert_eq!(
+            (part.accepted, part.rejected),
+            (seq.accepted, seq.rejected),
+            "{label}: step counts"
+        );
+        if label == "adaptive" {
+            assert!(seq.rejected > 0, "the adaptive case rejects a step");
+        }
+        assert_ne!(part.gaps, seq.gaps, "{label}: identical bits");
+        let (gap, vel) = differences(&part, &seq);
+        eprintln!("f32 {label}: gaps {gap:e}, velocities {vel:e}");
+        let tol = 2f64.powi(-12);
+        assert!(gap <= tol, "{label}: gaps differ by {gap:e} (relative)");
+        assert!(
+            vel <= tol,
+            "{label}: velocities differ by {vel:e} of max |u|"
+        );
+    }
+}
+
+/// [`long_adaptive_run_keeps_step_counts`] in f32: the same accepted and rejected counts, the
+/// values within 2^-8 (the f64 test allows 1e-10, ~5e5 of its ulps: the rounding differences
+/// accumulate over the run's 191 trial steps and through the step sizes they choose; 2^-8 is
+/// 2^15 ulps of f32).
+#[test]
+fn f32_long_adaptive_run_keeps_step_counts() {
+    let text = scene_in(
+        "end = 0.02\noutputs = 3\ntolerance = 1e-3\ndt_initial = 0.02",
+        2,
+        "f32",
+    );
+    let part = run(&text, None);
+    let seq = run(&text, Some("off"));
+    assert_eq!(
+        (part.accepted, part.rejected),
+        (seq.accepted, seq.rejected),
+        "step counts"
+    );
+    let (gap, vel) = differences(&part, &seq);
+    eprintln!("f32 long adaptive: gaps {gap:e}, velocities {vel:e}");
+    let tol = 2f64.powi(-8);
+    assert!(gap <= tol, "gaps differ by {gap:e} (relative)");
+    assert!(vel <= tol, "velocities differ by {vel:e} of max |u|");
 }

@@ -18,7 +18,7 @@ use std::ops::{Add, AddAssign, BitAndAssign, BitOrAssign, Div, Mul, MulAssign, N
 
 use super::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32};
 use super::step::{
-    partitioned_f64, Layout, Scratch, StepReport, Terms, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR,
+    partitioned_real, Layout, Scratch, StepReport, Terms, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR,
     LN_GAP_FLOOR_F32,
 };
 use super::{twin_math, SimdLevel};
@@ -88,7 +88,7 @@ pub trait Real:
     /// to f32 would, without leaving f32 registers.
     fn scaled(self, scale: f64, delta: Self) -> Self;
     /// The partitioned solve of a one-member block with `layout` (`step::euler_step_as`); `None`
-    /// where the type has none (f32: the sequential sweep is used).
+    /// where the type has none (then the sequential sweep is used; f64 and f32 both have it).
     #[allow(clippy::too_many_arguments)]
     fn partitioned_step<const L: usize>(
         simd: SimdLevel,
@@ -180,7 +180,7 @@ impl Real for f64 {
         vel_out: &mut [f64],
         scratch: &mut Scratch<f64>,
     ) -> Option<[StepReport; L]> {
-        Some(partitioned_f64(
+        Some(partitioned_real(
             simd, layout, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch,
         ))
     }
@@ -256,20 +256,21 @@ impl Real for f32 {
     }
     #[inline(always)]
     fn partitioned_step<const L: usize>(
-        _simd: SimdLevel,
-        _layout: Layout,
-        _terms: &Terms<L, f32>,
-        _particles: usize,
-        _t: &[f64; L],
-        _h: &[f32; L],
-        _gaps_in: &[f32],
-        _vel_in: &[f32],
-        _gaps_out: &mut [f32],
-        _vel_out: &mut [f32],
-        _scratch: &mut Scratch<f32>,
+        simd: SimdLevel,
+        layout: Layout,
+        terms: &Terms<L, f32>,
+        particles: usize,
+        t: &[f64; L],
+        h: &[f32; L],
+        gaps_in: &[f32],
+        vel_in: &[f32],
+        gaps_out: &mut [f32],
+        vel_out: &mut [f32],
+        scratch: &mut Scratch<f32>,
     ) -> Option<[StepReport; L]> {
-        // The partitioned solve is f64 only (its tiles are AVX2 f64 transposes).
-        None
+        Some(partitioned_real(
+            simd, layout, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch,
+        ))
     }
 }
 

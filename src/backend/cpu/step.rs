@@ -40,8 +40,9 @@
 
 use self::partitioned::euler_partitioned;
 pub use self::partitioned::Layout;
-/// The spike's flush threshold of the partitioned solve (the GPU twin's too).
-pub(crate) use self::partitioned::TINY as SPIKE_TINY;
+pub(crate) use self::partitioned::PartitionedReal;
+/// The spike's flush threshold of the partitioned solve in f64 and in f32 (the GPU twin's too).
+pub(crate) use self::partitioned::{TINY as SPIKE_TINY, TINY_F32 as SPIKE_TINY_F32};
 use super::real::Real;
 use super::{twin_math, SimdLevel};
 use crate::model::plan::{Forcing, Power};
@@ -385,12 +386,8 @@ fn repulsion_failure<T: Real, const L: usize>(
 
 /// Calls `$f` (a function made by `simd_versions!`) for the element type `$t` with `$law` bound
 /// to the specialised [`Law`] for the block's gamma and the const generics REP (repulsion), FRC
-/// (forcing) and CLU (clusters) set from `$terms`. `specialised!(f64 only: ...)` calls an `$f`
-/// that is written for f64 alone (no type parameter: the partitioned solve).
+/// (forcing) and CLU (clusters) set from `$terms`.
 macro_rules! specialised {
-    (f64 only: $terms:expr, $f:ident, $args:tt) => {
-        specialised!(@go f64, [], $terms, $f, $args)
-    };
     ($t:ty, $terms:expr, $f:ident, $args:tt) => {
         specialised!(@go $t, [$t,], $terms, $f, $args)
     };
@@ -454,9 +451,10 @@ macro_rules! specialised {
 /// (bitwise equal results), only wider registers. `$avx` is the AVX2 + FMA instance, `$avx512`
 /// the AVX-512 one.
 macro_rules! simd_versions {
-    // For f64 alone (the partitioned solve's AVX2 tiles are f64).
-    (f64: $($rest:tt)*) => {
-        simd_versions!(@go [] [] f64; $($rest)*);
+    // Generic over an element type with more than `Real` (the partitioned solve's
+    // `PartitionedReal`: its tiles' transposes per type).
+    (T: $bound:ident; $($rest:tt)*) => {
+        simd_versions!(@go [T: $bound,] [T,] T; $($rest)*);
     };
     // Generic over the element type T: Real.
     ($name:ident, $($rest:tt)*) => {
@@ -645,7 +643,7 @@ pub fn euler_step<T: Real, const L: usize>(
 ) -> [StepReport; L] {
     euler_step_as(
         SimdLevel::detect(),
-        default_layout::<T, L>(particles),
+        default_layout::<L>(particles),
         terms,
         particles,
         t,
@@ -660,10 +658,10 @@ pub fn euler_step<T: Real, const L: usize>(
 
 /// The solve a block of L lanes with `particles` particles uses: for one member with a long
 /// chain the partitioned one (the sequential sweep would be bound by its row-to-row latency),
-/// else the sequential sweep (`None`). The partitioned solve exists in f64 only (its tiles are
-/// AVX2 f64 transposes): f32 always takes the sequential sweep.
-pub(crate) fn default_layout<T: Real, const L: usize>(particles: usize) -> Option<Layout> {
-    if L == 1 && T::PRECISION == crate::backend::Precision::F64 {
+/// else the sequential sweep (`None`). The same rule in f64 and f32 ([`Layout::for_chain`]: it
+/// depends on the chain's length only).
+pub(crate) fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
+    if L == 1 {
         Layout::for_chain(particles)
     } else {
         None
@@ -671,8 +669,8 @@ pub(crate) fn default_layout<T: Real, const L: usize>(particles: usize) -> Optio
 }
 
 /// [`euler_step`] with the lane loops compiled for `simd` (which the CPU must support) and the
-/// solve chosen: the sequential sweep (`None`) or the partitioned one with this layout (L = 1
-/// and f64 only; [`Real::partitioned_step`]).
+/// solve chosen: the sequential sweep (`None`) or the partitioned one with this layout (L = 1;
+/// [`Real::partitioned_step`]).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn euler_step_as<T: Real, const L: usize>(
     simd: SimdLevel,
@@ -703,23 +701,25 @@ pub(crate) fn euler_step_as<T: Real, const L: usize>(
     )
 }
 
-/// The partitioned solve ([`euler_step_as`] with a layout) in f64 (`Real::partitioned_step`).
+/// The partitioned solve ([`euler_step_as`] with a layout) in f64 or f32
+/// (`Real::partitioned_step`).
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn partitioned_f64<const L: usize>(
+pub(crate) fn partitioned_real<T: PartitionedReal, const L: usize>(
     simd: SimdLevel,
     layout: Layout,
-    terms: &Terms<L>,
+    terms: &Terms<L, T>,
     particles: usize,
     t: &[f64; L],
-    h: &[f64; L],
-    gaps_in: &[f64],
-    vel_in: &[f64],
-    gaps_out: &mut [f64],
-    vel_out: &mut [f64],
-    scratch: &mut Scratch,
+    h: &[T; L],
+    gaps_in: &[T],
+    vel_in: &[T],
+    gaps_out: &mut [T],
+    vel_out: &mut [T],
+    scratch: &mut Scratch<T>,
 ) -> [StepReport; L] {
     specialised!(
-        f64 only: terms,
+        T,
+        terms,
         euler_partitioned,
         (simd, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch, layout)
     )
@@ -1483,7 +1483,7 @@ mod tests {
         let mut scratch = Scratch::new(N, M);
         let report = euler_step_as(
             simd,
-            default_layout::<T, M>(N),
+            default_layout::<M>(N),
             &terms,
             N,
             &t,

@@ -1,5 +1,6 @@
 //! One member with a huge chain: the step's tridiagonal solve split into segments solved side
-//! by side (a partitioned, SPIKE-style Thomas algorithm).
+//! by side (a partitioned, SPIKE-style Thomas algorithm), in f64 or f32 (generic over
+//! [`PartitionedReal`], as the sequential sweep is over `Real`).
 //!
 //! Why: a single member's sequential sweep is bound by the latency of its row-to-row dependency
 //! (a division per row), and a block of one lane has no other lanes to fill the SIMD registers or
@@ -27,23 +28,34 @@
 //! The interface carries a rate, not a velocity: near contact (d below GAP_FLOOR) the rate is
 //! O(1) while u_b - u_{b-1} is below rounding, so a velocity interface would lose the rate of a
 //! gap at a segment boundary; this one computes every rate as the sequential sweep does. The
-//! results equal the sequential sweep's up to rounding (tested to 1e-12 relative, clusters and
-//! log-stored gaps included); the segments depend on n only, and per-segment sums are added in a
-//! fixed order, so the result does not depend on the thread count.
+//! results equal the sequential sweep's up to rounding (tested to 1e-12 relative in f64 and
+//! 2^-14 = 6.1e-5 in f32, clusters and log-stored gaps included); the segments depend on n only, and
+//! per-segment sums are added in a fixed order, so the result does not depend on the thread
+//! count.
+//!
+//! f32 (the twin of the GPU's f32 partitioned kernel): the lane loops in f32, the sums of the new
+//! gaps in f64 (as the sequential f32 sweep's, for the projection), the spike flushed at
+//! [`TINY_F32`] (the GPU's). The interface system is solved in f64 from the segments' ends
+//! (exact in f64) and its values rounded once to f32: it adds no rounding of its own, so the
+//! f32 result differs from the sequential f32 sweep's only by the segments' sweeps (in f32
+//! each rounding of the reduced sweep would be amplified along the segments like the rows'
+//! own; P values, nothing to save). The GPU twin solves it in f32, so the two f32 paths agree
+//! to rounding, not bit for bit (they cut the rows differently anyway).
 //!
 //! Two passes over the chain, because at N = 10^6 memory, not arithmetic, is the limit (measured
 //! here: 15 GB/s for one core, 17 for two): the first sweeps every segment forward with the
 //! spike and keeps only its end (and the forces); after the interface solve, the second sweeps
 //! each group forward again from its known tau into per-thread rows that stay in cache, and back.
 //! That reads the inputs twice and stores nothing per row but the new state (about 80 bytes
-//! per particle-step against ~140 for storing the spike rows), at the price of a second forward
-//! sweep. The log-form fix-up of a gap is local, so it is done in the back sweep (the rates are
-//! not kept); the hard-failure lookup, certificate, projection and energy are the sequential
-//! path's code.
+//! per particle-step in f64 against ~140 for storing the spike rows; half in f32), at the price
+//! of a second forward sweep. The log-form fix-up of a gap is local, so it is done in the back
+//! sweep (the rates are not kept); the hard-failure lookup, certificate, projection and energy
+//! are the sequential path's code.
 //!
 //! Layout: the rows of group g (and the prologue's, for group 0) are one contiguous range; the
 //! lane loops work on tiles of TILE rows × S segments copied in from the natural layout of
-//! gaps and velocities and out again (4×4 AVX2 transposes where available; only moves).
+//! gaps and velocities and out again (4×4 f64 or 8×8 f32 AVX2 transposes where available; only
+//! moves).
 //!
 //! `ROUGHLUB_CPU_PARTITION=off` keeps the sequential sweep at every N (for comparisons).
 //!
@@ -56,10 +68,8 @@ use rayon::prelude::*;
 
 use super::{
     energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms, particle_force,
-    Law, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR,
-    MAX_OPENING,
+    Law, Real, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, MAX_OPENING,
 };
-use crate::model::chain::stored_gap;
 
 /// Segments per group: the lanes of the partitioned lane loops (as many as the batched blocks,
 /// to keep several divisions in flight per core).
@@ -76,6 +86,172 @@ const SEGMENT_ROWS: usize = 256;
 /// microcode assist per operation.
 /// (Also the GPU twin's, `shaders/partitioned.wgsl`.)
 pub(crate) const TINY: f64 = 1e-140;
+/// [`TINY`] in f32 (1e-140 is below f32's range): far above f32's smallest normal (1.2e-38),
+/// far below anything that matters against the O(1) terms it is added to (2^-24).
+/// (Also the GPU's f32 twin's, `SPIKE_TINY_F32` in src/backend/gpu/partitioned.rs.)
+pub(crate) const TINY_F32: f64 = 1e-30;
+
+/// What the partitioned solve needs of its element type beyond [`Real`]: the spike's flush
+/// threshold, the tiles' copies (transposes where the type has them) and a per-thread buffer
+/// for a group's sweep rows.
+pub(crate) trait PartitionedReal: Real {
+    /// [`TINY`] or [`TINY_F32`].
+    const SPIKE_TINY: Self;
+    /// [`tile_in`], by AVX2 transposes where `simd` allows (the same values: only moves).
+    fn tile_in<const S: usize>(
+        simd: SimdLevel,
+        src: &[Self],
+        base: usize,
+        stride: usize,
+        kn: usize,
+        tile: &mut [[Self; S]; TILE],
+    );
+    /// [`tile_out`], by AVX2 transposes where `simd` allows.
+    fn tile_out<const S: usize>(
+        simd: SimdLevel,
+        dst: &mut [Self],
+        base: usize,
+        stride: usize,
+        kn: usize,
+        tile: &[[Self; S]; TILE],
+    );
+    /// `f` with this thread's buffer of sweep rows (see [`ROWS_F64`]).
+    fn with_rows<R>(f: impl FnOnce(&mut Vec<Self>) -> R) -> R;
+}
+
+impl PartitionedReal for f64 {
+    const SPIKE_TINY: f64 = TINY;
+
+    /// 4×4 AVX2 transposes (the scalar copy costs a load and a store per value, a third of the
+    /// step).
+    #[inline(always)]
+    fn tile_in<const S: usize>(
+        simd: SimdLevel,
+        src: &[f64],
+        base: usize,
+        stride: usize,
+        kn: usize,
+        tile: &mut [[f64; S]; TILE],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if simd.has_avx2() && S % 4 == 0 {
+            assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
+            // SAFETY: AVX2 is there (`has_avx2`); every read is within the lanes' ranges
+            // checked above, every write within the tile.
+            unsafe {
+                transpose_avx2::<S, true>(
+                    src.as_ptr() as *mut f64,
+                    stride,
+                    base,
+                    kn,
+                    tile.as_mut_ptr(),
+                )
+            };
+            return;
+        }
+        let _ = simd;
+        tile_in(src, base, stride, kn, tile);
+    }
+
+    #[inline(always)]
+    fn tile_out<const S: usize>(
+        simd: SimdLevel,
+        dst: &mut [f64],
+        base: usize,
+        stride: usize,
+        kn: usize,
+        tile: &[[f64; S]; TILE],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if simd.has_avx2() && S % 4 == 0 {
+            assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
+            // SAFETY: as in `tile_in`; `dst` is borrowed mutably, the tile is only read.
+            unsafe {
+                transpose_avx2::<S, false>(
+                    dst.as_mut_ptr(),
+                    stride,
+                    base,
+                    kn,
+                    tile.as_ptr() as *mut _,
+                )
+            };
+            return;
+        }
+        let _ = simd;
+        tile_out(dst, base, stride, kn, tile);
+    }
+
+    #[inline(always)]
+    fn with_rows<R>(f: impl FnOnce(&mut Vec<f64>) -> R) -> R {
+        ROWS_F64.with_borrow_mut(f)
+    }
+}
+
+impl PartitionedReal for f32 {
+    const SPIKE_TINY: f32 = TINY_F32 as f32;
+
+    /// 8×8 AVX2 transposes.
+    #[inline(always)]
+    fn tile_in<const S: usize>(
+        simd: SimdLevel,
+        src: &[f32],
+        base: usize,
+        stride: usize,
+        kn: usize,
+        tile: &mut [[f32; S]; TILE],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if simd.has_avx2() && S % 8 == 0 {
+            assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
+            // SAFETY: as for f64.
+            unsafe {
+                transpose_avx2_f32::<S, true>(
+                    src.as_ptr() as *mut f32,
+                    stride,
+                    base,
+                    kn,
+                    tile.as_mut_ptr(),
+                )
+            };
+            return;
+        }
+        let _ = simd;
+        tile_in(src, base, stride, kn, tile);
+    }
+
+    #[inline(always)]
+    fn tile_out<const S: usize>(
+        simd: SimdLevel,
+        dst: &mut [f32],
+        base: usize,
+        stride: usize,
+        kn: usize,
+        tile: &[[f32; S]; TILE],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if simd.has_avx2() && S % 8 == 0 {
+            assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
+            // SAFETY: as for f64.
+            unsafe {
+                transpose_avx2_f32::<S, false>(
+                    dst.as_mut_ptr(),
+                    stride,
+                    base,
+                    kn,
+                    tile.as_ptr() as *mut _,
+                )
+            };
+            return;
+        }
+        let _ = simd;
+        tile_out(dst, base, stride, kn, tile);
+    }
+
+    #[inline(always)]
+    fn with_rows<R>(f: impl FnOnce(&mut Vec<f32>) -> R) -> R {
+        ROWS_F32.with_borrow_mut(f)
+    }
+}
 
 /// How the rows of a chain are cut: `groups` groups of SEGMENT_LANES segments of `seg` rows,
 /// segment 0 with `rem` more rows in front.
@@ -197,12 +373,12 @@ fn tile_in<const S: usize, T: Copy>(
 
 /// dst[base + l·stride + k] = tile[k][l] for k < kn (the inverse of [`tile_in`]).
 #[inline(always)]
-fn tile_out<const S: usize>(
-    dst: &mut [f64],
+fn tile_out<const S: usize, T: Copy>(
+    dst: &mut [T],
     base: usize,
     stride: usize,
     kn: usize,
-    tile: &[[f64; S]; TILE],
+    tile: &[[T; S]; TILE],
 ) {
     for l in 0..S {
         let to = &mut dst[base + l * stride..base + l * stride + kn];
@@ -210,60 +386,6 @@ fn tile_out<const S: usize>(
             *v = row[l];
         }
     }
-}
-
-/// [`tile_in`] for f64, by 4×4 AVX2 transposes where `simd` allows (the same values: only
-/// moves; the scalar copy costs a load and a store per value, a third of the step).
-#[inline(always)]
-fn tile_in_f64<const S: usize>(
-    simd: SimdLevel,
-    src: &[f64],
-    base: usize,
-    stride: usize,
-    kn: usize,
-    tile: &mut [[f64; S]; TILE],
-) {
-    #[cfg(target_arch = "x86_64")]
-    if simd.has_avx2() && S % 4 == 0 {
-        assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
-        // SAFETY: AVX2 is there (`has_avx2`); every read is within the lanes' ranges
-        // checked above, every write within the tile.
-        unsafe {
-            transpose_avx2::<S, true>(
-                src.as_ptr() as *mut f64,
-                stride,
-                base,
-                kn,
-                tile.as_mut_ptr(),
-            )
-        };
-        return;
-    }
-    let _ = simd;
-    tile_in(src, base, stride, kn, tile);
-}
-
-/// [`tile_out`] by 4×4 AVX2 transposes where `simd` allows.
-#[inline(always)]
-fn tile_out_f64<const S: usize>(
-    simd: SimdLevel,
-    dst: &mut [f64],
-    base: usize,
-    stride: usize,
-    kn: usize,
-    tile: &[[f64; S]; TILE],
-) {
-    #[cfg(target_arch = "x86_64")]
-    if simd.has_avx2() && S % 4 == 0 {
-        assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
-        // SAFETY: as in `tile_in_f64`; `dst` is borrowed mutably, the tile is only read.
-        unsafe {
-            transpose_avx2::<S, false>(dst.as_mut_ptr(), stride, base, kn, tile.as_ptr() as *mut _)
-        };
-        return;
-    }
-    let _ = simd;
-    tile_out(dst, base, stride, kn, tile);
 }
 
 /// Between lane streams (lane l's k-th value at `mem[base + l·stride + k]`) and a tile of rows
@@ -325,45 +447,124 @@ unsafe fn transpose_avx2<const S: usize, const IN: bool>(
     }
 }
 
-/// The forward sweep's state of S segments.
-#[derive(Clone, Copy)]
-struct Sweep<const S: usize> {
-    a_prev: [f64; S],
-    g_prev: [f64; S],
-    ls_prev: [f64; S],
-    ys_prev: [f64; S],
-    /// d ys/d tau of the previous row (first pass only).
-    z_prev: [f64; S],
-    /// Running product of w from the segment's first row (the weight of u_i in u_b).
-    pi: [f64; S],
-    /// u_b = acc_a + pi·u_e + acc_c·tau.
-    acc_a: [f64; S],
-    acc_c: [f64; S],
-    nonfinite: [u64; S],
-    /// Position of the last particle swept (forcing only).
-    q: [f64; S],
-}
-
-impl<const S: usize> Sweep<S> {
-    /// Segments starting from the rate tau of their first gap: ls = 0, ys = -tau (the first
-    /// pass: tau unknown, ys0 = 0 and z = -1).
-    fn new(tau: [f64; S], spike: f64) -> Sweep<S> {
-        Sweep {
-            a_prev: [0.0; S],
-            g_prev: [0.0; S],
-            ls_prev: [0.0; S],
-            ys_prev: tau.map(|x| -x),
-            z_prev: [spike; S],
-            pi: [1.0; S],
-            acc_a: [0.0; S],
-            acc_c: [0.0; S],
-            nonfinite: [0; S],
-            q: [0.0; S],
+/// [`transpose_avx2`] for f32: eight lanes by eight rows per transpose.
+///
+/// # Safety
+/// As for [`transpose_avx2`], S a multiple of 8.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn transpose_avx2_f32<const S: usize, const IN: bool>(
+    mem: *mut f32,
+    stride: usize,
+    base: usize,
+    kn: usize,
+    tile: *mut [f32; S],
+) {
+    use std::arch::x86_64::*;
+    let k8 = kn & !7;
+    for l0 in (0..S).step_by(8) {
+        let p = mem.add(base + l0 * stride);
+        let mut k = 0;
+        while k < k8 {
+            // a: eight vectors of eight; b = its transpose.
+            let a: [__m256; 8] = if IN {
+                std::array::from_fn(|j| _mm256_loadu_ps(p.add(j * stride + k)))
+            } else {
+                std::array::from_fn(|j| _mm256_loadu_ps((*tile.add(k + j)).as_ptr().add(l0)))
+            };
+            // Pairs interleaved, then quadruples, then the 128-bit halves swapped.
+            let t: [__m256; 8] = [
+                _mm256_unpacklo_ps(a[0], a[1]),
+                _mm256_unpackhi_ps(a[0], a[1]),
+                _mm256_unpacklo_ps(a[2], a[3]),
+                _mm256_unpackhi_ps(a[2], a[3]),
+                _mm256_unpacklo_ps(a[4], a[5]),
+                _mm256_unpackhi_ps(a[4], a[5]),
+                _mm256_unpacklo_ps(a[6], a[7]),
+                _mm256_unpackhi_ps(a[6], a[7]),
+            ];
+            let q: [__m256; 8] = [
+                _mm256_shuffle_ps::<0x44>(t[0], t[2]),
+                _mm256_shuffle_ps::<0xEE>(t[0], t[2]),
+                _mm256_shuffle_ps::<0x44>(t[1], t[3]),
+                _mm256_shuffle_ps::<0xEE>(t[1], t[3]),
+                _mm256_shuffle_ps::<0x44>(t[4], t[6]),
+                _mm256_shuffle_ps::<0xEE>(t[4], t[6]),
+                _mm256_shuffle_ps::<0x44>(t[5], t[7]),
+                _mm256_shuffle_ps::<0xEE>(t[5], t[7]),
+            ];
+            let b = [
+                _mm256_permute2f128_ps::<0x20>(q[0], q[4]),
+                _mm256_permute2f128_ps::<0x20>(q[1], q[5]),
+                _mm256_permute2f128_ps::<0x20>(q[2], q[6]),
+                _mm256_permute2f128_ps::<0x20>(q[3], q[7]),
+                _mm256_permute2f128_ps::<0x31>(q[0], q[4]),
+                _mm256_permute2f128_ps::<0x31>(q[1], q[5]),
+                _mm256_permute2f128_ps::<0x31>(q[2], q[6]),
+                _mm256_permute2f128_ps::<0x31>(q[3], q[7]),
+            ];
+            for (j, v) in b.into_iter().enumerate() {
+                if IN {
+                    _mm256_storeu_ps((*tile.add(k + j)).as_mut_ptr().add(l0), v);
+                } else {
+                    _mm256_storeu_ps(p.add(j * stride + k), v);
+                }
+            }
+            k += 8;
+        }
+        for k in k8..kn {
+            for j in 0..8 {
+                if IN {
+                    (*tile.add(k))[l0 + j] = *p.add(j * stride + k);
+                } else {
+                    *p.add(j * stride + k) = (*tile.add(k))[l0 + j];
+                }
+            }
         }
     }
 }
 
-/// The end of one segment's first forward sweep (see the module doc).
+/// The forward sweep's state of S segments.
+#[derive(Clone, Copy)]
+struct Sweep<T: Real, const S: usize> {
+    a_prev: [T; S],
+    g_prev: [T; S],
+    ls_prev: [T; S],
+    ys_prev: [T; S],
+    /// d ys/d tau of the previous row (first pass only).
+    z_prev: [T; S],
+    /// Running product of w from the segment's first row (the weight of u_i in u_b).
+    pi: [T; S],
+    /// u_b = acc_a + pi·u_e + acc_c·tau.
+    acc_a: [T; S],
+    acc_c: [T; S],
+    /// 0/1 in lanes as wide as T (as the sequential sweep's flags).
+    nonfinite: [T::Flag; S],
+    /// Position of the last particle swept (forcing only).
+    q: [T; S],
+}
+
+impl<T: Real, const S: usize> Sweep<T, S> {
+    /// Segments starting from the rate tau of their first gap: ls = 0, ys = -tau (the first
+    /// pass: tau unknown, ys0 = 0 and z = -1).
+    fn new(tau: [T; S], spike: T) -> Sweep<T, S> {
+        Sweep {
+            a_prev: [T::ZERO; S],
+            g_prev: [T::ZERO; S],
+            ls_prev: [T::ZERO; S],
+            ys_prev: tau.map(|x| -x),
+            z_prev: [spike; S],
+            pi: [T::ONE; S],
+            acc_a: [T::ZERO; S],
+            acc_c: [T::ZERO; S],
+            nonfinite: [T::Flag::default(); S],
+            q: [T::ZERO; S],
+        }
+    }
+}
+
+/// The end of one segment's first forward sweep (see the module doc), in f64 (exact for f32
+/// ends): the interface system is solved in f64.
 #[derive(Clone, Copy, Default, Debug)]
 struct SegmentEnd {
     ls: f64,
@@ -376,14 +577,14 @@ struct SegmentEnd {
 
 /// Constants of one step.
 #[derive(Clone, Copy)]
-struct Step {
+struct Step<T> {
     /// The instruction set the lane loops run (for the tiles' transposes).
     simd: SimdLevel,
-    mu: f64,
-    eps: f64,
-    h: f64,
+    mu: T,
+    eps: T,
+    h: T,
     t: f64,
-    m_over_h: f64,
+    m_over_h: T,
 }
 
 /// One row of the forward sweep for S segments: the sequential sweep's operations, plus (with
@@ -391,45 +592,53 @@ struct Step {
 /// state.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn forward_row<const S: usize, const REP: bool, const CLU: bool, const SPIKE: bool, P, Q>(
+fn forward_row<
+    T: PartitionedReal,
+    const S: usize,
+    const REP: bool,
+    const CLU: bool,
+    const SPIKE: bool,
+    P,
+    Q,
+>(
     law: Law<P, Q>,
-    c: Step,
-    st: &mut Sweep<S>,
-    stored: &[f64; S],
-    dstar: &[f64; S],
+    c: Step<T>,
+    st: &mut Sweep<T, S>,
+    stored: &[T; S],
+    dstar: &[T; S],
     bonded: &[bool; S],
-    vel: &[f64; S],
-    f: &[f64; S],
-) -> [f64; S]
+    vel: &[T; S],
+    f: &[T; S],
+) -> [T; S]
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
-    let eps2 = 2.0 * c.eps;
-    let mut w = [0.0; S];
+    let eps2 = T::c(2.0) * c.eps;
+    let tiny = T::SPIKE_TINY;
+    let mut w = [T::ZERO; S];
     for l in 0..S {
-        let (a_next, g_next, d_next) = gap_terms::<f64, REP, CLU, P, Q>(
-            law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
-        );
-        st.nonfinite[l] |= !(g_next + f[l]).is_finite() as u64;
+        let (a_next, g_next, d_next) =
+            gap_terms::<T, REP, CLU, P, Q>(law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h);
+        st.nonfinite[l] |= T::Flag::from(!(g_next + f[l]).is_finite());
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
         // As in the sequential sweep (step.rs), operation for operation.
         let excess = c.m_over_h + st.a_prev[l] * st.ls_prev[l];
         let delta = rhs + st.a_prev[l] * st.ys_prev[l];
         let pivot_base = c.m_over_h * d_next + a_next;
         let coupling = st.a_prev[l] * d_next;
-        let inv = 1.0 / (pivot_base + coupling * st.ls_prev[l]);
+        let inv = T::ONE / (pivot_base + coupling * st.ls_prev[l]);
         let ls = excess * inv;
         let ys = delta * inv;
         w[l] = a_next * inv;
         if SPIKE {
             let z = st.a_prev[l] * st.z_prev[l] * inv;
             // z <= 0; flushed to 0 once negligible (NaN is kept).
-            let z = if z > -TINY { 0.0 } else { z };
+            let z = if z > -tiny { T::ZERO } else { z };
             st.acc_a[l] += st.pi[l] * (d_next * ys);
             st.acc_c[l] += st.pi[l] * (d_next * z);
             let pi = st.pi[l] * w[l];
-            st.pi[l] = if pi < TINY { 0.0 } else { pi };
+            st.pi[l] = if pi < tiny { T::ZERO } else { pi };
             st.z_prev[l] = z;
         }
         st.ls_prev[l] = ls;
@@ -441,25 +650,33 @@ where
 }
 
 /// Forcing of one row of S segments (rows `row0 + l·stride`): interpreted, so not in the lane
-/// loop. Writes F to `force` (natural layout, index row - 1 - `force_at`).
+/// loop. Writes F to `force` (natural layout, index row - 1 - `force_at`). q and F as the
+/// sequential sweep computes them (q in T, F evaluated in f64 and rounded to T).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn forces<const S: usize, const L: usize>(
-    terms: &Terms<L>,
-    c: Step,
-    st: &mut Sweep<S>,
-    gaps_in: &[f64],
+fn forces<T: Real, const S: usize, const L: usize>(
+    terms: &Terms<L, T>,
+    c: Step<T>,
+    st: &mut Sweep<T, S>,
+    gaps_in: &[T],
     row0: usize,
     stride: usize,
-    force: &mut [f64],
+    force: &mut [T],
     force_at: usize,
-) -> [f64; S] {
-    let mut f = [0.0; S];
+) -> [T; S] {
+    let mut f = [T::ZERO; S];
     if let Some(forcing) = terms.forcing {
+        let mass = T::c(2.0) * c.eps;
         for (l, (q, fl)) in st.q.iter_mut().zip(f.iter_mut()).enumerate() {
             let row = row0 + l * stride;
-            *q += stored_gap::decode(gaps_in[row - 1]) + 2.0 * c.eps;
-            *fl = particle_force(forcing, terms.forcing_params[0], c.eps, c.t, *q);
+            *q += gaps_in[row - 1].decode_stored() + mass;
+            *fl = T::c(particle_force(
+                forcing,
+                terms.forcing_params[0],
+                c.eps.to_f64(),
+                c.t,
+                q.to_f64(),
+            ));
             force[row - 1 - force_at] = *fl;
         }
     }
@@ -467,14 +684,14 @@ fn forces<const S: usize, const L: usize>(
 }
 
 /// The inputs, natural layout: gaps, d* and bonded flags (where they exist), velocities.
-type Inputs<'a> = (&'a [f64], &'a [f64], &'a [bool], &'a [f64]);
+type Inputs<'a, T> = (&'a [T], &'a [T], &'a [bool], &'a [T]);
 
 /// The sweep rows of one group (w, ls, ys: the prologue's rows at row - 1, then the group's
 /// rows interleaved), for the second pass.
-struct Rows<'a> {
-    w: &'a mut [f64],
-    ls: &'a mut [f64],
-    ys: &'a mut [f64],
+struct Rows<'a, T> {
+    w: &'a mut [T],
+    ls: &'a mut [T],
+    ys: &'a mut [T],
 }
 
 /// Forward sweep of group g's segments (and of the prologue, for group 0) from `start`. The
@@ -483,6 +700,7 @@ struct Rows<'a> {
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn forward_group<
+    T: PartitionedReal,
     const L: usize,
     const REP: bool,
     const FRC: bool,
@@ -491,34 +709,35 @@ fn forward_group<
     P,
     Q,
 >(
-    terms: &Terms<L>,
+    terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
-    c: Step,
-    mut st: Sweep<SEGMENT_LANES>,
-    inputs: &Inputs,
-    force: &mut [f64],
-    mut rows: Option<Rows>,
+    c: Step<T>,
+    mut st: Sweep<T, SEGMENT_LANES>,
+    inputs: &Inputs<T>,
+    force: &mut [T],
+    mut rows: Option<Rows<T>>,
     law: Law<P, Q>,
-) -> Sweep<SEGMENT_LANES>
+) -> Sweep<T, SEGMENT_LANES>
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
     const S: usize = SEGMENT_LANES;
+    let zero = T::ZERO;
     let (gaps_in, dstar_all, bonded_all, vel_in) = *inputs;
     let m = layout.seg;
     let chunk_at = layout.chunk(g).start;
     let main = layout.main_start(g);
     let off = main - chunk_at;
-    let eps2 = 2.0 * c.eps;
+    let eps2 = T::c(2.0) * c.eps;
     {
         // The first gap of each segment (index main + l·m) is the previous row's.
-        let stored = gather::<S, f64>(gaps_in, main, m);
+        let stored = gather::<S, T>(gaps_in, main, m);
         let dstar = if REP {
-            gather::<S, f64>(dstar_all, main, m)
+            gather::<S, T>(dstar_all, main, m)
         } else {
-            [0.0; S]
+            [zero; S]
         };
         let bonded = if CLU {
             gather::<S, bool>(bonded_all, main, m)
@@ -526,7 +745,7 @@ where
             [false; S]
         };
         for l in 0..S {
-            let (a, gg, _) = gap_terms::<f64, REP, CLU, P, Q>(
+            let (a, gg, _) = gap_terms::<T, REP, CLU, P, Q>(
                 law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
             );
             st.a_prev[l] = a;
@@ -536,32 +755,32 @@ where
     if g == 0 {
         // Segment 0 starts from the left wall (lambda_0 = 1: ls_0 = 1/d_1, ys_0 = 0, no spike),
         // as the sequential sweep does, and sweeps the prologue's rows alone.
-        let mut s0 = Sweep::<1>::new([0.0], 0.0);
-        let (a, gg, d) = gap_terms::<f64, REP, CLU, P, Q>(
+        let mut s0 = Sweep::<T, 1>::new([zero], zero);
+        let (a, gg, d) = gap_terms::<T, REP, CLU, P, Q>(
             law,
             0,
             c.mu,
             eps2,
             gaps_in[0],
-            if REP { dstar_all[0] } else { 0.0 },
+            if REP { dstar_all[0] } else { zero },
             CLU && bonded_all[0],
             c.h,
         );
         s0.a_prev[0] = a;
         s0.g_prev[0] = gg;
-        s0.ls_prev[0] = 1.0 / d;
-        s0.nonfinite[0] |= !gg.is_finite() as u64;
+        s0.ls_prev[0] = T::ONE / d;
+        s0.nonfinite[0] |= T::Flag::from(!gg.is_finite());
         for row in 1..=layout.rem {
             let f = match (FRC, SPIKE) {
-                (false, _) => [0.0],
-                (true, true) => forces::<1, L>(terms, c, &mut s0, gaps_in, row, 0, force, 0),
+                (false, _) => [zero],
+                (true, true) => forces::<T, 1, L>(terms, c, &mut s0, gaps_in, row, 0, force, 0),
                 (true, false) => [force[row - 1]],
             };
             let stored = [gaps_in[row]];
-            let dstar = [if REP { dstar_all[row] } else { 0.0 }];
+            let dstar = [if REP { dstar_all[row] } else { zero }];
             let bonded = [CLU && bonded_all[row]];
             let vel = [vel_in[row - 1]];
-            let w = forward_row::<1, REP, CLU, false, P, Q>(
+            let w = forward_row::<T, 1, REP, CLU, false, P, Q>(
                 law, c, &mut s0, &stored, &dstar, &bonded, &vel, &f,
             );
             if let Some(r) = rows.as_mut() {
@@ -572,39 +791,40 @@ where
         }
         st.ls_prev[0] = s0.ls_prev[0];
         st.ys_prev[0] = s0.ys_prev[0];
-        st.z_prev[0] = 0.0;
+        st.z_prev[0] = zero;
         st.nonfinite[0] |= s0.nonfinite[0];
         st.q[0] = s0.q[0];
     }
     // Rows in tiles of TILE: each lane's inputs are copied in (contiguous reads per lane), so
     // that the lane loop reads whole rows (gathering a row lane by lane stalls every row on
     // store forwarding).
-    let mut t_gap = [[0.0; S]; TILE];
-    let mut t_dstar = [[0.0; S]; TILE];
+    let mut t_gap = [[zero; S]; TILE];
+    let mut t_dstar = [[zero; S]; TILE];
     let mut t_bond = [[false; S]; TILE];
-    let mut t_vel = [[0.0; S]; TILE];
-    let mut t_f = [[0.0; S]; TILE];
+    let mut t_vel = [[zero; S]; TILE];
+    let mut t_f = [[zero; S]; TILE];
     let mut k0 = 0;
     while k0 < m {
         let kn = TILE.min(m - k0);
         // Row main + 1 + l·m + k of lane l; its next gap has index main + 1 + l·m + k.
         let row0 = main + 1 + k0;
-        tile_in_f64(c.simd, gaps_in, row0, m, kn, &mut t_gap);
-        tile_in_f64(c.simd, vel_in, row0 - 1, m, kn, &mut t_vel);
+        T::tile_in(c.simd, gaps_in, row0, m, kn, &mut t_gap);
+        T::tile_in(c.simd, vel_in, row0 - 1, m, kn, &mut t_vel);
         if REP {
-            tile_in_f64(c.simd, dstar_all, row0, m, kn, &mut t_dstar);
+            T::tile_in(c.simd, dstar_all, row0, m, kn, &mut t_dstar);
         }
         if CLU {
             tile_in(bonded_all, row0, m, kn, &mut t_bond);
         }
         if FRC && !SPIKE {
-            tile_in_f64(c.simd, force, row0 - 1 - chunk_at, m, kn, &mut t_f);
+            T::tile_in(c.simd, force, row0 - 1 - chunk_at, m, kn, &mut t_f);
         }
         for kk in 0..kn {
             if FRC && SPIKE {
-                t_f[kk] = forces::<S, L>(terms, c, &mut st, gaps_in, row0 + kk, m, force, chunk_at);
+                t_f[kk] =
+                    forces::<T, S, L>(terms, c, &mut st, gaps_in, row0 + kk, m, force, chunk_at);
             }
-            let w = forward_row::<S, REP, CLU, SPIKE, P, Q>(
+            let w = forward_row::<T, S, REP, CLU, SPIKE, P, Q>(
                 law,
                 c,
                 &mut st,
@@ -626,61 +846,71 @@ where
     st
 }
 
-simd_versions!(f64: ends_group_simd, ends_group_avx2, ends_group_avx512, ends_group_impl, (
-    terms: &Terms<L>,
+simd_versions!(T: PartitionedReal; ends_group_simd, ends_group_avx2, ends_group_avx512, ends_group_impl, (
+    terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
-    c: Step,
-    q_start: &[f64],
-    inputs: &Inputs<'_>,
-    force: &mut [f64]
-) -> ([SegmentEnd; SEGMENT_LANES], u64));
+    c: Step<T>,
+    q_start: &[T],
+    inputs: &Inputs<'_, T>,
+    force: &mut [T]
+) -> ([SegmentEnd; SEGMENT_LANES], bool));
 
 /// The first pass over group g: the segments' ends from a forward sweep with the spike (nothing
-/// stored but F). `q_start` is the position of each segment's particle b - 1 (forcing only).
+/// stored but F), and whether some G or F was not finite. `q_start` is the position of each
+/// segment's particle b - 1 (forcing only).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn ends_group_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
-    terms: &Terms<L>,
+fn ends_group_impl<
+    T: PartitionedReal,
+    const L: usize,
+    const REP: bool,
+    const FRC: bool,
+    const CLU: bool,
+    P,
+    Q,
+>(
+    terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
-    c: Step,
-    q_start: &[f64],
-    inputs: &Inputs<'_>,
-    force: &mut [f64],
+    c: Step<T>,
+    q_start: &[T],
+    inputs: &Inputs<'_, T>,
+    force: &mut [T],
     law: Law<P, Q>,
-) -> ([SegmentEnd; SEGMENT_LANES], u64)
+) -> ([SegmentEnd; SEGMENT_LANES], bool)
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
     const S: usize = SEGMENT_LANES;
-    let mut start = Sweep::<S>::new([0.0; S], -1.0);
+    let mut start = Sweep::<T, S>::new([T::ZERO; S], -T::ONE);
     if FRC {
         start.q.copy_from_slice(&q_start[g * S..(g + 1) * S]);
     }
-    let st = forward_group::<L, REP, FRC, CLU, true, P, Q>(
+    let st = forward_group::<T, L, REP, FRC, CLU, true, P, Q>(
         terms, layout, g, c, start, inputs, force, None, law,
     );
     let ends = std::array::from_fn(|l| SegmentEnd {
-        ls: st.ls_prev[l],
-        ys: st.ys_prev[l],
-        z: st.z_prev[l],
-        a: st.acc_a[l],
-        b: st.pi[l],
-        c: st.acc_c[l],
+        ls: st.ls_prev[l].to_f64(),
+        ys: st.ys_prev[l].to_f64(),
+        z: st.z_prev[l].to_f64(),
+        a: st.acc_a[l].to_f64(),
+        b: st.pi[l].to_f64(),
+        c: st.acc_c[l].to_f64(),
     });
-    (ends, st.nonfinite.iter().fold(0, |a, b| a | b))
+    (ends, st.nonfinite.iter().any(|&f| f != T::Flag::default()))
 }
 
 /// The back sweep's flags and sums of S segments.
 #[derive(Clone, Copy)]
-struct Back<const S: usize> {
-    u_next: [f64; S],
+struct Back<T: Real, const S: usize> {
+    u_next: [T; S],
+    /// The sums of the new gaps in f64 in either precision (as the sequential sweep's).
     sum: [f64; S],
-    opening: [f64; S],
-    closing: [f64; S],
-    needs_fixup: [u64; S],
+    opening: [T; S],
+    closing: [T; S],
+    needs_fixup: [T::Flag; S],
 }
 
 /// One row of the back sweep for S segments: the sequential back sweep's operations, with the
@@ -688,50 +918,54 @@ struct Back<const S: usize> {
 /// sum. Returns (u, new stored gap) of the row.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn back_row<const S: usize, const CLU: bool>(
-    h: f64,
-    gamma2: f64,
-    st: &mut Back<S>,
-    old: &[f64; S],
+fn back_row<T: Real, const S: usize, const CLU: bool>(
+    h: T,
+    gamma2: T,
+    st: &mut Back<T, S>,
+    old: &[T; S],
     bonded: &[bool; S],
-    w: &[f64; S],
-    ys: &[f64; S],
-    ls: &[f64; S],
-) -> ([f64; S], [f64; S]) {
-    let mut x = [0.0; S];
-    let mut small = 1u64;
+    w: &[T; S],
+    ys: &[T; S],
+    ls: &[T; S],
+) -> ([T; S], [T; S]) {
+    let zero = T::ZERO;
+    let floor = T::GAP_FLOOR;
+    let flag = T::Flag::from;
+    let mut x = [zero; S];
+    let mut small = flag(true);
     for l in 0..S {
-        let d = fmax(old[l], GAP_FLOOR);
+        let d = fmax(old[l], floor);
         let mut u = d * ys[l] + w[l] * st.u_next[l];
         if CLU && bonded[l] {
             u = st.u_next[l];
         }
         let rate = ls[l] * st.u_next[l] - ys[l];
         x[l] = h * rate;
-        small &= (x[l].abs() < GAP_EXP_TAYLOR) as u64;
+        small &= flag(x[l].abs() < T::c(GAP_EXP_TAYLOR));
         st.u_next[l] = u;
     }
     let e = super::exp_row(&x, small);
-    let mut grown = [0.0; S];
-    let mut flags = [0u64; S];
-    let mut any = 0u64;
+    let mut grown = [zero; S];
+    let mut flags = [T::Flag::default(); S];
+    let mut any = T::Flag::default();
     for l in 0..S {
         grown[l] = old[l] * e[l];
-        if old[l] > 0.0 {
+        if old[l] > zero {
             st.opening[l] = fmax(x[l], st.opening[l]);
         }
-        let d = fmax(old[l], GAP_FLOOR);
-        st.closing[l] = fmax(d * (gamma2 * fmin(x[l], 0.0) - 1.0), st.closing[l]);
+        let d = fmax(old[l], floor);
+        st.closing[l] = fmax(d * (gamma2 * fmin(x[l], zero) - T::ONE), st.closing[l]);
         // NaN fails the comparisons.
-        flags[l] = !((GAP_FLOOR..f64::INFINITY).contains(&grown[l]) && x[l] <= EXP_FAST_MAX) as u64;
+        flags[l] =
+            flag(!(grown[l] >= floor && grown[l] < T::INFINITY && x[l] <= T::c(EXP_FAST_MAX)));
         st.needs_fixup[l] |= flags[l];
         any |= flags[l];
     }
-    if any != 0 {
+    if any != T::Flag::default() {
         for l in 0..S {
-            if flags[l] != 0 {
+            if flags[l] != T::Flag::default() {
                 grown[l] = if CLU && bonded[l] {
-                    0.0
+                    zero
                 } else {
                     fixed_up(old[l], x[l], grown[l])
                 };
@@ -739,144 +973,155 @@ fn back_row<const S: usize, const CLU: bool>(
         }
     }
     for (sum, g) in st.sum.iter_mut().zip(grown) {
-        *sum += fmax(g, 0.0);
+        *sum += fmax(g, zero).to_f64();
     }
     (st.u_next, grown)
 }
 
 /// What a group's second pass hands back: per segment the sum of its new gaps (segment 0's
 /// including the prologue's), and the flags.
-struct GroupBack {
+struct GroupBack<T> {
     sums: [f64; SEGMENT_LANES],
-    opening: f64,
-    closing: f64,
-    needs_fixup: u64,
+    opening: T,
+    closing: T,
+    needs_fixup: bool,
     /// u_1 (group 0 only).
-    u_first: f64,
+    u_first: T,
 }
 
 /// Group g's chunks of the outputs (natural layout: velocities of the chunk's rows, the gaps
 /// after them) and of the forces.
-struct Outputs<'a> {
-    vel: &'a mut [f64],
-    gaps: &'a mut [f64],
-    force: &'a mut [f64],
+struct Outputs<'a, T> {
+    vel: &'a mut [T],
+    gaps: &'a mut [T],
+    force: &'a mut [T],
 }
 
 std::thread_local! {
     /// Per thread: the sweep rows of the group it solves (w, ls, ys), reused by every group, so
     /// that they stay in its cache and never go to memory.
-    static ROWS: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+    static ROWS_F64: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// [`ROWS_F64`] for f32.
+    static ROWS_F32: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-simd_versions!(f64: solve_group_simd, solve_group_avx2, solve_group_avx512, solve_group_impl, (
-    terms: &Terms<L>,
+simd_versions!(T: PartitionedReal; solve_group_simd, solve_group_avx2, solve_group_avx512, solve_group_impl, (
+    terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
-    c: Step,
-    iface: &[(f64, f64)],
-    inputs: &Inputs<'_>,
-    out: Outputs<'_>,
-    buf: &mut Vec<f64>
-) -> GroupBack);
+    c: Step<T>,
+    iface: &[(T, T)],
+    inputs: &Inputs<'_, T>,
+    out: Outputs<'_, T>,
+    buf: &mut Vec<T>
+) -> GroupBack<T>);
 
 /// The second pass over group g (and the prologue, for group 0): forward sweep of each segment
 /// from its tau, then the back sweep from the first velocity of the next segment
 /// (`iface[s]` = (tau, that velocity)), writing velocities and gaps.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn solve_group_impl<const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
-    terms: &Terms<L>,
+fn solve_group_impl<
+    T: PartitionedReal,
+    const L: usize,
+    const REP: bool,
+    const FRC: bool,
+    const CLU: bool,
+    P,
+    Q,
+>(
+    terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
-    c: Step,
-    iface: &[(f64, f64)],
-    inputs: &Inputs<'_>,
-    out: Outputs<'_>,
-    buf: &mut Vec<f64>,
+    c: Step<T>,
+    iface: &[(T, T)],
+    inputs: &Inputs<'_, T>,
+    out: Outputs<'_, T>,
+    buf: &mut Vec<T>,
     law: Law<P, Q>,
-) -> GroupBack
+) -> GroupBack<T>
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
     const S: usize = SEGMENT_LANES;
     {
         let len = layout.chunk(g).len();
         if buf.len() < 3 * len {
-            buf.resize(3 * len, 0.0);
+            buf.resize(3 * len, T::ZERO);
         }
         let (w, rest) = buf.split_at_mut(len);
         let (ls, rest) = rest.split_at_mut(len);
         let ys = &mut rest[..len];
-        let tau: [f64; S] = std::array::from_fn(|l| iface[g * S + l].0);
-        forward_group::<L, REP, FRC, CLU, false, P, Q>(
+        let tau: [T; S] = std::array::from_fn(|l| iface[g * S + l].0);
+        forward_group::<T, L, REP, FRC, CLU, false, P, Q>(
             terms,
             layout,
             g,
             c,
-            Sweep::new(tau, 0.0),
+            Sweep::new(tau, T::ZERO),
             inputs,
             out.force,
             Some(Rows { w, ls, ys }),
             law,
         );
-        back_group::<L, CLU, P, Q>(terms, layout, g, c, iface, inputs.0, w, ls, ys, out, law)
+        back_group::<T, L, CLU, P, Q>(terms, layout, g, c, iface, inputs.0, w, ls, ys, out, law)
     }
 }
 
 /// The back sweep of [`solve_group_impl`].
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn back_group<const L: usize, const CLU: bool, P, Q>(
-    terms: &Terms<L>,
+fn back_group<T: PartitionedReal, const L: usize, const CLU: bool, P, Q>(
+    terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
-    c: Step,
-    iface: &[(f64, f64)],
-    gaps_in: &[f64],
-    w: &[f64],
-    ls: &[f64],
-    ys: &[f64],
-    out: Outputs<'_>,
+    c: Step<T>,
+    iface: &[(T, T)],
+    gaps_in: &[T],
+    w: &[T],
+    ls: &[T],
+    ys: &[T],
+    out: Outputs<'_, T>,
     law: Law<P, Q>,
-) -> GroupBack
+) -> GroupBack<T>
 where
-    P: Fn(usize, f64) -> f64 + Copy,
-    Q: Fn(usize) -> f64 + Copy,
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
 {
     const S: usize = SEGMENT_LANES;
+    let zero = T::ZERO;
     let h = c.h;
     let m = layout.seg;
     let chunk_at = layout.chunk(g).start;
     let main = layout.main_start(g);
     let off = main - chunk_at;
     let bonded_all = terms.bonded.unwrap_or(&[]);
-    let gamma2 = -((law.gamma)(0) + 2.0);
-    let mut st = Back::<S> {
+    let gamma2 = -((law.gamma)(0) + T::c(2.0));
+    let mut st = Back::<T, S> {
         u_next: std::array::from_fn(|l| iface[g * S + l].1),
         sum: [0.0; S],
-        opening: [0.0; S],
-        closing: [f64::NEG_INFINITY; S],
-        needs_fixup: [0; S],
+        opening: [zero; S],
+        closing: [T::NEG_INFINITY; S],
+        needs_fixup: [T::Flag::default(); S],
     };
     // Tiles of rows from the top, as in the forward sweep; the outputs go out per tile.
-    let mut t_old = [[0.0; S]; TILE];
+    let mut t_old = [[zero; S]; TILE];
     let mut t_bond = [[false; S]; TILE];
-    let mut t_u = [[0.0; S]; TILE];
-    let mut t_grown = [[0.0; S]; TILE];
+    let mut t_u = [[zero; S]; TILE];
+    let mut t_grown = [[zero; S]; TILE];
     let mut k_hi = m;
     while k_hi > 0 {
         let kn = TILE.min(k_hi);
         let k0 = k_hi - kn;
         let row0 = main + 1 + k0;
-        tile_in_f64(c.simd, gaps_in, row0, m, kn, &mut t_old);
+        T::tile_in(c.simd, gaps_in, row0, m, kn, &mut t_old);
         if CLU {
             tile_in(bonded_all, row0, m, kn, &mut t_bond);
         }
         for kk in (0..kn).rev() {
             let at = off + (k0 + kk) * S;
-            let (u, grown) = back_row::<S, CLU>(
+            let (u, grown) = back_row::<T, S, CLU>(
                 h,
                 gamma2,
                 &mut st,
@@ -890,13 +1135,13 @@ where
             t_grown[kk] = grown;
         }
         // Velocity of row r at r - 1 - chunk_at, gap index r at r - 1 - chunk_at of the chunk.
-        tile_out_f64(c.simd, out.vel, row0 - 1 - chunk_at, m, kn, &t_u);
-        tile_out_f64(c.simd, out.gaps, row0 - 1 - chunk_at, m, kn, &t_grown);
+        T::tile_out(c.simd, out.vel, row0 - 1 - chunk_at, m, kn, &t_u);
+        T::tile_out(c.simd, out.gaps, row0 - 1 - chunk_at, m, kn, &t_grown);
         k_hi = k0;
     }
-    let mut u_first = 0.0;
+    let mut u_first = zero;
     if g == 0 {
-        let mut s0 = Back::<1> {
+        let mut s0 = Back::<T, 1> {
             u_next: [st.u_next[0]],
             sum: [st.sum[0]],
             opening: [st.opening[0]],
@@ -905,7 +1150,7 @@ where
         };
         for row in (1..=layout.rem).rev() {
             let i = row - 1;
-            let (u, grown) = back_row::<1, CLU>(
+            let (u, grown) = back_row::<T, 1, CLU>(
                 h,
                 gamma2,
                 &mut s0,
@@ -927,18 +1172,16 @@ where
     // max and | do not depend on the order.
     GroupBack {
         sums: st.sum,
-        opening: st.opening.iter().fold(0.0, |a, &b| fmax(b, a)),
-        closing: st
-            .closing
-            .iter()
-            .fold(f64::NEG_INFINITY, |a, &b| fmax(b, a)),
-        needs_fixup: st.needs_fixup.iter().fold(0, |a, b| a | b),
+        opening: st.opening.iter().fold(zero, |a, &b| fmax(b, a)),
+        closing: st.closing.iter().fold(T::NEG_INFINITY, |a, &b| fmax(b, a)),
+        needs_fixup: st.needs_fixup.iter().any(|&f| f != T::Flag::default()),
         u_first,
     }
 }
 
 /// The interface values (tau_s, u of the next segment's first row) of every segment from the
-/// segments' forward ends (the reduced system, swept like a Thomas system; see the module doc).
+/// segments' forward ends (the reduced system, swept like a Thomas system; see the module doc),
+/// in f64 in either precision.
 fn interfaces(ends: &[SegmentEnd]) -> Vec<(f64, f64)> {
     let p = ends.len();
     // tau_s = alpha_s + beta_s u_{b_{s+1}}; segment 0 has tau = 0.
@@ -970,6 +1213,7 @@ fn interfaces(ends: &[SegmentEnd]) -> Vec<(f64, f64)> {
 /// step, the tridiagonal solve partitioned (see the module doc).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn euler_partitioned<
+    T: PartitionedReal,
     const L: usize,
     const REP: bool,
     const FRC: bool,
@@ -978,102 +1222,109 @@ pub(super) fn euler_partitioned<
     Q,
 >(
     simd: SimdLevel,
-    terms: &Terms<L>,
+    terms: &Terms<L, T>,
     n: usize,
     t: &[f64; L],
-    h: &[f64; L],
-    gaps_in: &[f64],
-    vel_in: &[f64],
-    gaps_out: &mut [f64],
-    vel_out: &mut [f64],
-    scratch: &mut Scratch,
+    h: &[T; L],
+    gaps_in: &[T],
+    vel_in: &[T],
+    gaps_out: &mut [T],
+    vel_out: &mut [T],
+    scratch: &mut Scratch<T>,
     layout: Layout,
     law: Law<P, Q>,
 ) -> [StepReport; L]
 where
-    P: Fn(usize, f64) -> f64 + Copy + Send + Sync,
-    Q: Fn(usize) -> f64 + Copy + Send + Sync,
+    P: Fn(usize, T) -> T + Copy + Send + Sync,
+    Q: Fn(usize) -> T + Copy + Send + Sync,
 {
     assert_eq!(L, 1, "the partitioned solve is for one member");
     assert_eq!(gaps_in.len(), n);
     assert_eq!(vel_in.len(), n - 1);
     assert_eq!(Layout::new(n, layout.groups), Some(layout));
+    let zero = T::ZERO;
+    let floor = T::GAP_FLOOR;
     let (h0, t0) = (h[0], t[0]);
     let eps = terms.eps;
+    let mass = T::c(2.0) * eps;
     let c = Step {
         simd,
         mu: terms.mu[0],
         eps,
         h: h0,
         t: t0,
-        m_over_h: 2.0 * eps / h0,
+        m_over_h: mass / h0,
     };
     let mut report = [StepReport::START; L];
     let p = layout.segments();
-    // Positions of each segment's particle b - 1, summed in the sequential sweep's order.
+    // Positions of each segment's particle b - 1, summed in the sequential sweep's order (and
+    // type).
     let mut q_start = Vec::new();
     if FRC {
-        q_start = vec![0.0; p];
-        let mut q = 0.0;
+        q_start = vec![zero; p];
+        let mut q = zero;
         let mut s = 1;
         for row in 1..n {
             if s < p && row == layout.first_row(s) {
                 q_start[s] = q;
                 s += 1;
             }
-            q += stored_gap::decode(gaps_in[row - 1]) + 2.0 * eps;
+            q += gaps_in[row - 1].decode_stored() + mass;
         }
     }
-    let dstar_all: &[f64] = terms.repulsion.map_or(&[], |r| r.0);
+    let dstar_all: &[T] = terms.repulsion.map_or(&[], |r| r.0);
     let bonded_all: &[bool] = terms.bonded.unwrap_or(&[]);
-    let inputs: Inputs = (gaps_in, dstar_all, bonded_all, vel_in);
+    let inputs: Inputs<T> = (gaps_in, dstar_all, bonded_all, vel_in);
 
     // 1. The ends of every segment's forward sweep (and the forces).
-    let group_ends: Vec<([SegmentEnd; SEGMENT_LANES], u64)> =
+    let group_ends: Vec<([SegmentEnd; SEGMENT_LANES], bool)> =
         split_chunks(&layout, &mut scratch.force)
             .into_par_iter()
             .enumerate()
             .map(|(g, force)| {
-                ends_group_simd::<L, REP, FRC, CLU, P, Q>(
+                ends_group_simd::<T, L, REP, FRC, CLU, P, Q>(
                     simd, terms, &layout, g, c, &q_start, &inputs, force, law,
                 )
             })
             .collect();
-    if group_ends.iter().any(|e| e.1 != 0) {
+    if group_ends.iter().any(|e| e.1) {
         report[0].hard = find_hard_failure(terms, law, n, 0, t0, h0, gaps_in);
     }
     let ends: Vec<SegmentEnd> = group_ends.iter().flat_map(|e| e.0).collect();
 
-    // 2. The interface values.
-    let iface = interfaces(&ends);
+    // 2. The interface values, rounded once to T.
+    let iface: Vec<(T, T)> = interfaces(&ends)
+        .into_iter()
+        .map(|(tau, u)| (T::c(tau), T::c(u)))
+        .collect();
 
     // 3. Every segment solved from its interface values.
     let (gap_first, gaps_rest) = gaps_out.split_at_mut(1);
-    let outs: Vec<Outputs> = split_chunks(&layout, vel_out)
+    let outs: Vec<Outputs<T>> = split_chunks(&layout, vel_out)
         .into_iter()
         .zip(split_chunks(&layout, gaps_rest))
         .zip(split_chunks(&layout, &mut scratch.force))
         .map(|((vel, gaps), force)| Outputs { vel, gaps, force })
         .collect();
-    let backs: Vec<GroupBack> = outs
+    let backs: Vec<GroupBack<T>> = outs
         .into_par_iter()
         .enumerate()
         .map(|(g, out)| {
             // The thread's buffer is taken here: a closure inside the AVX2 instance would be
             // compiled without AVX2.
-            ROWS.with_borrow_mut(|buf| {
-                solve_group_simd::<L, REP, FRC, CLU, P, Q>(
+            T::with_rows(|buf| {
+                solve_group_simd::<T, L, REP, FRC, CLU, P, Q>(
                     simd, terms, &layout, g, c, &iface, &inputs, out, buf, law,
                 )
             })
         })
         .collect();
     // The sum of the new gaps in a fixed order (from the last segment down), so that it does
-    // not depend on the thread count.
-    let mut sum = 0.0;
-    let mut opening = 0.0f64;
-    let mut closing = f64::NEG_INFINITY;
-    let mut needs_fixup = 0u64;
+    // not depend on the thread count; in f64 in either precision.
+    let mut sum = 0.0f64;
+    let mut opening = zero;
+    let mut closing = T::NEG_INFINITY;
+    let mut needs_fixup = false;
     for b in backs.iter().rev() {
         for s in b.sums.iter().rev() {
             sum += s;
@@ -1091,40 +1342,40 @@ where
             if !bonded_all[i] {
                 break;
             }
-            vel_out[i] = 0.0;
+            vel_out[i] = zero;
         }
     }
-    let gamma2 = -((law.gamma)(0) + 2.0);
+    let gamma2 = -((law.gamma)(0) + T::c(2.0));
     let old = gaps_in[0];
-    let x = h0 * (u_first / fmax(old, GAP_FLOOR));
+    let x = h0 * (u_first / fmax(old, floor));
     let mut grown = old * gap_exp(x);
-    if old > 0.0 {
+    if old > zero {
         opening = fmax(x, opening);
     }
-    let d = fmax(old, GAP_FLOOR);
-    closing = fmax(d * (gamma2 * fmin(x, 0.0) - 1.0), closing);
-    if !((GAP_FLOOR..f64::INFINITY).contains(&grown) && x <= EXP_FAST_MAX) {
-        needs_fixup = 1;
+    let d = fmax(old, floor);
+    closing = fmax(d * (gamma2 * fmin(x, zero) - T::ONE), closing);
+    if !(grown >= floor && grown < T::INFINITY && x <= T::c(EXP_FAST_MAX)) {
+        needs_fixup = true;
         grown = if CLU && bonded_all[0] {
-            0.0
+            zero
         } else {
             fixed_up(old, x, grown)
         };
     }
     gap_first[0] = grown;
-    sum += fmax(grown, 0.0);
-    report[0].admissible &= opening <= MAX_OPENING;
-    report[0].certified = needs_fixup == 0
+    sum += fmax(grown, zero).to_f64();
+    report[0].admissible &= opening <= T::c(MAX_OPENING);
+    report[0].certified = !needs_fixup
         && energy_certified(
             REP,
-            closing,
-            opening,
-            2.0 * eps,
+            closing.to_f64(),
+            opening.to_f64(),
+            mass.to_f64(),
             terms.contact_repulsion[0],
-            terms.mu[0] / h0,
+            (terms.mu[0] / h0).to_f64(),
         );
     let force = FRC.then_some(scratch.force.as_slice());
-    super::conclude_simd::<f64, L, REP, FRC, CLU, P, Q>(
+    super::conclude_simd::<T, L, REP, FRC, CLU, P, Q>(
         simd,
         terms,
         n,
@@ -1144,9 +1395,10 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    use super::super::{euler_step_as, stored_ln, Gamma, HardFailure};
+    use super::super::{default_layout, euler_step_as, stored_ln, Gamma, HardFailure, GAP_FLOOR};
     use super::*;
     use crate::expr::Expr;
+    use crate::model::chain::stored_gap;
     use crate::model::plan::{Forcing, Power};
     use crate::model::quadrature::GaussLegendre;
 
@@ -1203,8 +1455,15 @@ mod tests {
 
     type Outcome = (Vec<f64>, Vec<f64>, StepReport);
 
-    /// One step of the chain, sequential (`layout` None) or partitioned.
-    fn step(c: &Chain, model: Model, h: f64, layout: Option<Layout>, simd: SimdLevel) -> Outcome {
+    /// One step of the chain in T (the chain's values rounded to T, the results as their exact
+    /// f64 values), sequential (`layout` None) or partitioned.
+    fn step_as<T: Real>(
+        c: &Chain,
+        model: Model,
+        h: f64,
+        layout: Option<Layout>,
+        simd: SimdLevel,
+    ) -> Outcome {
         let n = c.n;
         let eps = 0.25 / n as f64;
         let forcing = model.forced.then(|| Forcing {
@@ -1212,43 +1471,91 @@ mod tests {
             rule: GaussLegendre::new(3),
             params: Vec::new(),
         });
-        let terms = Terms::<1> {
-            eps,
-            mu: [0.01],
-            total_gap: [c.gaps.iter().map(|&v| stored_gap::decode(v)).sum()],
+        let to_t = |v: &[f64]| -> Vec<T> { v.iter().map(|&x| T::c(x)).collect() };
+        let (gaps, vel, dstar) = (to_t(&c.gaps), to_t(&c.vel), to_t(&c.dstar));
+        let terms = Terms::<1, T> {
+            eps: T::c(eps),
+            mu: [T::c(0.01)],
+            total_gap: [gaps.iter().map(|&v| stored_gap::decode(v.to_f64())).sum()],
             contact_repulsion: [model.gamma.map_or(0.0, |g| 3f64.powf(g))],
             repulsion: model
                 .gamma
-                .map(|g| (c.dstar.as_slice(), Gamma::Uniform(Power::of(g)))),
+                .map(|g| (dstar.as_slice(), Gamma::Uniform(Power::of(g)))),
             bonded: model.clusters.then_some(c.bonded.as_slice()),
             forcing: forcing.as_ref(),
             forcing_params: [&[]],
         };
-        let mut gaps_out = vec![0.0; n];
-        let mut vel_out = vec![0.0; n - 1];
-        let mut scratch = Scratch::new(n, 1);
+        let mut gaps_out = vec![T::ZERO; n];
+        let mut vel_out = vec![T::ZERO; n - 1];
+        let mut scratch = Scratch::<T>::new(n, 1);
         let report = euler_step_as(
             simd,
             layout,
             &terms,
             n,
             &[0.25],
-            &[h],
-            &c.gaps,
-            &c.vel,
+            &[T::c(h)],
+            &gaps,
+            &vel,
             &mut gaps_out,
             &mut vel_out,
             &mut scratch,
         );
-        (gaps_out, vel_out, report[0])
+        let to_f64 = |v: &[T]| -> Vec<f64> { v.iter().map(|x| x.to_f64()).collect() };
+        (to_f64(&gaps_out), to_f64(&vel_out), report[0])
     }
 
-    /// The partitioned result equals the sequential one to `tol`: gaps relatively (in ln d for
-    /// log-stored ones; bonded gaps exactly 0 in both), velocities relative to max |u|, the
-    /// energy and work relatively, the flags exactly.
-    fn assert_close(label: &str, part: &Outcome, seq: &Outcome, tol: f64) {
+    /// How closely the partitioned result must equal the sequential one.
+    #[derive(Clone, Copy, Debug)]
+    struct Tol {
+        /// Relative, for gaps stored as d, velocities (relative to max |u|), energy and work.
+        rel: f64,
+        /// Gaps stored as ln d: the difference of ln d relative to |ln d| (in f32, where the
+        /// stored ln d ~ -690 has ulps of 6e-5 and rounds to one or the other), else absolute
+        /// (in f64, as for d: a difference of ln d is a relative one of d).
+        ln_relative: bool,
+    }
+
+    /// f64: 1e-12, ~4500 ulps (2^-52). The velocity solve's condition number (up to ~1e7 at
+    /// large N, see `long_chain_equals_sequential`) amplifies the two solves' roundings alike
+    /// (measured at most 3.8e-14, 170 ulps).
+    const TOL: Tol = Tol {
+        rel: 1e-12,
+        ln_relative: false,
+    };
+
+    /// f32: 2^-14 = 6.1e-5 relative, 512 ulps of f32 (2^-23): the two f32 solves' roundings
+    /// amplified by the same conditioning as in f64 (measured at most 1.2e-5, 103 ulps, on the
+    /// velocities at N = 2^18; gaps 4.7e-7, 4 ulps).
+    const TOL_F32: Tol = Tol {
+        rel: 6.103515625e-5,
+        ln_relative: true,
+    };
+
+    /// The largest differences found by [`assert_close`]: gaps, velocities.
+    #[derive(Clone, Copy, Debug, Default)]
+    struct MaxDiff {
+        gap: f64,
+        vel: f64,
+    }
+
+    impl MaxDiff {
+        fn max(self, o: MaxDiff) -> MaxDiff {
+            MaxDiff {
+                gap: self.gap.max(o.gap),
+                vel: self.vel.max(o.vel),
+            }
+        }
+    }
+
+    /// The partitioned result equals the sequential one to `tol`: gaps relatively (ln d for
+    /// log-stored ones, see [`Tol`]; bonded gaps exactly 0 in both), velocities relative to
+    /// max |u|, the energy and work relatively, the flags exactly. Returns the largest
+    /// differences.
+    fn assert_close(label: &str, part: &Outcome, seq: &Outcome, tol: Tol) -> MaxDiff {
         let (pg, pv, pr) = part;
         let (sg, sv, sr) = seq;
+        let mut max = MaxDiff::default();
         for (i, (&a, &b)) in pg.iter().zip(sg).enumerate() {
             let err = if a > 0.0 && b > 0.0 {
                 (a - b).abs() / b
@@ -1256,14 +1563,24 @@ mod tests {
                 assert_eq!(a, b, "{label}: gap {i} bonded in one only");
                 0.0
             } else {
-                (stored_ln(a) - stored_ln(b)).abs()
+                let (la, lb) = (stored_ln(a), stored_ln(b));
+                let scale = if tol.ln_relative { lb.abs() } else { 1.0 };
+                (la - lb).abs() / scale
             };
-            assert!(err <= tol, "{label}: gap {i}: {a:e} vs {b:e} (rel {err:e})");
+            assert!(
+                err <= tol.rel,
+                "{label}: gap {i}: {a:e} vs {b:e} (rel {err:e})"
+            );
+            max.gap = max.gap.max(err);
         }
         let umax = sv.iter().fold(0.0f64, |m, u| m.max(u.abs()));
         for (i, (a, b)) in pv.iter().zip(sv).enumerate() {
             let err = (a - b).abs() / umax;
-            assert!(err <= tol, "{label}: u {i}: {a:e} vs {b:e} (rel {err:e})");
+            assert!(
+                err <= tol.rel,
+                "{label}: u {i}: {a:e} vs {b:e} (rel {err:e})"
+            );
+            max.vel = max.vel.max(err);
         }
         assert_eq!(
             (pr.admissible, pr.hard, pr.certified),
@@ -1272,13 +1589,12 @@ mod tests {
         );
         for (what, a, b) in [("energy", pr.energy, sr.energy), ("work", pr.work, sr.work)] {
             assert!(
-                (a - b).abs() <= tol * b.abs().max(1e-300),
+                (a - b).abs() <= tol.rel * b.abs().max(1e-300),
                 "{label}: {what} {a:e} vs {b:e}"
             );
         }
+        max
     }
-
-    const TOL: f64 = 1e-12;
 
     fn models() -> Vec<Model> {
         let mut out = Vec::new();
@@ -1311,7 +1627,20 @@ mod tests {
     /// divide (n - 1 = 2000 + 13 rows, 1 to 3 groups), at a mild and a large step.
     #[test]
     fn partitioned_equals_sequential() {
+        let max = equals_sequential::<f64>(TOL);
+        eprintln!("f64: {max:?}");
+    }
+
+    /// [`partitioned_equals_sequential`] in f32.
+    #[test]
+    fn f32_partitioned_equals_sequential() {
+        let max = equals_sequential::<f32>(TOL_F32);
+        eprintln!("f32: {max:?}");
+    }
+
+    fn equals_sequential<T: Real>(tol: Tol) -> MaxDiff {
         let n = 2014;
+        let mut max = MaxDiff::default();
         for groups in [1, 2, 3] {
             let layout = Layout::new(n, groups).unwrap();
             assert_ne!(layout.rem, 0);
@@ -1328,12 +1657,13 @@ mod tests {
                 );
                 for h in [1e-4, 3e-3] {
                     let label = format!("{model:?}, groups {groups}, h {h}");
-                    let seq = step(&c, model, h, None, SimdLevel::detect());
-                    let part = step(&c, model, h, Some(layout), SimdLevel::detect());
-                    assert_close(&label, &part, &seq, TOL);
+                    let seq = step_as::<T>(&c, model, h, None, SimdLevel::detect());
+                    let part = step_as::<T>(&c, model, h, Some(layout), SimdLevel::detect());
+                    max = max.max(assert_close(&label, &part, &seq, tol));
                 }
             }
         }
+        max
     }
 
     /// Near contact: gaps of 1e-300 (stored as ln d) at and next to segment boundaries, at the
@@ -1341,6 +1671,18 @@ mod tests {
     /// agree, and the fix-up runs.
     #[test]
     fn near_contact_equals_sequential() {
+        let max = near_contact::<f64>(TOL);
+        eprintln!("f64: {max:?}");
+    }
+
+    /// [`near_contact_equals_sequential`] in f32 (1e-300 is stored as its ln there too).
+    #[test]
+    fn f32_near_contact_equals_sequential() {
+        let max = near_contact::<f32>(TOL_F32);
+        eprintln!("f32: {max:?}");
+    }
+
+    fn near_contact<T: Real>(tol: Tol) -> MaxDiff {
         let n = 1777;
         let layout = Layout::new(n, 2).unwrap();
         let mut near = boundary_gaps(&layout, n);
@@ -1348,40 +1690,62 @@ mod tests {
         near.sort();
         near.dedup();
         let bonds = [1000, 1001, 1500];
+        let mut max = MaxDiff::default();
         for model in models() {
             let c = chain(n, 3, &near, if model.clusters { &bonds } else { &[] });
             for h in [1e-5, 1e-3] {
                 let label = format!("near contact, {model:?}, h {h}");
-                let seq = step(&c, model, h, None, SimdLevel::detect());
-                let part = step(&c, model, h, Some(layout), SimdLevel::detect());
+                let seq = step_as::<T>(&c, model, h, None, SimdLevel::detect());
+                let part = step_as::<T>(&c, model, h, Some(layout), SimdLevel::detect());
                 // The case took the log form (the gaps stay below GAP_FLOOR).
                 assert!(seq.0[near[3]] < 0.0, "{label}: not log-stored");
-                assert_close(&label, &part, &seq, TOL);
+                max = max.max(assert_close(&label, &part, &seq, tol));
             }
         }
+        max
     }
 
     /// The default layout just above the threshold (and the threshold itself) through
     /// `Layout::for_chain`, with repulsion and clusters.
     #[test]
     fn default_layout_just_above_threshold() {
+        let max = just_above_threshold::<f64>(TOL);
+        eprintln!("f64: {max:?}");
+    }
+
+    /// [`default_layout_just_above_threshold`] in f32: the default takes the partitioned solve
+    /// there too.
+    #[test]
+    fn f32_default_layout_just_above_threshold() {
+        let max = just_above_threshold::<f32>(TOL_F32);
+        eprintln!("f32: {max:?}");
+    }
+
+    fn just_above_threshold<T: Real>(tol: Tol) -> MaxDiff {
         assert_eq!(Layout::for_chain(PARTITION_MIN_PARTICLES - 1), None);
+        assert_eq!(default_layout::<1>(PARTITION_MIN_PARTICLES - 1), None);
+        let mut max = MaxDiff::default();
         for n in [PARTITION_MIN_PARTICLES, PARTITION_MIN_PARTICLES + 37] {
             let layout = Layout::for_chain(n).expect("partitioned above the threshold");
             assert!(
                 layout.seg >= SEGMENT_ROWS && layout.groups >= 2,
                 "{layout:?}"
             );
+            // What `euler_step` takes for one member in either precision (and a block of
+            // several keeps the sequential sweep).
+            assert_eq!(default_layout::<1>(n), Some(layout));
+            assert_eq!(default_layout::<8>(n), None);
             let model = Model {
                 gamma: Some(2.0),
                 clusters: true,
                 forced: false,
             };
             let c = chain(n, 11, &[n / 2], &[n / 3, n / 3 + 1]);
-            let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
-            let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
-            assert_close(&format!("n {n}"), &part, &seq, TOL);
+            let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::detect());
+            let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+            max = max.max(assert_close(&format!("n {n}"), &part, &seq, tol));
         }
+        max
     }
 
     /// A long chain (just above the threshold, the default layout) at a realistic step: the
@@ -1389,6 +1753,18 @@ mod tests {
     /// which both solves share; they still agree to 1e-12.
     #[test]
     fn long_chain_equals_sequential() {
+        let max = long_chain::<f64>(TOL);
+        eprintln!("f64: {max:?}");
+    }
+
+    /// [`long_chain_equals_sequential`] in f32.
+    #[test]
+    fn f32_long_chain_equals_sequential() {
+        let max = long_chain::<f32>(TOL_F32);
+        eprintln!("f32: {max:?}");
+    }
+
+    fn long_chain<T: Real>(tol: Tol) -> MaxDiff {
         let n = PARTITION_MIN_PARTICLES + 1000;
         let layout = Layout::for_chain(n).unwrap();
         let model = Model {
@@ -1397,15 +1773,26 @@ mod tests {
             forced: false,
         };
         let c = chain(n, 21, &[], &[]);
-        let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
-        let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
-        assert_close("N = 1e5", &part, &seq, TOL);
+        let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::detect());
+        let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+        assert_close("N = 2^18 + 1000", &part, &seq, tol)
     }
 
-    /// Results do not depend on the thread count (1 or 2 rayon threads), nor on the SIMD level:
+    /// Results do not depend on the thread count (1 or 2 rayon threads), nor on the SIMD level
+    /// (the widest here, AVX2 + FMA and portable: the tiles' transposes against scalar copies):
     /// bit for bit.
     #[test]
     fn bitwise_equal_across_threads_and_simd_levels() {
+        bitwise_equal::<f64>();
+    }
+
+    /// [`bitwise_equal_across_threads_and_simd_levels`] in f32 (8×8 transposes).
+    #[test]
+    fn f32_bitwise_equal_across_threads_and_simd_levels() {
+        bitwise_equal::<f32>();
+    }
+
+    fn bitwise_equal<T: Real>() {
         let n = 3001;
         let layout = Layout::new(n, 4).unwrap();
         let model = Model {
@@ -1426,32 +1813,72 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap();
-            pool.install(|| bits(&step(&c, model, 1e-3, Some(layout), simd)))
+            pool.install(|| bits(&step_as::<T>(&c, model, 1e-3, Some(layout), simd)))
         };
+        let p = T::PRECISION.name();
         let one = run(1, SimdLevel::detect());
-        assert_eq!(one, run(2, SimdLevel::detect()), "1 vs 2 threads");
-        assert_eq!(one, run(2, SimdLevel::Portable), "detected vs portable");
+        assert_eq!(one, run(2, SimdLevel::detect()), "{p}: 1 vs 2 threads");
+        assert_eq!(
+            one,
+            run(2, SimdLevel::Portable),
+            "{p}: detected vs portable"
+        );
+        if SimdLevel::Avx2Fma <= SimdLevel::widest_here() {
+            assert_eq!(
+                one,
+                run(2, SimdLevel::Avx2Fma),
+                "{p}: detected vs AVX2 + FMA"
+            );
+        }
+        // And it is not the sequential sweep's result (the partitioned solve ran).
+        assert_ne!(
+            one,
+            bits(&step_as::<T>(&c, model, 1e-3, None, SimdLevel::detect())),
+            "{p}: partitioned equals sequential bit for bit"
+        );
     }
 
     /// A non-finite repulsion is found as by the sequential sweep (the hard-failure lookup).
     #[test]
     fn hard_failure_is_reported() {
+        hard_failure::<f64>(1e300, 200.0);
+    }
+
+    /// [`hard_failure_is_reported`] in f32: d* = 1e30 (1e300 is beyond f32), gamma 20 (the
+    /// other gaps' G, up to 2.6^gamma, must stay finite in f32).
+    #[test]
+    fn f32_hard_failure_is_reported() {
+        hard_failure::<f32>(1e30, 20.0);
+    }
+
+    fn hard_failure<T: Real>(dstar: f64, gamma: f64) {
         let n = 1500;
         let layout = Layout::new(n, 1).unwrap();
         let mut c = chain(n, 9, &[], &[]);
-        c.dstar[900] = 1e300;
+        c.dstar[900] = dstar;
         let model = Model {
-            gamma: Some(200.0),
+            gamma: Some(gamma),
             clusters: false,
             forced: false,
         };
-        let seq = step(&c, model, 1e-4, None, SimdLevel::detect());
-        let part = step(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+        let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::detect());
+        let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::detect());
         assert!(matches!(
             seq.2.hard,
             Some(HardFailure::Repulsion { gap: 901, .. })
         ));
         assert_eq!(part.2.hard, seq.2.hard);
+    }
+
+    /// The f32 flush threshold is the GPU's f32 one, and far above f32's subnormals.
+    #[test]
+    fn f32_spike_tiny_is_the_gpus() {
+        assert_eq!(
+            f32::SPIKE_TINY as f64,
+            crate::backend::gpu::partitioned::SPIKE_TINY_F32 as f32 as f64
+        );
+        assert!(f32::SPIKE_TINY > 1e6 * f32::MIN_POSITIVE);
+        assert_eq!(f64::SPIKE_TINY, TINY);
     }
 
     /// The layout's index map is a bijection of the rows onto the scratch, with the chunks in
