@@ -171,71 +171,86 @@ fn long_adaptive_run_keeps_step_counts() {
     assert!(vel <= 1e-10, "velocities differ by {vel:e} of max |u|");
 }
 
-/// The fixed and adaptive runs of [`partitioned_run_equals_sequential_run`] in f32: the same
-/// step counts, and values within 2^-12 (2048 ulps of f32) on gaps (relatively) and
-/// velocities (relative to max |u|): per step the two f32 solves differ by their rounding
-/// amplified by the velocity solve's conditioning (the unit tests, <= 2^-12), and over the
-/// run both differences feed the next steps (f64, the same setting: 1e-12, 4500 ulps of f64).
-#[test]
-fn f32_partitioned_run_equals_sequential_run() {
-    let cases = [
-        (
-            "fixed",
-            scene_in("end = 0.002\noutputs = 3\ndt = 1e-4", 1, "f32"),
-        ),
-        (
-            "adaptive",
-            scene_in(
-                "end = 0.005\noutputs = 3\ntolerance = 1e-3\ndt_initial = 0.005",
-                2,
-                "f32",
-            ),
-        ),
-    ];
-    for (label, text) in cases {
-        let part = run(&text, None);
-        let seq = run(&text, Some("off"));
-        assert_eq!(
-            (part.accepted, part.rejected),
-            (seq.accepted, seq.rejected),
-            "{label}: step counts"
-        );
-        if label == "adaptive" {
-            assert!(seq.rejected > 0, "the adaptive case rejects a step");
-        }
-        assert_ne!(part.gaps, seq.gaps, "{label}: identical bits");
-        let (gap, vel) = differences(&part, &seq);
-        eprintln!("f32 {label}: gaps {gap:e}, velocities {vel:e}");
-        let tol = 2f64.powi(-12);
-        assert!(gap <= tol, "{label}: gaps differ by {gap:e} (relative)");
-        assert!(
-            vel <= tol,
-            "{label}: velocities differ by {vel:e} of max |u|"
-        );
-    }
-}
-
-/// [`long_adaptive_run_keeps_step_counts`] in f32: the same accepted and rejected counts, the
-/// values within 2^-8 (the f64 test allows 1e-10, ~5e5 of its ulps: the rounding differences
-/// accumulate over the run's 191 trial steps and through the step sizes they choose; 2^-8 is
-/// 2^15 ulps of f32).
-#[test]
-fn f32_long_adaptive_run_keeps_step_counts() {
-    let text = scene_in(
-        "end = 0.02\noutputs = 3\ntolerance = 1e-3\ndt_initial = 0.02",
-        2,
-        "f32",
+/// An f32 run partitioned (the default), sequential (`ROUGHLUB_CPU_PARTITION=off`) and the same
+/// scene in f64 (the reference): the partitioned f32 run has f64's step counts, stays within
+/// 2^-10 of f64 (gaps relatively, velocities relative to max |u|; ~8000 ulps of f32: the
+/// rounding of every step carried through the run, and at N = 300000 the velocity solve's
+/// condition number is ~1e5) and is at least as close to f64 as the sequential f32 sweep
+/// (measured 5 to 7 times closer: its recurrences run over segments of 256+ rows, the interface
+/// system in f64, against 300000 rows in f32). Returns the differences to f64 of both f32 runs.
+fn f32_against_f64(label: &str, time: &str, order: u32) -> ((f64, f64), (f64, f64)) {
+    let part = run(&scene_in(time, order, "f32"), None);
+    let seq = run(&scene_in(time, order, "f32"), Some("off"));
+    let f64_run = run(&scene_in(time, order, "f64"), None);
+    let (dp, ds) = (differences(&part, &f64_run), differences(&seq, &f64_run));
+    eprintln!(
+        "f32 {label}: partitioned - f64 gaps {:e} velocities {:e} ({}, {}); sequential - f64 \
+         gaps {:e} velocities {:e} ({}, {}); f64 ({}, {})",
+        dp.0,
+        dp.1,
+        part.accepted,
+        part.rejected,
+        ds.0,
+        ds.1,
+        seq.accepted,
+        seq.rejected,
+        f64_run.accepted,
+        f64_run.rejected
     );
-    let part = run(&text, None);
-    let seq = run(&text, Some("off"));
     assert_eq!(
         (part.accepted, part.rejected),
-        (seq.accepted, seq.rejected),
-        "step counts"
+        (f64_run.accepted, f64_run.rejected),
+        "{label}: step counts"
     );
+    assert_ne!(part.gaps, seq.gaps, "{label}: identical bits");
+    let tol = 2f64.powi(-10);
+    assert!(dp.0 <= tol, "{label}: gaps differ from f64 by {:e}", dp.0);
+    assert!(
+        dp.1 <= tol,
+        "{label}: velocities differ from f64 by {:e}",
+        dp.1
+    );
+    assert!(
+        dp.0 <= ds.0 && dp.1 <= ds.1,
+        "{label}: partitioned f32 farther from f64 than sequential f32"
+    );
+    (dp, ds)
+}
+
+/// The runs of [`partitioned_run_equals_sequential_run`] in f32 ([`f32_against_f64`]). With
+/// fixed steps the two f32 solves also take the same steps (20, none rejected) and agree to
+/// 20·2^-14 = 1.2e-3 (per step within 2^-14, the unit tests' bound, added over the steps). In
+/// the adaptive case the sequential f32 sweep rejects one step fewer than f64 and the
+/// partitioned f32 solve (measured: (15, 1) against (15, 2)): a decision at the edge of the
+/// tolerance, where the sequential sweep's larger rounding (5 times the partitioned one's
+/// distance to f64) tips it.
+#[test]
+fn f32_partitioned_run_equals_sequential_run() {
+    let fixed = "end = 0.002\noutputs = 3\ndt = 1e-4";
+    f32_against_f64("fixed", fixed, 1);
+    let part = run(&scene_in(fixed, 1, "f32"), None);
+    let seq = run(&scene_in(fixed, 1, "f32"), Some("off"));
+    assert_eq!((part.accepted, part.rejected), (20, 0));
+    assert_eq!((seq.accepted, seq.rejected), (20, 0));
     let (gap, vel) = differences(&part, &seq);
-    eprintln!("f32 long adaptive: gaps {gap:e}, velocities {vel:e}");
-    let tol = 2f64.powi(-8);
-    assert!(gap <= tol, "gaps differ by {gap:e} (relative)");
-    assert!(vel <= tol, "velocities differ by {vel:e} of max |u|");
+    eprintln!("f32 fixed, partitioned - sequential: gaps {gap:e}, velocities {vel:e}");
+    let tol = 20.0 * 2f64.powi(-14);
+    assert!(gap <= tol, "fixed: gaps differ by {gap:e} (relative)");
+    assert!(vel <= tol, "fixed: velocities differ by {vel:e} of max |u|");
+    f32_against_f64(
+        "adaptive",
+        "end = 0.005\noutputs = 3\ntolerance = 1e-3\ndt_initial = 0.005",
+        2,
+    );
+}
+
+/// [`long_adaptive_run_keeps_step_counts`] in f32 ([`f32_against_f64`]; 191 trial steps through
+/// strong compression, gaps down to 2.4e-10).
+#[test]
+fn f32_long_adaptive_run_keeps_step_counts() {
+    f32_against_f64(
+        "long adaptive",
+        "end = 0.02\noutputs = 3\ntolerance = 1e-3\ndt_initial = 0.02",
+        2,
+    );
 }

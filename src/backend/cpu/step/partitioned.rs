@@ -29,9 +29,9 @@
 //! O(1) while u_b - u_{b-1} is below rounding, so a velocity interface would lose the rate of a
 //! gap at a segment boundary; this one computes every rate as the sequential sweep does. The
 //! results equal the sequential sweep's up to rounding (tested to 1e-12 relative in f64 and
-//! 2^-14 = 6.1e-5 in f32, clusters and log-stored gaps included); the segments depend on n only, and
-//! per-segment sums are added in a fixed order, so the result does not depend on the thread
-//! count.
+//! 2^-14 = 6.1e-5 in f32, clusters and log-stored gaps included); the segments depend on n
+//! only, and per-segment sums are added in a fixed order, so the result does not depend on the
+//! thread count.
 //!
 //! f32 (the twin of the GPU's f32 partitioned kernel): the lane loops in f32, the sums of the new
 //! gaps in f64 (as the sequential f32 sweep's, for the projection), the spike flushed at
@@ -90,6 +90,7 @@ pub(crate) const TINY: f64 = 1e-140;
 /// far below anything that matters against the O(1) terms it is added to (2^-24).
 /// (Also the GPU's f32 twin's, `SPIKE_TINY_F32` in src/backend/gpu/partitioned.rs.)
 pub(crate) const TINY_F32: f64 = 1e-30;
+const _: () = assert!(TINY_F32 > 1e6 * f32::MIN_POSITIVE as f64);
 
 /// What the partitioned solve needs of its element type beyond [`Real`]: the spike's flush
 /// threshold, the tiles' copies (transposes where the type has them) and a per-thread buffer
@@ -1870,14 +1871,14 @@ mod tests {
         assert_eq!(part.2.hard, seq.2.hard);
     }
 
-    /// The f32 flush threshold is the GPU's f32 one, and far above f32's subnormals.
+    /// The f32 flush threshold is the GPU's f32 one (and far above f32's subnormals: checked
+    /// at compile time beside `TINY_F32`).
     #[test]
     fn f32_spike_tiny_is_the_gpus() {
         assert_eq!(
             f32::SPIKE_TINY as f64,
             crate::backend::gpu::partitioned::SPIKE_TINY_F32 as f32 as f64
         );
-        assert!(f32::SPIKE_TINY > 1e6 * f32::MIN_POSITIVE);
         assert_eq!(f64::SPIKE_TINY, TINY);
     }
 
