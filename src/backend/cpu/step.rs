@@ -487,24 +487,15 @@ macro_rules! simd_versions {
             $body::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law)
         }
 
+        simd_versions!(@instance "avx2,fma", [$($tp)*] [$($ta)*] $elem; $avx, $body, ($($arg: $ty),*) -> $ret);
+        simd_versions!(@instance "avx2,fma,avx512f,avx512vl,avx512dq", [$($tp)*] [$($ta)*] $elem; $avx512, $body, ($($arg: $ty),*) -> $ret);
+    };
+    // `$body` compiled with the target features `$features` enabled, as the unsafe fn `$name`.
+    (@instance $features:literal, [$($tp:tt)*] [$($ta:tt)*] $elem:ty; $name:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
         #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2,fma")]
+        #[target_feature(enable = $features)]
         #[allow(clippy::too_many_arguments)]
-        unsafe fn $avx<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
-            $($arg: $ty,)*
-            law: Law<P, Q>,
-        ) -> $ret
-        where
-            P: Fn(usize, $elem) -> $elem + Copy,
-            Q: Fn(usize) -> $elem + Copy,
-        {
-            $body::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law)
-        }
-
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2,fma,avx512f,avx512vl,avx512dq")]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn $avx512<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+        unsafe fn $name<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
             $($arg: $ty,)*
             law: Law<P, Q>,
         ) -> $ret
