@@ -4,7 +4,7 @@
 #
 #   bash docs/paper/regenerate.sh                      # builds with cargo, runs on the CPU
 #   bash docs/paper/regenerate.sh path/to/roughlub     # a given binary
-#   OUT=/tmp/paper BACKEND=auto bash docs/paper/regenerate.sh
+#   OUT=out/paper_gpu BACKEND=auto bash docs/paper/regenerate.sh
 #
 # Run outputs go to $OUT (default out/paper, about 700 MB); unchanged runs found there are reused.
 # Needs python3 (3.11+) with numpy. About 3 minutes on 2 cores.
