@@ -259,7 +259,8 @@ fn gpu_f32_close_to_cpu() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// 3. --backend auto picks the GPU when there is one
+// 3. --backend auto picks a hardware GPU when there is one, and the native CPU over a software
+//    adapter (lavapipe), which --backend gpu still runs
 
 #[test]
 fn auto_picks_the_gpu_and_says_so() {
@@ -271,6 +272,31 @@ fn auto_picks_the_gpu_and_says_so() {
     let out = run(&small_scene(), &dir, &["--backend", "auto"]);
     assert_success(&out);
     let m = read_manifest(&dir);
+    let gpu_dir = tmp.path().join("gpu");
+    assert_success(&run(&small_scene(), &gpu_dir, &["--backend", "gpu"]));
+    let gpu_manifest = read_manifest(&gpu_dir);
+    assert_gpu_manifest(&gpu_manifest, "gpu", "f64");
+    if gpu_manifest["adapter"]["device_type"] == "Cpu" {
+        // Only a software adapter: auto runs the native CPU and says why.
+        assert_eq!(m["backend"], "cpu", "manifest: {m}");
+        assert_eq!(m["backend_requested"], "auto");
+        let why = m["adapter"]["fallback_reason"].as_str().unwrap_or_default();
+        assert!(
+            why.contains("software rasterizer") && why.contains("--backend gpu"),
+            "fallback_reason: {why:?}"
+        );
+        assert!(
+            stderr_of(&out).contains("software rasterizer"),
+            "stderr: {}",
+            stderr_of(&out)
+        );
+        let cpu = tmp.path().join("cpu");
+        cpu_reference(&cpu);
+        let (_, a) = read_npy(&dir.join("gaps.npy"));
+        let (_, b) = read_npy(&cpu.join("gaps.npy"));
+        assert_eq!(a, b, "auto's CPU run differs from --backend cpu");
+        return;
+    }
     assert_gpu_manifest(&m, "auto", "f64");
     let stderr = stderr_of(&out);
     let name = m["adapter"]["name"].as_str().unwrap();

@@ -82,7 +82,7 @@ fn out_naming_an_input_is_refused_and_the_input_is_untouched() {
     for (k, d) in dirs.iter().enumerate() {
         shard(d, k as u64);
     }
-    let before = std::fs::read(dirs[1].join("partial.json")).unwrap();
+    let before = std::fs::read(dirs[1].join("partial.state")).unwrap();
     let refs: Vec<&Path> = dirs.iter().map(|d| d.as_path()).collect();
     let out = merge(&refs, &dirs[1], &[]);
     let err = String::from_utf8_lossy(&out.stderr);
@@ -91,7 +91,10 @@ fn out_naming_an_input_is_refused_and_the_input_is_untouched() {
         err.contains("merge --out") && err.contains("one of the shards"),
         "{err}"
     );
-    assert_eq!(std::fs::read(dirs[1].join("partial.json")).unwrap(), before);
+    assert_eq!(
+        std::fs::read(dirs[1].join("partial.state")).unwrap(),
+        before
+    );
     assert!(
         dirs[1].join("manifest.json").exists(),
         "the shard's own manifest was removed"
@@ -153,7 +156,7 @@ fn resume_refuses_a_changed_roughness_file() {
     assert!(err.contains("files it reads differ"), "{err}");
 }
 
-/// A directory whose `partial.json` belongs to an earlier study than its `study.json` (a later
+/// A directory whose `partial.state` belongs to an earlier study than its `study.json` (a later
 /// run into it was killed) is refused by merge (issue 9, item 4).
 #[test]
 fn merge_refuses_a_stale_partial() {
@@ -175,7 +178,7 @@ fn merge_refuses_a_stale_partial() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
-        err.contains("partial.json") && err.contains("out of date"),
+        err.contains("partial.state") && err.contains("out of date"),
         "{err}"
     );
     assert!(err.contains("scene text"), "{err}");

@@ -1013,3 +1013,88 @@ fn field_band_matches_direct_computation() {
     assert!(f.quantile_row(0.5).unwrap().iter().all(|v| v.is_nan()));
     assert!(f.mean_row().iter().all(|v| v.is_nan()));
 }
+
+/// The binary (CBOR, columnar) form of a field band reads back to the same band bit for bit, is
+/// a fraction of the dense size, and bands shipped through it merge to the band of all rows
+/// (counts exactly, moments to rounding), as the study's chunk and partial files need.
+#[test]
+fn field_band_binary_round_trip_is_bit_exact_and_compact() {
+    const G: usize = 64;
+    let mut r = rng(31);
+    let noise = Normal::new(0.5, 0.1).unwrap();
+    let rows_data: Vec<Vec<f64>> = (0..500)
+        .map(|m| {
+            (0..G)
+                .map(|g| {
+                    if g == 3 && m % 50 == 0 {
+                        f64::NAN
+                    } else {
+                        noise.sample(&mut r) + 0.3 * (g as f64 / G as f64)
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let rows: Vec<&[f64]> = rows_data.iter().map(Vec::as_slice).collect();
+    let cbor = |band: &FieldBand| {
+        let mut bytes = Vec::new();
+        ciborium::into_writer(band, &mut bytes).unwrap();
+        bytes
+    };
+    let mut whole = FieldBand::new(G, 0.0, 1.0, 400).unwrap();
+    whole.push_rows(&rows).unwrap();
+    let bytes = cbor(&whole);
+    let back: FieldBand = ciborium::from_reader(&bytes[..]).unwrap();
+    assert_eq!(cbor(&back), bytes, "re-serialised band differs");
+    assert_eq!(
+        serde_json::to_string(&back).unwrap(),
+        serde_json::to_string(&whole).unwrap(),
+        "the band read back differs from the band written"
+    );
+    // The columnar form holds per point 5 f64 moments, 2 u64 counts and a u32, and per
+    // non-empty slot a u16 step and a u32 count (plus a few hundred bytes of keys): its size
+    // follows the non-empty slots, far below the dense G x (bins + 2) x 8 bytes.
+    let filled: usize = (0..G)
+        .map(|j| {
+            let h = whole.histogram(j);
+            h.counts().iter().filter(|&&c| c > 0).count() + 2
+        })
+        .sum();
+    let expected = G * (5 * 8 + 2 * 8 + 4) + filled * (2 + 4);
+    eprintln!("{} bytes, expected about {expected}", bytes.len());
+    assert!(
+        bytes.len() <= expected + 512 && bytes.len() + 2 * 6 * G >= expected,
+        "{} bytes against about {expected} (dense {})",
+        bytes.len(),
+        G * 402 * 8
+    );
+    // An empty band is small whatever its bins.
+    let empty = FieldBand::new(G, 0.0, 1.0, 100_000).unwrap();
+    assert!(cbor(&empty).len() < 64 * G, "{}", cbor(&empty).len());
+
+    let mut merged: Option<FieldBand> = None;
+    for block in rows.chunks(77) {
+        let mut part = FieldBand::new(G, 0.0, 1.0, 400).unwrap();
+        part.push_rows(block).unwrap();
+        let part: FieldBand = ciborium::from_reader(&cbor(&part)[..]).unwrap();
+        match &mut merged {
+            None => merged = Some(part),
+            Some(m) => m.merge(&part).unwrap(),
+        }
+    }
+    let merged = merged.unwrap();
+    for q in [0.05, 0.5, 0.95] {
+        let (a, b) = (
+            merged.quantile_row(q).unwrap(),
+            whole.quantile_row(q).unwrap(),
+        );
+        assert_eq!(
+            a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            b.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            "quantile {q}"
+        );
+    }
+    for (a, b) in merged.mean_row().iter().zip(whole.mean_row()) {
+        assert!((a - b).abs() <= 1e-15 * b.abs().max(1.0), "{a} vs {b}");
+    }
+}

@@ -81,6 +81,11 @@ pub enum DesignKind {
     LatinHypercube,
     /// An Owen-scrambled Sobol sequence.
     Sobol,
+    /// A pick-freeze (Saltelli) design for Sobol sensitivity indices: `points` base points j,
+    /// each followed by its D + 2 evaluations A_j, A_B^(1)_j, ..., A_B^(D)_j, B_j (SALib's
+    /// order), where A_j and B_j are dimensions 0..D and D..2D of the scrambled Sobol point j
+    /// and A_B^(i)_j is A_j with coordinate i taken from B_j.
+    Saltelli,
 }
 
 impl DesignKind {
@@ -91,6 +96,7 @@ impl DesignKind {
             DesignKind::Random => "random",
             DesignKind::LatinHypercube => "latin_hypercube",
             DesignKind::Sobol => "sobol",
+            DesignKind::Saltelli => "saltelli",
         }
     }
 }
@@ -270,8 +276,37 @@ impl Design {
                     .map(|dim| latin_permutation(seed, dim, p as u32))
                     .collect();
             }
+            DesignKind::Saltelli => {
+                if 2 * axes.len() > SOBOL_MAX_DIMENSIONS {
+                    return Err(spec(
+                        field,
+                        format!(
+                            "{} parameters, more than a saltelli design supports \
+                             (allowed: at most {})",
+                            axes.len(),
+                            SOBOL_MAX_DIMENSIONS / 2
+                        ),
+                    ));
+                }
+                if p > SOBOL_MAX_POINTS {
+                    return Err(spec(
+                        points_key,
+                        format!(
+                            "{p} base points, more than a saltelli design supports \
+                             (allowed: 1 to {SOBOL_MAX_POINTS} = 2^16)"
+                        ),
+                    ));
+                }
+            }
             DesignKind::Grid | DesignKind::Random => {}
         }
+        // A Saltelli design evaluates each base point D + 2 times.
+        let p = if kind == DesignKind::Saltelli {
+            p.checked_mul(d + 2)
+                .ok_or_else(|| spec(points_key.clone(), "too many points"))?
+        } else {
+            p
+        };
 
         let k = purpose_seed(seed, Purpose::Design);
         Ok(Design {
@@ -313,6 +348,11 @@ impl Design {
     /// The kind of design.
     pub fn kind(&self) -> DesignKind {
         self.kind
+    }
+
+    /// For a Saltelli design, the number of base points N (P = N (D + 2)).
+    pub fn base_points(&self) -> Option<u64> {
+        (self.kind == DesignKind::Saltelli).then(|| self.points / (self.axes.len() as u64 + 2))
     }
 
     /// The seed the design was built with.
@@ -378,6 +418,19 @@ impl Design {
             DesignKind::Sobol => (0..dim as u32)
                 .map(|d| f64::from(sobol_burley::sample(p as u32, d, self.sobol_seed)))
                 .collect(),
+            DesignKind::Saltelli => {
+                let (j, k) = (
+                    (p / (dim as u64 + 2)) as u32,
+                    (p % (dim as u64 + 2)) as usize,
+                );
+                let from_b = |d: usize| k == dim + 1 || (k >= 1 && d == k - 1);
+                (0..dim)
+                    .map(|d| {
+                        let column = if from_b(d) { dim + d } else { d };
+                        f64::from(sobol_burley::sample(j, column as u32, self.sobol_seed))
+                    })
+                    .collect()
+            }
         }
     }
 

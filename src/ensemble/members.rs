@@ -34,12 +34,64 @@ pub struct PointSetup {
 
 impl PointSetup {
     fn new(point: u64, scene: Scene) -> Result<PointSetup> {
+        let chain = scene.initial_chain()?;
+        let positions = chain.positions();
+        PointSetup::with_chain(point, scene, chain, positions)
+    }
+
+    /// The setup of a point whose scene differs from `first`'s only where the initial chain's
+    /// gaps and roughness do not see it (its density and rho* profiles and N are the same: a
+    /// swept velocity, forcing or roughness parameter): `first`'s gaps are reused, which saves
+    /// the Prop. 3.1 construction (thousands of quadrature panels) per point; the velocities
+    /// are the point's own.
+    fn like(point: u64, scene: Scene, first: &PointSetup) -> Result<Option<PointSetup>> {
+        let (
+            InitialSpec::Profiles {
+                rho,
+                velocity,
+                rho_star,
+            },
+            InitialSpec::Profiles {
+                rho: rho_first,
+                rho_star: rho_star_first,
+                ..
+            },
+        ) = (&scene.initial, &first.scene.initial)
+        else {
+            return Ok(None);
+        };
+        if rho != rho_first
+            || rho_star != rho_star_first
+            || scene.particles != first.scene.particles
+        {
+            return Ok(None);
+        }
+        let mut chain = first.chain.clone();
+        for (u, &q) in chain.velocities.iter_mut().zip(&first.positions[1..]) {
+            *u = velocity.eval(q, 0.0);
+            if !(u.is_finite() && u.abs() <= crate::scene::MAX_VELOCITY) {
+                return Err(Error::invalid(
+                    "initial.velocity",
+                    format!("\"{}\"", velocity.source()),
+                    format!("u0 = {u} at x = {q} (sweep point {point})"),
+                    format!("finite, |u0| <= {:e}", crate::scene::MAX_VELOCITY),
+                ));
+            }
+        }
+        let positions = first.positions.clone();
+        PointSetup::with_chain(point, scene, chain, positions).map(Some)
+    }
+
+    fn with_chain(
+        point: u64,
+        scene: Scene,
+        chain: Chain,
+        positions: Vec<f64>,
+    ) -> Result<PointSetup> {
         let spec = scene
             .ensemble
             .clone()
             .ok_or_else(|| Error::missing("ensemble", "this scene has no [ensemble] section"))?;
-        let chain = scene.initial_chain()?;
-        let positions = chain.positions();
         let sampler = match &spec.roughness {
             None => None,
             Some(r) => {
@@ -113,6 +165,9 @@ pub struct MemberInputs {
     pub velocity_factor: f64,
     /// Phase shift of the initial velocity profile.
     pub velocity_phase: f64,
+    /// The setup of the member's sweep point (kept with the member, so that a chunk of many
+    /// points builds each point's initial data once).
+    pub setup: Arc<PointSetup>,
 }
 
 impl EnsembleMembers {
@@ -228,7 +283,10 @@ impl EnsembleMembers {
                 params,
             })
         } else {
-            Arc::new(PointSetup::new(p, scene)?)
+            match PointSetup::like(p, scene.clone(), &self.first)? {
+                Some(setup) => Arc::new(setup),
+                None => Arc::new(PointSetup::new(p, scene)?),
+            }
         };
         if recent.len() >= 8 {
             recent.remove(0);
@@ -249,7 +307,7 @@ impl EnsembleMembers {
         self.member_of(&setup, p, draw)
     }
 
-    fn member_of(&self, setup: &PointSetup, p: u64, m: u64) -> Result<MemberInputs> {
+    fn member_of(&self, setup: &Arc<PointSetup>, p: u64, m: u64) -> Result<MemberInputs> {
         let (scene, spec) = (&setup.scene, &setup.spec);
         let mut chain = setup.chain.clone();
         if let Some(sampler) = &setup.sampler {
@@ -312,6 +370,16 @@ impl EnsembleMembers {
             point: p,
             velocity_factor: factor,
             velocity_phase: phase,
+            setup: setup.clone(),
         })
+    }
+}
+
+impl std::fmt::Debug for PointSetup {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PointSetup")
+            .field("point", &self.point)
+            .field("particles", &self.chain.particles())
+            .finish_non_exhaustive()
     }
 }

@@ -104,6 +104,15 @@ pub struct StudyManifest {
     pub wall_seconds: f64,
     pub statistics_seconds: f64,
     pub statistics_share: f64,
+    /// The memory the study was estimated to need before it started, and the limit it was held
+    /// to (half the machine's memory; `--allow-large` lifts it).
+    pub memory_estimate_bytes: u64,
+    pub memory_limit_bytes: u64,
+    /// Points 0..detailed_points keep per-time statistics; the fields whose bands they keep.
+    pub detailed_points: u64,
+    pub band_fields: Vec<String>,
+    /// The format of the binary state files (partial.state, chunks/*.state).
+    pub state_format: u32,
     pub ensemble: EnsembleSpec,
     pub quantile_method: QuantileMethod,
 }

@@ -28,6 +28,7 @@ mod legend;
 mod profiles;
 mod ranges;
 mod response;
+mod sensitivity;
 mod series;
 mod style;
 mod work_precision;
@@ -136,6 +137,41 @@ pub fn plot_histogram(
         path,
         || check_histogram(edges, counts),
         || histograms::draw(path, title, x_label, edges, counts, note),
+    )
+}
+
+/// One response's Sobol indices: per key (value, interval low, interval high).
+pub struct SensitivityResponse<'a> {
+    pub name: &'a str,
+    pub first: Vec<(f64, f64, f64)>,
+    pub total: Vec<(f64, f64, f64)>,
+}
+
+/// The Sobol indices of a study: a panel per response, bars per key.
+pub struct SensitivityPlot<'a> {
+    pub title: &'a str,
+    pub keys: &'a [String],
+    pub responses: &'a [SensitivityResponse<'a>],
+}
+
+/// Draws the bars of S1 and ST with their intervals, a panel per response.
+pub fn plot_sensitivity(path: &Path, plot: &SensitivityPlot) -> Result<(), PlotError> {
+    checked_draw(
+        path,
+        || {
+            if plot.keys.is_empty() || plot.responses.is_empty() {
+                return Err("no keys or no responses".to_string());
+            }
+            if plot
+                .responses
+                .iter()
+                .any(|r| r.first.len() != plot.keys.len() || r.total.len() != plot.keys.len())
+            {
+                return Err("one index per key and response".to_string());
+            }
+            Ok(())
+        },
+        || sensitivity::draw(path, plot),
     )
 }
 

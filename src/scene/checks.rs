@@ -342,6 +342,25 @@ pub(super) fn check_profile(
     }
 }
 
+/// The first sample (x, v) where a velocity profile is not finite, and the first where it is
+/// finite but beyond `max`, in one pass over the samples of [`first_violation`].
+pub(super) fn velocity_violations(e: &Expr, max: f64) -> (Option<(f64, f64)>, Option<(f64, f64)>) {
+    const M: usize = 20_000;
+    let (mut non_finite, mut too_large) = (None, None);
+    for k in 0..=M {
+        let x = k as f64 / M as f64;
+        let v = e.eval(x, 0.0);
+        if !v.is_finite() {
+            non_finite = Some((x, v));
+            break;
+        }
+        if too_large.is_none() && v.abs() > max {
+            too_large = Some((x, v));
+        }
+    }
+    (non_finite, too_large)
+}
+
 /// The first point x (of the sampling of [`check_profile`]) where the profile's value v fails
 /// `ok`, as (x, v).
 pub(super) fn first_violation(e: &Expr, ok: impl Fn(f64) -> bool) -> Option<(f64, f64)> {

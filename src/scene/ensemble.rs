@@ -32,7 +32,17 @@ pub struct EnsembleSpec {
     /// Histogram bins of the field quantile bands.
     pub bins: usize,
     pub u_range: Option<[f64; 2]>,
+    /// How many sweep points (the first ones) keep statistics per output time (scalars at every
+    /// time and the field bands); `None`: every point of a grid design, the first
+    /// [`DEFAULT_DETAILED_SAMPLED_POINTS`] of a sampled one. Every point keeps its members'
+    /// responses (peak density, first hit, smallest gap, final energy).
+    pub detailed_points: Option<u64>,
 }
+
+/// Points of a sampled design (random, Latin hypercube, Sobol) that keep per-time statistics by
+/// default: as many as get their own plots. A sampled point usually holds one member, whose
+/// "band" is its own profile; the design's information is in the responses per point.
+pub const DEFAULT_DETAILED_SAMPLED_POINTS: u64 = 4;
 
 pub(super) fn validate_ensemble(
     e: &EnsembleSection,
@@ -149,6 +159,15 @@ pub(super) fn validate_ensemble(
         quantiles,
         bins: bins as usize,
         u_range: e.u_range,
+        detailed_points: match e.detailed_points {
+            None => None,
+            Some(n) => Some(check_range(
+                "ensemble.detailed_points",
+                n,
+                Range::count(0, 1_000_000_000),
+                "sweep points (the first ones) that keep statistics per output time",
+            )? as u64),
+        },
     })
 }
 

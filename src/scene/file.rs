@@ -145,4 +145,5 @@ pub(super) struct EnsembleSection {
     pub quantiles: Option<Vec<f64>>,
     pub bins: Option<i64>,
     pub u_range: Option<[f64; 2]>,
+    pub detailed_points: Option<i64>,
 }

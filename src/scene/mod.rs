@@ -18,7 +18,7 @@ mod time;
 
 use std::path::{Path, PathBuf};
 
-pub use ensemble::EnsembleSpec;
+pub use ensemble::{EnsembleSpec, DEFAULT_DETAILED_SAMPLED_POINTS};
 pub use sweep::{SweepSpec, SweepTarget, MAX_SWEEP_POINTS};
 
 use crate::backend::{Backend, Precision};
@@ -27,8 +27,8 @@ use crate::expr::Expr;
 use crate::model::params::{MemberParams, Order, OutputFields, Stepping, FIELD_NAMES, MAX_ORDER};
 pub(crate) use checks::number_text;
 use checks::{
-    approx_text, check_gamma, check_mu, check_non_empty, check_profile, check_range,
-    first_violation, parse_expr, Range,
+    approx_text, check_gamma, check_mu, check_non_empty, check_profile, check_range, parse_expr,
+    Range,
 };
 use file::{
     BatchSection, InitialSection, ModelSection, OrderValue, OutputSection, SceneFile, SolverSection,
@@ -310,22 +310,45 @@ fn validate_initial(
 /// The range checks of the initial profiles (run again at each sweep point).
 fn check_profiles(rho: &Expr, velocity: &Expr, rho_star: Option<&Expr>) -> Result<()> {
     check_profile("initial.rho", rho, "(0, 1)", |v| v > 0.0 && v < 1.0)?;
-    check_profile(
-        "initial.velocity",
-        velocity,
-        "finite values",
-        f64::is_finite,
-    )?;
-    check_velocity_magnitude(velocity)?;
+    check_velocity(velocity)?;
     if let Some(rs) = rho_star {
         check_profile("initial.rho_star", rs, "(0, 1]", |v| v > 0.0 && v <= 1.0)?;
     }
     Ok(())
 }
 
-/// An initial velocity profile whose values are finite but beyond [`MAX_VELOCITY`] somewhere.
-fn check_velocity_magnitude(velocity: &Expr) -> Result<()> {
-    match first_violation(velocity, |v| v.abs() <= MAX_VELOCITY) {
+/// [`check_profiles`] for the profiles a sweep point's parameters changed (`base` holds the
+/// unswept scene's, already checked): a swept velocity amplitude does not re-sample rho.
+fn check_changed_profiles(
+    (rho, velocity, rho_star): (&Expr, &Expr, Option<&Expr>),
+    base: (&Expr, &Expr, Option<&Expr>),
+) -> Result<()> {
+    if rho != base.0 {
+        check_profile("initial.rho", rho, "(0, 1)", |v| v > 0.0 && v < 1.0)?;
+    }
+    if velocity != base.1 {
+        check_velocity(velocity)?;
+    }
+    if let Some(rs) = rho_star.filter(|rs| Some(*rs) != base.2) {
+        check_profile("initial.rho_star", rs, "(0, 1]", |v| v > 0.0 && v <= 1.0)?;
+    }
+    Ok(())
+}
+
+/// The velocity profile: finite everywhere, then within [`MAX_VELOCITY`] (one pass over the
+/// samples, the same messages as two).
+fn check_velocity(velocity: &Expr) -> Result<()> {
+    let (non_finite, too_large) = checks::velocity_violations(velocity, MAX_VELOCITY);
+    if let Some((x, v)) = non_finite {
+        return Err(Error::ProfileRange {
+            field: "initial.velocity".to_string(),
+            expression: velocity.source().to_string(),
+            value: v,
+            x,
+            allowed: "finite values".to_string(),
+        });
+    }
+    match too_large {
         None => Ok(()),
         Some((x, v)) => Err(Error::invalid(
             "initial.velocity",

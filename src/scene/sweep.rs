@@ -283,11 +283,12 @@ pub(super) fn validate_sweep(
                     Some("random") => DesignKind::Random,
                     Some("latin_hypercube") => DesignKind::LatinHypercube,
                     Some("sobol") => DesignKind::Sobol,
+                    Some("saltelli") => DesignKind::Saltelli,
                     _ => return Err(Error::invalid(
                         field,
                         value,
                         "unknown design",
-                        "\"grid\" (lists), \"random\", \"latin_hypercube\" or \"sobol\" (ranges)",
+                        "\"grid\" (lists), \"random\", \"latin_hypercube\", \"sobol\" or \"saltelli\" (ranges)",
                     )),
                 }
             }
@@ -687,13 +688,14 @@ impl Scene {
             rho_star,
         } = &self.initial
         {
+            let base = (rho, velocity, rho_star.as_ref());
             let rho = rebind("initial.rho", rho)?;
             let velocity = rebind("initial.velocity", velocity)?;
             let rho_star = rho_star
                 .as_ref()
                 .map(|r| rebind("initial.rho_star", r))
                 .transpose()?;
-            super::check_profiles(&rho, &velocity, rho_star.as_ref())?;
+            super::check_changed_profiles((&rho, &velocity, rho_star.as_ref()), base)?;
             self.initial = InitialSpec::Profiles {
                 rho,
                 velocity,

@@ -25,8 +25,12 @@ use super::{Bins, Histogram, RunningStats, StatsError};
 ///
 /// # Serialization
 ///
-/// `{lo, hi, bins, points, counts}`, where `counts` holds per point the `bins + 2` slot counts
-/// (underflow, bins, overflow) stored sparse: `{len, nonzero: [[slot, count], ...]}`.
+/// Human-readable formats (JSON): `{lo, hi, bins, points, counts}`, where `counts` holds per
+/// point the `bins + 2` slot counts (underflow, bins, overflow) stored sparse:
+/// `{len, nonzero: [[slot, count], ...]}`. Binary formats (the study's CBOR state files): one
+/// column per moment over the points, and the non-empty slots of all points as step/count
+/// columns (small integers, which CBOR stores in one or two bytes): the size follows what the
+/// band holds, not `points × bins`.
 #[derive(Clone, Debug)]
 pub struct FieldBand {
     bins: Bins,
@@ -83,51 +87,36 @@ impl FieldBand {
             });
         }
         let bins = self.bins;
-        // Shift each point by its first finite value (keeps the shifted sums well conditioned).
-        let mut shift = vec![f64::NAN; g];
-        for row in rows {
-            for (s, &x) in shift.iter_mut().zip(row.iter()) {
-                if s.is_nan() && x.is_finite() {
-                    *s = x;
-                }
-            }
-        }
-        // Rows outer, points inner: memory is read in order.
-        let mut n = vec![0u64; g];
-        let mut non_finite = vec![0u64; g];
-        let mut s1 = vec![0.0f64; g];
-        let mut s2 = vec![0.0f64; g];
-        let mut min = vec![f64::INFINITY; g];
-        let mut max = vec![f64::NEG_INFINITY; g];
-        for row in rows {
-            for j in 0..g {
+        // Points outer, members inner: a point's slot counts stay in cache while its column is
+        // read, and its sums are registers. Each point's sums run over the rows in order, so the
+        // result does not depend on the loop order.
+        for (j, (point, slots)) in self.points.iter_mut().zip(&mut self.slots).enumerate() {
+            // Shift by the point's first finite value (keeps the shifted sums well conditioned).
+            let Some(shift) = rows.iter().map(|r| r[j]).find(|x| x.is_finite()) else {
+                point.add_non_finite(rows.len() as u64);
+                continue;
+            };
+            let (mut n, mut non_finite) = (0u64, 0u64);
+            let (mut s1, mut s2) = (0.0f64, 0.0f64);
+            let (mut min, mut max) = (f64::INFINITY, f64::NEG_INFINITY);
+            for row in rows {
                 let x = row[j];
                 if !x.is_finite() {
-                    non_finite[j] += 1;
+                    non_finite += 1;
                     continue;
                 }
-                n[j] += 1;
-                let d = x - shift[j];
-                s1[j] += d;
-                s2[j] += d * d;
-                min[j] = min[j].min(x);
-                max[j] = max[j].max(x);
-                self.slots[j][bins.slot(x)] += 1;
+                n += 1;
+                let d = x - shift;
+                s1 += d;
+                s2 += d * d;
+                min = min.min(x);
+                max = max.max(x);
+                slots[bins.slot(x)] += 1;
             }
-        }
-        for j in 0..g {
-            if n[j] > 0 {
-                let mean_d = s1[j] / n[j] as f64;
-                let m2 = (s2[j] - s1[j] * mean_d).max(0.0);
-                self.points[j].merge(&RunningStats::from_moments(
-                    n[j],
-                    shift[j] + mean_d,
-                    m2,
-                    min[j],
-                    max[j],
-                ));
-            }
-            self.points[j].add_non_finite(non_finite[j]);
+            let mean_d = s1 / n as f64;
+            let m2 = (s2 - s1 * mean_d).max(0.0);
+            point.merge(&RunningStats::from_moments(n, shift + mean_d, m2, min, max));
+            point.add_non_finite(non_finite);
         }
         Ok(())
     }
@@ -210,8 +199,149 @@ struct FieldBandState {
     counts: Vec<Vec<u64>>,
 }
 
+/// The binary (columnar) form: see the type's documentation. Columns are little-endian byte
+/// strings (one CBOR byte string each, written and read as a block).
+#[derive(Serialize, Deserialize)]
+struct FieldBandColumns {
+    lo: f64,
+    hi: f64,
+    bins: u32,
+    /// u64 per point.
+    count: serde_bytes::ByteBuf,
+    /// u64 per point.
+    non_finite: serde_bytes::ByteBuf,
+    /// `[mean, mean_lo, m2, min, max]` (f64) of every point, point after point.
+    moments: serde_bytes::ByteBuf,
+    /// Per point, how many of its slots are non-empty (u32).
+    nonzero: serde_bytes::ByteBuf,
+    /// The non-empty slots, each as its step from the previous one of its point (from -1): u16
+    /// when the slots fit (bins < 65534), else u32.
+    slot_steps: serde_bytes::ByteBuf,
+    /// Their counts: u32 when every count fits, else u64.
+    slot_counts: serde_bytes::ByteBuf,
+    /// Bytes per entry of `slot_steps` and `slot_counts`.
+    step_bytes: u8,
+    count_bytes: u8,
+}
+
+/// Little-endian integers of `width` bytes (2, 4 or 8), appended to `out`.
+fn put(out: &mut Vec<u8>, v: u64, width: u8) {
+    out.extend_from_slice(&v.to_le_bytes()[..width as usize]);
+}
+
+/// The `i`-th little-endian integer of `width` bytes in `bytes`.
+fn get(bytes: &[u8], i: usize, width: u8) -> u64 {
+    let w = width as usize;
+    let mut b = [0u8; 8];
+    b[..w].copy_from_slice(&bytes[i * w..(i + 1) * w]);
+    u64::from_le_bytes(b)
+}
+
+impl FieldBandColumns {
+    fn of(band: &FieldBand) -> Self {
+        let g = band.points.len();
+        let step_bytes = if band.bins.len() + 2 <= u16::MAX as usize {
+            2
+        } else {
+            4
+        };
+        let largest = band.slots.iter().flatten().copied().max().unwrap_or(0);
+        let count_bytes = if largest <= u32::MAX as u64 { 4 } else { 8 };
+        let (mut count, mut non_finite) = (Vec::with_capacity(8 * g), Vec::with_capacity(8 * g));
+        let mut moments = Vec::with_capacity(40 * g);
+        let mut nonzero = Vec::with_capacity(4 * g);
+        let (mut steps, mut counts) = (Vec::new(), Vec::new());
+        for (stats, slots) in band.points.iter().zip(&band.slots) {
+            let (n, nf, m) = stats.raw();
+            put(&mut count, n, 8);
+            put(&mut non_finite, nf, 8);
+            for v in m {
+                moments.extend_from_slice(&v.to_le_bytes());
+            }
+            let mut previous = -1i64;
+            let mut filled = 0u64;
+            for (slot, &c) in slots.iter().enumerate().filter(|(_, &c)| c > 0) {
+                put(&mut steps, (slot as i64 - previous) as u64, step_bytes);
+                put(&mut counts, c, count_bytes);
+                previous = slot as i64;
+                filled += 1;
+            }
+            put(&mut nonzero, filled, 4);
+        }
+        FieldBandColumns {
+            lo: band.bins.lo(),
+            hi: band.bins.hi(),
+            bins: band.bins.len() as u32,
+            count: serde_bytes::ByteBuf::from(count),
+            non_finite: serde_bytes::ByteBuf::from(non_finite),
+            moments: serde_bytes::ByteBuf::from(moments),
+            nonzero: serde_bytes::ByteBuf::from(nonzero),
+            slot_steps: serde_bytes::ByteBuf::from(steps),
+            slot_counts: serde_bytes::ByteBuf::from(counts),
+            step_bytes,
+            count_bytes,
+        }
+    }
+
+    fn into_band(self) -> Result<FieldBand, StatsError> {
+        let bins = Bins::new(self.lo, self.hi, self.bins as usize)?;
+        let bad = |message: String| StatsError::InvalidState {
+            what: "field band",
+            message,
+        };
+        if ![2, 4].contains(&self.step_bytes) || ![4, 8].contains(&self.count_bytes) {
+            return Err(bad("unknown integer widths".into()));
+        }
+        let g = self.count.len() / 8;
+        let entries = self.slot_steps.len() / self.step_bytes as usize;
+        if self.count.len() != 8 * g
+            || self.non_finite.len() != 8 * g
+            || self.moments.len() != 40 * g
+            || self.nonzero.len() != 4 * g
+            || self.slot_steps.len() != entries * self.step_bytes as usize
+            || self.slot_counts.len() != entries * self.count_bytes as usize
+        {
+            return Err(bad("columns of different lengths".into()));
+        }
+        let filled: u64 = (0..g).map(|j| get(&self.nonzero, j, 4)).sum();
+        if filled != entries as u64 {
+            return Err(bad("slot columns do not add up".into()));
+        }
+        let mut points = Vec::with_capacity(g);
+        let mut slots = Vec::with_capacity(g);
+        let mut next = 0;
+        for j in 0..g {
+            let m: [f64; 5] =
+                std::array::from_fn(|k| f64::from_bits(get(&self.moments, 5 * j + k, 8)));
+            points.push(RunningStats::from_raw(
+                get(&self.count, j, 8),
+                get(&self.non_finite, j, 8),
+                m,
+            ));
+            let mut row = vec![0u64; bins.len() + 2];
+            let mut slot = -1i64;
+            for _ in 0..get(&self.nonzero, j, 4) {
+                slot += get(&self.slot_steps, next, self.step_bytes) as i64;
+                *row.get_mut(slot as usize)
+                    .ok_or_else(|| bad(format!("slot {slot} beyond {}", bins.len() + 2)))? =
+                    get(&self.slot_counts, next, self.count_bytes);
+                next += 1;
+            }
+            slots.push(row);
+        }
+        Ok(FieldBand {
+            bins,
+            points,
+            slots,
+        })
+    }
+}
+
 impl Serialize for FieldBand {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        if !s.is_human_readable() {
+            return FieldBandColumns::of(self).serialize(s);
+        }
         FieldBandRef {
             lo: self.bins.lo(),
             hi: self.bins.hi(),
@@ -225,6 +355,11 @@ impl Serialize for FieldBand {
 
 impl<'de> Deserialize<'de> for FieldBand {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        if !d.is_human_readable() {
+            return FieldBandColumns::deserialize(d)?
+                .into_band()
+                .map_err(serde::de::Error::custom);
+        }
         let st = FieldBandState::deserialize(d)?;
         FieldBand::try_from(st).map_err(serde::de::Error::custom)
     }

@@ -22,6 +22,8 @@
 //!   ([`QuantileSketch::range_histogram`]).
 //! * [`FieldBand`] (`field.rs`): pointwise over a grid of G points, moments and a fixed-bin
 //!   histogram ([`Bins`]) per point, for quantile bands within half a bin width.
+//! * [`sensitivity`]: Sobol indices (first and total order) of a pick-freeze design, computed
+//!   from the per-point responses of a merged study state.
 //!
 //! # Non-finite values
 //!
@@ -45,6 +47,7 @@ mod field;
 mod histogram;
 mod moments;
 mod scalar;
+pub mod sensitivity;
 mod sketch;
 
 pub use field::FieldBand;

@@ -80,6 +80,29 @@ impl RunningStats {
         }
     }
 
+    /// The raw state `(count, non_finite, [mean, mean_lo, m2, min, max])`, for the columnar
+    /// binary form of [`FieldBand`](super::FieldBand).
+    pub(super) fn raw(&self) -> (u64, u64, [f64; 5]) {
+        (
+            self.count,
+            self.non_finite,
+            [self.mean, self.mean_lo, self.m2, self.min, self.max],
+        )
+    }
+
+    /// The accumulator whose [`raw`](Self::raw) state this is (bit for bit).
+    pub(super) fn from_raw(count: u64, non_finite: u64, v: [f64; 5]) -> Self {
+        RunningStats {
+            count,
+            mean: v[0],
+            mean_lo: v[1],
+            m2: v[2],
+            min: v[3],
+            max: v[4],
+            non_finite,
+        }
+    }
+
     /// Adds one observation. Returns `false` (and counts it in [`non_finite`](Self::non_finite))
     /// when `x` is NaN or infinite; such values are not part of any statistic.
     #[inline]

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use super::files::{ChunkFile, MemberRow, StudyHeader};
 use super::state::StudyState;
-use super::{ERROR_ESTIMATE, FIELDS, SCALARS};
+use super::{ERROR_ESTIMATE, SCALARS};
 use crate::backend::gpu::solver::GpuStats;
 use crate::backend::{Engine, MemberReport, MemberStatus};
 use crate::ensemble::members::{EnsembleMembers, MemberInputs};
@@ -18,15 +18,26 @@ use crate::model::params::MemberParams;
 use crate::model::plan::Plan;
 use crate::output::{write_npy, ProgressReporter};
 use crate::scene::{EnsembleSpec, Scene};
+use crate::stats::FieldBand;
+use rayon::prelude::*;
 
-/// The plan of a chunk: the scene's, with these members, and the fields the statistics need.
-pub(super) fn chunk_plan(scene: &Scene, first_chain: &Chain, members: Vec<MemberParams>) -> Plan {
+/// The plan of a chunk: the scene's, with these members, and the fields the statistics need
+/// (rho always: the peak density and its centre are read from it; u and rho* where their bands
+/// are asked for).
+pub(super) fn chunk_plan(
+    scene: &Scene,
+    first_chain: &Chain,
+    members: Vec<MemberParams>,
+    store_members: bool,
+) -> Plan {
     let mut plan = Plan::new(scene, first_chain);
     plan.members = members;
     plan.repulsion = first_chain.dstar.is_some();
-    plan.fields.rho_star = plan.repulsion;
+    plan.fields.rho_star = plan.repulsion && scene.fields.rho_star;
     plan.fields.rho = true;
-    plan.fields.u = true;
+    // Gaps and velocities per member are only read when the members' arrays are kept.
+    plan.fields.gaps &= store_members;
+    plan.fields.velocities &= store_members;
     plan
 }
 
@@ -36,8 +47,8 @@ pub(super) fn chunk_plan(scene: &Scene, first_chain: &Chain, members: Vec<Member
 struct RecordedObservables {
     /// The values of [`SCALARS`], in that order.
     scalars: [f64; SCALARS.len()],
-    /// The rows of [`FIELDS`], in that order.
-    fields: [Vec<f64>; FIELDS.len()],
+    /// The rows of the header's band fields, in that order.
+    fields: Vec<Vec<f64>>,
 }
 
 /// What the solved chunks of one invocation cost beyond the solve itself.
@@ -64,8 +75,7 @@ fn batch_groups(inputs: &[MemberInputs], members: &EnsembleMembers) -> Result<Ve
                         && x.chain.dstar.is_some() == y.chain.dstar.is_some()
                         && x.chain.bonded.is_some() == y.chain.bonded.is_some()
                         && (members.symbolic_forcing().is_some()
-                            || members.setup(x.point)?.scene.forcing
-                                == members.setup(y.point)?.scene.forcing))
+                            || x.setup.scene.forcing == y.setup.scene.forcing))
             }
             None => false,
         };
@@ -126,10 +136,10 @@ pub(super) fn solve_chunk(
     let mut kept_estimates: Vec<Vec<f64>> = Vec::new();
     let mut reports: Vec<MemberReport> = Vec::with_capacity(count);
     for (a, b) in batch_groups(&inputs, members)? {
-        let setup = members.setup(inputs[a].point)?;
+        let setup = inputs[a].setup.clone();
         let params: Vec<MemberParams> = inputs[a..b].iter().map(|i| i.params).collect();
         let chains: Vec<Chain> = inputs[a..b].iter().map(|i| i.chain.clone()).collect();
-        let mut plan = chunk_plan(&setup.scene, &chains[0], params);
+        let mut plan = chunk_plan(&setup.scene, &chains[0], params, spec.store_members);
         if let (Some(expr), Some(forcing)) = (members.symbolic_forcing(), plan.forcing.as_mut()) {
             forcing.expr = expr.clone();
             forcing.params = inputs[a..b]
@@ -143,11 +153,11 @@ pub(super) fn solve_chunk(
         let mut group_estimates: Vec<Vec<f64>> = (a..b).map(|_| Vec::new()).collect();
         let mut solver = engine.solver(plan, chains)?;
         let mut k = 0;
-        while let Some(snaps) = solver.next_output(&|_| {})? {
+        while let Some(mut snaps) = solver.next_output(&|_| {})? {
             let started = Instant::now();
             let reports_now = solver.reports();
             let t = header.times[k];
-            for (g, s) in snaps.iter().enumerate() {
+            for (g, s) in snaps.iter_mut().enumerate() {
                 let i = a + g;
                 let ok_now = reports_now[g].status == MemberStatus::Ok;
                 // The estimate of the state at this output time (the last one recorded).
@@ -163,7 +173,6 @@ pub(super) fn solve_chunk(
                     group_recorded[g].push(None);
                     continue;
                 }
-                let centre = peak_centre(&header.x, &s.rho);
                 if s.max_density > peak[i].0 {
                     peak[i] = (s.max_density, t);
                 }
@@ -172,16 +181,29 @@ pub(super) fn solve_chunk(
                 if first_hit[i].is_nan() && s.max_density >= spec.threshold {
                     first_hit[i] = t;
                 }
+                if !header.is_detailed(inputs[i].point) {
+                    // Responses only: nothing per time is kept.
+                    continue;
+                }
                 group_recorded[g].push(Some(RecordedObservables {
                     scalars: [
                         s.max_density,
                         s.min_gap,
                         s.energy,
                         s.dissipation,
-                        centre,
+                        peak_centre(&header.x, &s.rho),
                         estimate,
                     ],
-                    fields: [s.rho.clone(), s.u.clone(), s.rho_star.clone()],
+                    // Moved, not copied: the snapshot is not read again.
+                    fields: header
+                        .band_fields
+                        .iter()
+                        .map(|f| match f.as_str() {
+                            "rho" => std::mem::take(&mut s.rho),
+                            "u" => std::mem::take(&mut s.u),
+                            _ => std::mem::take(&mut s.rho_star),
+                        })
+                        .collect(),
                 }));
             }
             costs.statistics_seconds += started.elapsed().as_secs_f64();
@@ -214,10 +236,11 @@ pub(super) fn solve_chunk(
         while j < count && inputs[j].point == p {
             j += 1;
         }
-        let setup = members.setup(p)?;
+        let setup = inputs[i].setup.clone();
         let u_range = super::files::band_u_range(&setup.spec, &setup.chain);
         let stats = state.point_mut(p, header, u_range)?;
-        for k in 0..t_count {
+        let detailed_times = if stats.is_detailed() { t_count } else { 0 };
+        for k in 0..detailed_times {
             for (m, observed) in recorded[i..j].iter().enumerate() {
                 if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(k)) {
                     for (name, &v) in SCALARS.iter().zip(&o.scalars) {
@@ -229,25 +252,37 @@ pub(super) fn solve_chunk(
                     }
                 }
             }
-            for (f, name) in FIELDS.iter().enumerate() {
-                let rows: Vec<&[f64]> = recorded[i..j]
-                    .iter()
-                    .zip(&ok_member[i..j])
-                    .filter_map(|(observed, &ok)| {
-                        if ok {
-                            observed.get(k).and_then(Option::as_ref)
-                        } else {
-                            None
-                        }
-                    })
-                    .map(|o| o.fields[f].as_slice())
-                    .filter(|r| r.len() == grid)
-                    .collect();
-                stats.fields.get_mut(*name).expect("known field")[k]
-                    .push_rows(&rows)
-                    .expect("rows have the grid's length");
-            }
         }
+        // Each (field, time) band is its own accumulator: they are filled in parallel, each from
+        // its rows in member order (the same sums as one after the other).
+        let mut bands: Vec<(usize, usize, &mut FieldBand)> = Vec::new();
+        for (name, per_time) in stats.fields.iter_mut() {
+            let f = header
+                .band_fields
+                .iter()
+                .position(|n| n == name)
+                .expect("a band of a band field");
+            bands.extend(per_time.iter_mut().enumerate().map(|(k, b)| (f, k, b)));
+        }
+        let rows_of = |f: usize, k: usize| -> Vec<&[f64]> {
+            recorded[i..j]
+                .iter()
+                .zip(&ok_member[i..j])
+                .filter_map(|(observed, &ok)| {
+                    if ok {
+                        observed.get(k).and_then(Option::as_ref)
+                    } else {
+                        None
+                    }
+                })
+                .map(|o| o.fields[f].as_slice())
+                .filter(|r| r.len() == grid)
+                .collect()
+        };
+        bands.par_iter_mut().for_each(|(f, k, band)| {
+            band.push_rows(&rows_of(*f, *k))
+                .expect("rows have the grid's length")
+        });
         for m in i..j {
             if !ok_member[m] {
                 stats.failed += 1;
@@ -255,6 +290,8 @@ pub(super) fn solve_chunk(
             }
             stats.completed += 1;
             stats.peak_density.push(peak[m].0);
+            stats.min_gap.push(min_gap[m]);
+            stats.final_energy.push(final_energy[m]);
             if first_hit[m].is_nan() {
                 stats.never_hit += 1;
             } else {

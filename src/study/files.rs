@@ -1,5 +1,5 @@
 //! The files of a study directory: `study.json` ([`StudyHeader`], and the resume check against
-//! it), `chunks/chunk_<first>_<end>.json` ([`ChunkFile`]), `partial.json` ([`PartialFile`]) and
+//! it), `chunks/chunk_<first>_<end>.state` ([`ChunkFile`]), `partial.state` ([`PartialFile`]) and
 //! `members.csv` ([`MemberRow`], streamed by [`CsvOut`]).
 
 use std::collections::BTreeMap;
@@ -41,6 +41,14 @@ pub struct StudyHeader {
     pub sweep_log_scale: Vec<bool>,
     pub field_ranges: BTreeMap<String, (f64, f64)>,
     pub bins: usize,
+    /// The fields whose pointwise bands are accumulated: those of `[output] fields` among
+    /// [`FIELDS`](super::FIELDS), in that order.
+    #[serde(default)]
+    pub band_fields: Vec<String>,
+    /// Points 0..detailed_points keep statistics per output time (every scalar at every time,
+    /// the field bands); the others keep their members' responses only.
+    #[serde(default)]
+    pub detailed_points: u64,
     /// Where this run writes (per-member arrays go to `<out_dir>/members/`).
     pub out_dir: String,
     /// What computed the members: resume and merge refuse to mix backends or precisions.
@@ -53,6 +61,17 @@ pub struct StudyHeader {
 }
 
 impl StudyHeader {
+    /// Whether point `p` keeps statistics per output time.
+    pub fn is_detailed(&self, p: u64) -> bool {
+        p < self.detailed_points
+    }
+
+    /// The number of points with per-time statistics (the leading axis of the per-time files in
+    /// `stats/`).
+    pub fn detailed_count(&self) -> u64 {
+        self.detailed_points.min(self.points.len().max(1) as u64)
+    }
+
     /// The values of the swept keys at point `p`.
     pub fn point_values(&self, p: u64) -> Vec<f64> {
         self.points.get(p as usize).cloned().unwrap_or_default()
@@ -100,7 +119,7 @@ pub struct MemberRow {
     pub error_estimate: f64,
 }
 
-/// `chunks/chunk_<first>_<end>.json`: the statistics and `members.csv` rows of one finished
+/// `chunks/chunk_<first>_<end>.state`: the statistics and `members.csv` rows of one finished
 /// chunk (written atomically; `--resume` reuses it).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub(super) struct ChunkFile {
@@ -263,10 +282,10 @@ impl CsvOut {
     }
 }
 
-/// `chunks/chunk_<first>_<end>.json` of `dir`.
+/// `chunks/chunk_<first>_<end>.state` of `dir`.
 pub(super) fn chunk_path(dir: &Path, first: u64, end: u64) -> PathBuf {
     dir.join("chunks")
-        .join(format!("chunk_{first:012}_{end:012}.json"))
+        .join(format!("chunk_{first:012}_{end:012}.state"))
 }
 
 /// Members [K·M/N, (K+1)·M/N) of M for shard K of N.
@@ -326,6 +345,28 @@ pub(super) fn header_for(
             .unwrap_or_default(),
         field_ranges,
         bins: spec.bins,
+        band_fields: super::FIELDS
+            .iter()
+            .filter(|f| match **f {
+                "rho" => scene.fields.rho,
+                "u" => scene.fields.u,
+                _ => scene.fields.rho_star,
+            })
+            .map(|f| f.to_string())
+            .collect(),
+        detailed_points: {
+            let points = members.points;
+            let sampled = scene
+                .sweep
+                .as_ref()
+                .is_some_and(|s| s.design.kind().name() != "grid");
+            let default = if sampled {
+                crate::scene::DEFAULT_DETAILED_SAMPLED_POINTS.min(points)
+            } else {
+                points
+            };
+            spec.detailed_points.unwrap_or(default).min(points)
+        },
         out_dir: out_dir.display().to_string(),
         backend: engine.backend,
         precision: engine.precision,
@@ -369,12 +410,19 @@ pub(super) fn study_differences(a: &StudyHeader, b: &StudyHeader) -> Vec<&'stati
     differs.iter().filter(|d| d.1).map(|d| d.0).collect()
 }
 
-/// `partial.json`: the mergeable statistics of all members of a run (or shard, or merge), with
+/// `partial.state`: the mergeable statistics of all members of a run (or shard, or merge), with
 /// the header that says what they are; `roughlub merge` reads these.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub(super) struct PartialFile {
     pub header: StudyHeader,
     pub state: StudyState,
+}
+
+/// [`PartialFile`] borrowed, for writing it without a copy of the state.
+#[derive(Serialize)]
+pub(super) struct PartialFileRef<'a> {
+    pub header: &'a StudyHeader,
+    pub state: &'a StudyState,
 }
 
 /// `--resume`: refuses a directory that holds another study (`old` is its `study.json` at

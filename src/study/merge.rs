@@ -6,10 +6,13 @@ use std::time::Instant;
 use super::files::{study_differences, CsvOut, PartialFile, StudyHeader};
 use super::report::{finalize, quantile_method};
 use super::state::StudyState;
-use super::StudySummary;
+use super::{StudySummary, OLD_PARTIAL, PARTIAL};
 use crate::error::{Error, Result};
 use crate::output::manifest::{MergedManifest, StudySceneRecord, VERSION};
-use crate::output::{read_json, write_json_atomic, StagedDir, MANIFEST};
+use crate::output::state_file::old_format_error;
+use crate::output::{
+    read_json, read_state, write_json_atomic, write_state_atomic, StagedDir, MANIFEST,
+};
 
 /// `roughlub merge`: the statistics of several shards (or runs) of one study.
 ///
@@ -45,7 +48,11 @@ pub fn merge_studies(
     // Shards in member order, so that members.csv streams out in order.
     let mut partials: Vec<(PathBuf, PartialFile)> = Vec::with_capacity(inputs.len());
     for dir in inputs {
-        let partial: PartialFile = read_json(&dir.join("partial.json"))?;
+        let partial_path = dir.join(PARTIAL);
+        if !partial_path.exists() && dir.join(OLD_PARTIAL).exists() {
+            return Err(old_format_error(&dir.join(OLD_PARTIAL)));
+        }
+        let partial: PartialFile = read_state(&partial_path)?;
         // A run killed before it finished leaves the previous study's partial.json beside its
         // own study.json: those statistics are not this directory's study.
         let study_path = dir.join("study.json");
@@ -57,7 +64,7 @@ pub fn merge_studies(
             }
             if !what.is_empty() {
                 return Err(Error::Output {
-                    path: dir.join("partial.json"),
+                    path: partial_path.clone(),
                     message: format!(
                         "out of date: it holds the statistics of an earlier study than study.json ({} differ; was a later run into this directory interrupted?); rerun that shard",
                         what.join(", ")
@@ -130,8 +137,8 @@ pub fn merge_studies(
         state.ranges.first().map_or(0, |r| r.0),
         state.ranges.last().map_or(0, |r| r.1),
     );
-    write_json_atomic(
-        &out.join("partial.json"),
+    write_state_atomic(
+        &out.join(PARTIAL),
         &PartialFile {
             header: merged_header.clone(),
             state: state.clone(),

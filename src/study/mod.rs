@@ -12,10 +12,15 @@
 //! Layout of a study directory:
 //! - `study.json`: what is being computed (scene text and hash, shard, member range, times, grid);
 //!   written first, checked by `--resume` and `merge`;
-//! - `chunks/chunk_<first>_<end>.json`: the statistics and CSV rows of each finished chunk,
-//!   written atomically (a killed run keeps every finished chunk; `--resume` skips them);
-//! - `partial.json`: the mergeable statistics of all members of this run (or shard);
+//! - `chunks/chunk_<first>_<end>.state`: the statistics and CSV rows of each finished chunk,
+//!   written atomically while the study runs (a killed run keeps every finished chunk;
+//!   `--resume` skips them), removed when the study completes (`partial.state` holds their
+//!   merge, `members.csv` their rows);
+//! - `partial.state`: the mergeable statistics of all members of this run (or shard);
 //! - `stats/*.npy`, `members.csv`, `plots/*.png`, and `manifest.json` last.
+//!
+//! State files are binary ([`crate::output::state_file`], CBOR); study.json and the manifest
+//! stay JSON.
 //!
 //! The code follows the pipeline: [`EnsembleMembers`](crate::ensemble::members::EnsembleMembers)
 //! builds each member's inputs; `chunk.rs` solves a chunk of members through the backend seam and
@@ -26,8 +31,10 @@
 
 mod chunk;
 mod files;
+mod memory;
 mod merge;
 mod report;
+mod sensitivity;
 mod state;
 
 use std::path::{Path, PathBuf};
@@ -39,12 +46,16 @@ use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
 use crate::output::manifest::{ErrorEstimateRecord, StudyManifest, StudySceneRecord, VERSION};
 use crate::output::{
-    prepare_dir, read_json, write_json_atomic, ProgressReporter, StagedDir, MANIFEST,
+    prepare_dir, read_json, read_state, write_json_atomic, write_state_atomic, ProgressReporter,
+    StagedDir, MANIFEST,
 };
 use crate::scene::{EnsembleSpec, Scene};
 
 use chunk::{chunk_plan, solve_chunk, StudyCosts};
-use files::{check_resume, chunk_path, header_for, shard_range, ChunkFile, CsvOut, PartialFile};
+use files::{
+    check_resume, chunk_path, header_for, shard_range, ChunkFile, CsvOut, PartialFile,
+    PartialFileRef,
+};
 use report::{finalize, quantile_method};
 
 pub use chunk::peak_centre;
@@ -54,6 +65,11 @@ pub use files::{
 };
 pub use merge::merge_studies;
 pub use state::StudyState;
+
+/// The mergeable statistics of a run, shard or merge (a binary state file).
+pub const PARTIAL: &str = "partial.state";
+/// What roughlub 0.1 wrote instead (JSON, state format 1): refused by name.
+const OLD_PARTIAL: &str = "partial.json";
 
 /// Scalar observables summarised at every output time.
 pub const SCALARS: [&str; 6] = [
@@ -137,11 +153,12 @@ fn select_for_study(
     // written.
     let inputs = members.member(first)?;
     let largest_chunk = (spec.chunk as u64).min(end.saturating_sub(first)).max(1) as usize;
-    let setup = members.setup(inputs.point)?;
+    let setup = inputs.setup.clone();
     let plan = chunk_plan(
         &setup.scene,
         &inputs.chain,
         vec![inputs.params; largest_chunk],
+        spec.store_members,
     );
     select(
         options.backend.unwrap_or(scene.backend),
@@ -173,7 +190,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         return Err(Error::invalid(
             "sweep.points",
             points,
-            "every sweep point keeps its own statistics (in memory, partial.json and stats/)",
+            "every sweep point keeps its own responses (in memory, partial.state, stats/ and points.csv)",
             format!(
                 "at most {} points, or --allow-large",
                 crate::scene::MAX_SWEEP_POINTS
@@ -192,6 +209,11 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         &engine.record,
     );
     header.input_files = files::input_file_hashes(scene, spec)?;
+    let memory = memory::estimate(&header, spec, members.first.chain.particles());
+    let memory_limit = memory::memory_limit();
+    if !options.allow_large {
+        memory::check(&memory, &header, spec, memory_limit)?;
+    }
     if !options.quiet {
         eprintln!(
             "ensemble {}: members {}..{} of {} (shard {k}/{n}); {}",
@@ -241,7 +263,28 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let chunks_dir = dir.join("chunks");
     let header_path = dir.join("study.json");
     if options.resume {
+        if dir.join(OLD_PARTIAL).exists() && !dir.join(PARTIAL).exists() {
+            return Err(crate::output::state_file::old_format_error(
+                &dir.join(OLD_PARTIAL),
+            ));
+        }
         check_resume(&read_json(&header_path)?, &header, &header_path)?;
+        if staged.is_none() && dir.join(MANIFEST).exists() && dir.join(PARTIAL).exists() {
+            // A complete study: its chunks are merged into partial.state; nothing to do.
+            let partial: PartialFile = read_state(&dir.join(PARTIAL))?;
+            if partial.state.ranges.iter().map(|(a, b)| b - a).sum::<u64>()
+                == header.member_range.1 - header.member_range.0
+            {
+                if !options.quiet {
+                    eprintln!(
+                        "{} holds this study complete: nothing to resume",
+                        dir.display()
+                    );
+                }
+                let wall = started.elapsed().as_secs_f64();
+                return Ok(StudySummary::of(target, &partial.state, 0, wall, 0.0));
+            }
+        }
     }
     std::fs::create_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
     prepare_dir(dir)?;
@@ -263,12 +306,14 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         let chunk: ChunkFile = if path.exists() {
             reused += 1;
             progress.inc(b - a);
-            read_json(&path)?
+            read_state(&path)?
         } else {
             let c = solve_chunk(
                 dir, spec, &members, &header, &engine, a, b, &mut costs, &progress,
             )?;
-            write_json_atomic(&path, &c)?;
+            let t0 = Instant::now();
+            write_state_atomic(&path, &c)?;
+            costs.statistics_seconds += t0.elapsed().as_secs_f64();
             c
         };
         let t0 = Instant::now();
@@ -290,15 +335,17 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     progress.finish();
     csv_out.finish()?;
     let state = total.unwrap_or_default();
-    write_json_atomic(
-        &dir.join("partial.json"),
-        &PartialFile {
-            header: header.clone(),
-            state: state.clone(),
+    let t0 = Instant::now();
+    write_state_atomic(
+        &dir.join(PARTIAL),
+        &PartialFileRef {
+            header: &header,
+            state: &state,
         },
     )?;
-    let t0 = Instant::now();
     finalize(dir, &[header.clone()], &state, scene.plots)?;
+    // The chunks are in partial.state and members.csv now: a complete study keeps no copy.
+    std::fs::remove_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
     costs.statistics_seconds += t0.elapsed().as_secs_f64();
     let wall = started.elapsed().as_secs_f64();
     write_json_atomic(
@@ -328,6 +375,11 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             wall_seconds: wall,
             statistics_seconds: costs.statistics_seconds,
             statistics_share: costs.statistics_seconds / wall.max(1e-12),
+            memory_estimate_bytes: memory.bytes,
+            memory_limit_bytes: memory_limit,
+            detailed_points: header.detailed_count(),
+            band_fields: header.band_fields.clone(),
+            state_format: crate::output::STATE_FORMAT,
             ensemble: spec.clone(),
             quantile_method: quantile_method(&header),
         },

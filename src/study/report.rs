@@ -5,7 +5,7 @@ use std::path::Path;
 
 use super::files::StudyHeader;
 use super::state::{PointStats, StudyState};
-use super::{FIELDS, SCALARS, SCALAR_ALPHA, SCALAR_BINS};
+use super::{SCALARS, SCALAR_ALPHA, SCALAR_BINS};
 use crate::error::{Error, Result};
 use crate::output::manifest::QuantileMethod;
 use crate::output::write_npy;
@@ -42,29 +42,38 @@ pub(super) fn finalize(
     write_npy(stats.join("x.npy"), &[g], &header.x)?;
     write_npy(stats.join("quantile_levels.npy"), &[nq], qs)?;
     write_points_csv(&dir.join("points.csv"), header, state)?;
-    // A point without members (a partial merge) reports the statistics of no member; the empty
-    // statistics (as large as a point's) are built only when some point has none.
-    let empty = match (0..p_count).all(|p| state.points.contains_key(&p)) {
-        true => None,
-        false => Some(PointStats::for_header(header)?),
-    };
+    // A point without members (a partial merge) reports the statistics of no member; empty
+    // statistics are built only for such points.
+    let empty: std::collections::BTreeMap<u64, PointStats> = (0..p_count)
+        .filter(|p| !state.points.contains_key(p))
+        .map(|p| Ok((p, PointStats::for_header(header, p)?)))
+        .collect::<Result<_>>()?;
     let point = |p: u64| -> &PointStats {
         state
             .points
             .get(&p)
-            .or(empty.as_ref())
+            .or_else(|| empty.get(&p))
             .expect("built when a point has no statistics")
     };
     let points: Vec<u64> = (0..p_count).collect();
+    // The per-time statistics (scalars at every time, field bands) cover the detailed points,
+    // 0..D: their leading axis is D.
+    let d_count = header.detailed_count();
+    let detailed: Vec<u64> = (0..d_count).collect();
+    write_npy(
+        stats.join("detailed_points.npy"),
+        &[d_count],
+        &detailed.iter().map(|&p| p as f64).collect::<Vec<_>>(),
+    )?;
 
     for name in SCALARS {
         let per_point = |f: &dyn Fn(&ScalarSummary) -> f64| -> Vec<f64> {
-            points
+            detailed
                 .iter()
                 .flat_map(|&p| point(p).scalars[name].iter().map(f).collect::<Vec<_>>())
                 .collect()
         };
-        let shape = [p_count, t];
+        let shape = [d_count, t];
         write_npy(
             stats.join(format!("{name}_count.npy")),
             &shape,
@@ -90,30 +99,30 @@ pub(super) fn finalize(
             &shape,
             &per_point(&|s| s.stats().max()),
         )?;
-        let quant: Vec<f64> = points
+        let quant: Vec<f64> = detailed
             .iter()
             .flat_map(|&p| point(p).scalars[name].iter())
             .flat_map(|s| qs.iter().map(|&q| s.quantile(q).unwrap_or(f64::NAN)))
             .collect();
         write_npy(
             stats.join(format!("{name}_quantiles.npy")),
-            &[p_count, t, nq],
+            &[d_count, t, nq],
             &quant,
         )?;
         let (mut edges, mut counts) = (Vec::new(), Vec::new());
-        for &p in &points {
+        for &p in &detailed {
             let (e, c) = scalar_histograms(&point(p).scalars[name], &stats)?;
             edges.extend(e);
             counts.extend(c);
         }
         write_npy(
             stats.join(format!("{name}_hist_edges.npy")),
-            &[p_count, t, SCALAR_BINS as u64 + 1],
+            &[d_count, t, SCALAR_BINS as u64 + 1],
             &edges,
         )?;
         write_npy(
             stats.join(format!("{name}_hist_counts.npy")),
-            &[p_count, t, SCALAR_BINS as u64],
+            &[d_count, t, SCALAR_BINS as u64],
             &counts,
         )?;
     }
@@ -133,36 +142,44 @@ pub(super) fn finalize(
         first_hit_q.extend(qs.iter().map(|&q| fh.quantile(q).unwrap_or(f64::NAN)));
     }
     write_npy(stats.join("first_hit.npy"), &[p_count, 6], &first_hit)?;
-    let mut peak = Vec::with_capacity(points.len() * 5);
-    let mut peak_q = Vec::with_capacity(points.len() * qs.len());
-    for &p in &points {
-        let s = &point(p).peak_density;
-        peak.extend([
-            s.stats().count() as f64,
-            s.stats().mean(),
-            s.stats().variance(),
-            s.stats().min(),
-            s.stats().max(),
-        ]);
-        peak_q.extend(qs.iter().map(|&q| s.quantile(q).unwrap_or(f64::NAN)));
+    // Each member's responses, summarised per point (every point).
+    let responses: [(&str, fn(&PointStats) -> &ScalarSummary); 3] = [
+        ("peak_density", |s| &s.peak_density),
+        ("smallest_gap", |s| &s.min_gap),
+        ("final_energy", |s| &s.final_energy),
+    ];
+    for (file, summary) in responses {
+        let mut moments = Vec::with_capacity(points.len() * 5);
+        let mut quant = Vec::with_capacity(points.len() * qs.len());
+        for &p in &points {
+            let s = summary(point(p));
+            moments.extend([
+                s.stats().count() as f64,
+                s.stats().mean(),
+                s.stats().variance(),
+                s.stats().min(),
+                s.stats().max(),
+            ]);
+            quant.extend(qs.iter().map(|&q| s.quantile(q).unwrap_or(f64::NAN)));
+        }
+        write_npy(stats.join(format!("{file}.npy")), &[p_count, 5], &moments)?;
+        write_npy(
+            stats.join(format!("{file}_quantiles.npy")),
+            &[p_count, nq],
+            &quant,
+        )?;
     }
-    write_npy(stats.join("peak_density.npy"), &[p_count, 5], &peak)?;
-    write_npy(
-        stats.join("peak_density_quantiles.npy"),
-        &[p_count, nq],
-        &peak_q,
-    )?;
     write_npy(
         stats.join("first_hit_quantiles.npy"),
         &[p_count, nq],
         &first_hit_q,
     )?;
-    for name in FIELDS {
+    for name in &header.band_fields {
         let mut mean: Vec<f64> = Vec::new();
         let mut var: Vec<f64> = Vec::new();
         let mut quant: Vec<f64> = Vec::new();
-        for &p in &points {
-            for band in &point(p).fields[name] {
+        for &p in &detailed {
+            for band in &point(p).fields[name.as_str()] {
                 mean.extend(band.mean_row());
                 var.extend(band.variance_row());
                 for &q in qs {
@@ -172,28 +189,31 @@ pub(super) fn finalize(
         }
         write_npy(
             stats.join(format!("{name}_mean.npy")),
-            &[p_count, t, g],
+            &[d_count, t, g],
             &mean,
         )?;
         write_npy(
             stats.join(format!("{name}_var.npy")),
-            &[p_count, t, g],
+            &[d_count, t, g],
             &var,
         )?;
         write_npy(
             stats.join(format!("{name}_quantiles.npy")),
-            &[p_count, t, nq, g],
+            &[d_count, t, nq, g],
             &quant,
         )?;
     }
+    super::sensitivity::write_sensitivity(dir, header, state, plots)?;
     if plots {
         let plots_dir = dir.join("plots");
         std::fs::create_dir_all(&plots_dir).map_err(|e| Error::io(&plots_dir, e))?;
         if p_count == 1 {
-            write_point_plots(&plots_dir, "", header, point(0))?;
+            if d_count == 1 {
+                write_point_plots(&plots_dir, "", header, point(0))?;
+            }
         } else {
             write_response_plots(dir, &plots_dir, header, &point)?;
-            for &p in points.iter().take(MAX_POINT_PLOTS) {
+            for &p in detailed.iter().take(MAX_POINT_PLOTS) {
                 if state.points.contains_key(&p) {
                     write_point_plots(&plots_dir, &format!("point{p}_"), header, point(p))?;
                 }
@@ -413,7 +433,9 @@ fn write_point_plots(
         *header.quantiles.last().unwrap_or(&0.95),
     );
     for field in ["rho", "u"] {
-        let bands = &state.fields[field];
+        let Some(bands) = state.fields.get(field) else {
+            continue;
+        };
         let mean: Vec<Vec<f64>> = shown.iter().map(|&k| bands[k].mean_row()).collect();
         let row = |k: usize, q: f64| bands[k].quantile_row(q).map_err(|e| stats_error(plots, e));
         let lower = shown
@@ -425,12 +447,12 @@ fn write_point_plots(
             .map(|&k| row(k, q_hi))
             .collect::<Result<Vec<_>>>()?;
         let times: Vec<f64> = shown.iter().map(|&k| header.times[k]).collect();
-        let reference: Option<Vec<Vec<f64>>> = (field == "rho").then(|| {
-            shown
-                .iter()
-                .map(|&k| state.fields["rho_star"][k].mean_row())
-                .collect()
-        });
+        let reference: Option<Vec<Vec<f64>>> = match (field, state.fields.get("rho_star")) {
+            ("rho", Some(rho_star)) => {
+                Some(shown.iter().map(|&k| rho_star[k].mean_row()).collect())
+            }
+            _ => None,
+        };
         let has_reference = reference
             .as_ref()
             .is_some_and(|r| r.iter().any(|row| row.iter().any(|v| v.is_finite())));
@@ -461,7 +483,9 @@ fn write_point_plots(
     // Space–time pictures over all output times: the mean, and the width of the band between
     // the first and last quantile levels.
     for field in ["rho", "u"] {
-        let bands = &state.fields[field];
+        let Some(bands) = state.fields.get(field) else {
+            continue;
+        };
         let mean: Vec<Vec<f64>> = bands.iter().map(|b| b.mean_row()).collect();
         let mut width: Vec<Vec<f64>> = Vec::with_capacity(t);
         for b in bands {

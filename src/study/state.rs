@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 
 use super::files::StudyHeader;
-use super::{FIELDS, SCALARS, SCALAR_ALPHA};
+use super::{SCALARS, SCALAR_ALPHA};
 use crate::error::{Error, Result};
 use crate::stats::{FieldBand, ScalarSummary};
 
@@ -29,35 +29,56 @@ pub struct StudyState {
 pub struct PointStats {
     pub completed: u64,
     pub failed: u64,
-    /// Per scalar observable, one summary per output time.
-    pub scalars: BTreeMap<String, Vec<ScalarSummary>>,
     /// First output time at which max density reaches the threshold.
     pub first_hit: ScalarSummary,
     pub never_hit: u64,
     /// Each member's peak density (its largest max density over the output times).
     pub peak_density: ScalarSummary,
-    /// Per field, one band per output time.
+    /// Each member's smallest gap over the output times.
+    pub min_gap: ScalarSummary,
+    /// Each member's energy at the last output time.
+    pub final_energy: ScalarSummary,
+    /// Per scalar observable, one summary per output time: detailed points only (empty map
+    /// otherwise, see [`StudyHeader::is_detailed`]).
+    pub scalars: BTreeMap<String, Vec<ScalarSummary>>,
+    /// Per band field ([`StudyHeader::band_fields`]), one band per output time: detailed points
+    /// only.
     pub fields: BTreeMap<String, Vec<FieldBand>>,
 }
 
+fn summary() -> ScalarSummary {
+    ScalarSummary::new(SCALAR_ALPHA).expect("SCALAR_ALPHA is a valid accuracy")
+}
+
 impl PointStats {
-    /// The empty statistics of one point of the study `header` describes (its times, grid,
+    /// The empty statistics of point `p` of the study `header` describes (its times, grid,
     /// field ranges and bins).
-    pub fn for_header(header: &StudyHeader) -> Result<PointStats> {
-        PointStats::with_u_range(header, header.field_ranges["u"])
+    pub fn for_header(header: &StudyHeader, p: u64) -> Result<PointStats> {
+        PointStats::with_u_range(header, p, header.field_ranges["u"])
     }
 
     /// As [`for_header`](Self::for_header), with the point's own velocity range of the u band.
-    pub fn with_u_range(header: &StudyHeader, u_range: (f64, f64)) -> Result<PointStats> {
+    pub fn with_u_range(header: &StudyHeader, p: u64, u_range: (f64, f64)) -> Result<PointStats> {
+        let mut stats = PointStats {
+            completed: 0,
+            failed: 0,
+            first_hit: summary(),
+            never_hit: 0,
+            peak_density: summary(),
+            min_gap: summary(),
+            final_energy: summary(),
+            scalars: BTreeMap::new(),
+            fields: BTreeMap::new(),
+        };
+        if !header.is_detailed(p) {
+            return Ok(stats);
+        }
         let times = header.times.len();
-        let summary =
-            || ScalarSummary::new(SCALAR_ALPHA).expect("SCALAR_ALPHA is a valid accuracy");
-        let mut fields = BTreeMap::new();
-        for f in FIELDS {
+        for f in &header.band_fields {
             let (lo, hi) = if f == "u" {
                 u_range
             } else {
-                header.field_ranges[f]
+                header.field_ranges[f.as_str()]
             };
             let band = FieldBand::new(header.x.len(), lo, hi, header.bins).map_err(|e| {
                 Error::invalid(
@@ -67,23 +88,24 @@ impl PointStats {
                     "finite lo < hi, bins >= 1",
                 )
             })?;
-            fields.insert(f.to_string(), vec![band; times]);
+            stats.fields.insert(f.to_string(), vec![band; times]);
         }
-        Ok(PointStats {
-            completed: 0,
-            failed: 0,
-            scalars: SCALARS
-                .iter()
-                .map(|s| (s.to_string(), (0..times).map(|_| summary()).collect()))
-                .collect(),
-            first_hit: summary(),
-            never_hit: 0,
-            peak_density: summary(),
-            fields,
-        })
+        stats.scalars = SCALARS
+            .iter()
+            .map(|s| (s.to_string(), (0..times).map(|_| summary()).collect()))
+            .collect();
+        Ok(stats)
+    }
+
+    /// Whether this point keeps statistics per output time.
+    pub fn is_detailed(&self) -> bool {
+        !self.scalars.is_empty()
     }
 
     fn merge(&mut self, other: &PointStats) -> std::result::Result<(), String> {
+        if self.is_detailed() != other.is_detailed() {
+            return Err("per-time statistics on one side only".into());
+        }
         self.completed += other.completed;
         self.failed += other.failed;
         for (name, per_time) in &other.scalars {
@@ -95,13 +117,15 @@ impl PointStats {
                 a.merge(b).map_err(|e| e.to_string())?;
             }
         }
-        self.first_hit
-            .merge(&other.first_hit)
-            .map_err(|e| e.to_string())?;
+        for (mine, theirs) in [
+            (&mut self.first_hit, &other.first_hit),
+            (&mut self.peak_density, &other.peak_density),
+            (&mut self.min_gap, &other.min_gap),
+            (&mut self.final_energy, &other.final_energy),
+        ] {
+            mine.merge(theirs).map_err(|e| e.to_string())?;
+        }
         self.never_hit += other.never_hit;
-        self.peak_density
-            .merge(&other.peak_density)
-            .map_err(|e| e.to_string())?;
         for (name, per_time) in &other.fields {
             let mine = self
                 .fields
@@ -139,14 +163,14 @@ impl StudyState {
     ) -> Result<&mut PointStats> {
         if !self.points.contains_key(&p) {
             self.points
-                .insert(p, PointStats::with_u_range(header, u_range)?);
+                .insert(p, PointStats::with_u_range(header, p, u_range)?);
         }
         Ok(self.points.get_mut(&p).expect("inserted"))
     }
 
     pub fn merge(&mut self, other: &StudyState) -> Result<()> {
         let bad = |message: String| Error::Output {
-            path: PathBuf::from("partial.json"),
+            path: PathBuf::from(super::PARTIAL),
             message,
         };
         self.ranges.extend_from_slice(&other.ranges);

@@ -1,0 +1,113 @@
+//! The memory a study will need, estimated before anything is solved: a study whose estimate is
+//! above the limit (half the machine's memory) is refused with the settings that drive it,
+//! unless `--allow-large`, so that no study dies by the kernel's OOM killer without a message.
+//!
+//! The estimate follows what the study holds at once: the per-time statistics of the detailed
+//! points (the run's total and one chunk's own, the field bands dense in memory), the responses
+//! of every point, and one chunk's members (solver state, recorded observables, kept arrays).
+
+use super::files::StudyHeader;
+use super::SCALARS;
+use crate::error::{Error, Result};
+use crate::scene::EnsembleSpec;
+
+/// Bytes of one DDSketch with a few hundred buckets and its moments (a scalar summary).
+const SUMMARY_BYTES: u64 = 4096;
+/// Bytes of one point's response summaries (four scalar summaries, map overhead).
+const POINT_RESPONSE_BYTES: u64 = 4 * SUMMARY_BYTES + 256;
+/// Bytes per particle of one member being solved: gaps, velocities, tridiagonal work arrays and
+/// the extrapolation tableau (order 6: a few copies of the state), in f64.
+const SOLVER_BYTES_PER_PARTICLE: u64 = 64 * 8;
+/// Bytes of one members.csv row held for a chunk.
+const ROW_BYTES: u64 = 512;
+
+/// What a study will hold in memory, part by part.
+#[derive(Debug, Clone)]
+pub struct MemoryEstimate {
+    pub bytes: u64,
+    pub detailed_bytes: u64,
+    pub responses_bytes: u64,
+    pub chunk_bytes: u64,
+}
+
+/// The estimate for the study `header` describes, with chains of up to `particles` particles.
+pub fn estimate(header: &StudyHeader, spec: &EnsembleSpec, particles: usize) -> MemoryEstimate {
+    let t = header.times.len() as u64;
+    let g = header.x.len() as u64;
+    let points = header.points.len().max(1) as u64;
+    let detailed = header.detailed_count();
+    let per_point = header.members_per_point.max(1);
+    let chunk = spec.chunk as u64;
+    // A field band: per grid point its moments and bins + 2 dense slot counts.
+    let band = g * (64 + (header.bins as u64 + 2) * 8);
+    let per_detailed =
+        header.band_fields.len() as u64 * t * band + SCALARS.len() as u64 * t * SUMMARY_BYTES;
+    // The run's total and the chunk's own statistics of the detailed points it touches.
+    let touched = detailed.min(chunk.div_ceil(per_point) + 1);
+    let detailed_bytes = (detailed + touched) * per_detailed;
+    let responses_bytes = 2 * points * POINT_RESPONSE_BYTES;
+    let n = particles as u64;
+    let recorded = (header.band_fields.len() as u64 * g + SCALARS.len() as u64) * 8 * t;
+    let kept = if spec.store_members {
+        (2 * n + g) * 8 * t
+    } else {
+        0
+    };
+    // Snapshots carry rho on the grid (the peak centre), and the solver its state.
+    let chunk_bytes = chunk * (n * SOLVER_BYTES_PER_PARTICLE + recorded + kept + g * 8 + ROW_BYTES);
+    MemoryEstimate {
+        bytes: detailed_bytes + responses_bytes + chunk_bytes,
+        detailed_bytes,
+        responses_bytes,
+        chunk_bytes,
+    }
+}
+
+/// The machine's memory (MemTotal of /proc/meminfo), where it can be read.
+pub fn machine_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// The limit a study's estimate is held to: half the machine's memory (16 GB where it cannot be
+/// read).
+pub fn memory_limit() -> u64 {
+    machine_memory().map_or(16_000_000_000, |m| m / 2)
+}
+
+/// Refuses a study whose estimate is above `limit`, naming the settings that drive it.
+pub fn check(
+    estimate: &MemoryEstimate,
+    header: &StudyHeader,
+    spec: &EnsembleSpec,
+    limit: u64,
+) -> Result<()> {
+    if estimate.bytes <= limit {
+        return Ok(());
+    }
+    let gb = |b: u64| b as f64 / 1e9;
+    Err(Error::invalid(
+        "ensemble (memory)",
+        format!("{:.1} GB", gb(estimate.bytes)),
+        format!(
+            "the study would hold about {:.1} GB in memory: {:.1} GB of per-time statistics for {} detailed points ({} output times x grid {} x {} bins x fields [{}]), {:.1} GB of responses for {} sweep points, {:.1} GB for a chunk of {} members",
+            gb(estimate.bytes),
+            gb(estimate.detailed_bytes),
+            header.detailed_count(),
+            header.times.len(),
+            header.x.len(),
+            header.bins,
+            header.band_fields.join(", "),
+            gb(estimate.responses_bytes),
+            header.points.len().max(1),
+            gb(estimate.chunk_bytes),
+            spec.chunk,
+        ),
+        format!(
+            "at most {:.1} GB (half this machine's memory): fewer ensemble.detailed_points, fewer [output] fields, a coarser [output] grid or ensemble.bins, fewer outputs, a smaller ensemble.chunk, or --allow-large",
+            gb(limit)
+        ),
+    ))
+}
