@@ -49,7 +49,7 @@ enum Command {
         /// Replace an --out directory that holds files that are not a roughlub run.
         #[arg(long)]
         force: bool,
-        /// Write outputs larger than 21.5 GB, or sweep more than 100000 points (refused otherwise).
+        /// Write outputs larger than 21.5 GB, sweep more than 100000 points, or run a study whose memory estimate exceeds half the machine's memory (refused otherwise).
         #[arg(long)]
         allow_large: bool,
     },

@@ -336,7 +336,22 @@ impl EnsembleMembers {
             InitialSpec::Profiles { velocity, .. } => {
                 let q = positions_from_gaps(&chain.gaps, chain.eps);
                 for (i, u) in chain.velocities.iter_mut().enumerate() {
-                    *u = factor * velocity.eval(q[i + 1] - phase, 0.0);
+                    let v = velocity.eval(q[i + 1] - phase, 0.0);
+                    // A sweep point's velocity profile is checked here, where it is used (the
+                    // unswept scene's was sampled over [0, 1] when the scene was read).
+                    if p != 0 && !(v.is_finite() && v.abs() <= crate::scene::MAX_VELOCITY) {
+                        return Err(Error::invalid(
+                            "initial.velocity",
+                            format!("\"{}\"", velocity.source()),
+                            format!(
+                                "u0 = {v} at particle {} (x = {}) of sweep point {p}",
+                                i + 1,
+                                q[i + 1] - phase
+                            ),
+                            format!("finite, |u0| <= {:e}", crate::scene::MAX_VELOCITY),
+                        ));
+                    }
+                    *u = factor * v;
                 }
             }
             InitialSpec::Particles { .. } => {
