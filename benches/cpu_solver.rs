@@ -48,6 +48,7 @@ fn solver(
         output_times: vec![0.0, steps as f64 * dt],
         fields: OutputFields::none(),
         grid: 2,
+        companion_estimate: false,
     };
     let mut s = CpuSolver::with_precision(plan, vec![chain; members], precision);
     s.next_output(&|_| {}).unwrap();

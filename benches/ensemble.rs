@@ -84,6 +84,7 @@ fn study(c: &mut Criterion, name: &str, scene: &Scene) {
             resume: false,
             force: false,
             allow_large: false,
+            checkpoint_seconds: roughlub::study::DEFAULT_CHECKPOINT_SECONDS,
         };
         let mut shares = Vec::new();
         group.bench_function(label, |b| {

@@ -169,6 +169,7 @@ fn plan(case: &Case, eps: f64) -> Plan {
         output_times: vec![0.0, case.steps as f64 * DT],
         fields: OutputFields::none(),
         grid: 2,
+        companion_estimate: false,
     }
 }
 

@@ -5,6 +5,7 @@
 //! - `batch_4096`: a `[batch]` of 4096 members (a list of mu, fields = energy), no statistics;
 //! - `ensemble_4096`: an `[ensemble]` of 4096 members with the default outputs;
 //! - `ensemble_4096_grid20`, `ensemble_4096_energy`: the same with grid = 20, fields = energy;
+//! - `ensemble_1024_N200`, `ensemble_256_N1000`: ensembles of longer chains, default outputs;
 //! - `random_P_x1`: a random design of P points x 1 member (P = 64, 256, 4096, 10000).
 //!
 //! Criterion times each row (the whole command); one further run of each prints the table:
@@ -21,13 +22,17 @@ use criterion::{criterion_group, criterion_main, Criterion};
 const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
 
 fn base(extra_output: &str, tail: &str) -> String {
+    base_n(60, extra_output, tail)
+}
+
+fn base_n(particles: usize, extra_output: &str, tail: &str) -> String {
     format!(
         r#"
 name = "study_scale"
 [parameters]
 A = 0.5
 [model]
-particles = 60
+particles = {particles}
 mu = 0.01
 gamma = 2.0
 [initial]
@@ -55,6 +60,16 @@ fn ensemble(members: u64, extra_output: &str, sweep: &str) -> String {
         &format!(
             "{sweep}\n[ensemble]\nmembers = {members}\nseed = 1\nroughness = {{ kind = \"lognormal\", spread = 0.3 }}\n"
         ),
+    )
+}
+
+/// An ensemble of chains of N particles with the default outputs (the statistics' share from
+/// N = 60 to N = 1000).
+fn ensemble_n(members: u64, particles: usize) -> String {
+    base_n(
+        particles,
+        "",
+        &format!("[ensemble]\nmembers = {members}\nseed = 1\nroughness = {{ kind = \"lognormal\", spread = 0.3 }}\n"),
     )
 }
 
@@ -87,6 +102,8 @@ fn rows() -> Vec<(String, String)> {
             "ensemble_4096_energy".into(),
             ensemble(4096, "fields = [\"energy\"]", ""),
         ),
+        ("ensemble_1024_N200".into(), ensemble_n(1024, 200)),
+        ("ensemble_256_N1000".into(), ensemble_n(256, 1000)),
         random(64),
         random(256),
         random(4096),

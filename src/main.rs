@@ -43,9 +43,13 @@ enum Command {
         /// Ensembles only: solve shard K of N (K from 0), e.g. --shard 3/1000.
         #[arg(long)]
         shard: Option<String>,
-        /// Ensembles only: finish an interrupted run in the same directory, reusing its chunks.
+        /// Ensembles only: finish an interrupted run in the same directory from its last checkpoint.
         #[arg(long)]
         resume: bool,
+        /// Ensembles only: seconds of solving between checkpoints of the finished chunks (what an
+        /// interrupted run can lose; 0 = after every chunk).
+        #[arg(long, value_name = "SECONDS", default_value_t = roughlub::study::DEFAULT_CHECKPOINT_SECONDS)]
+        checkpoint_every: f64,
         /// Replace an --out directory that holds files that are not a roughlub run.
         #[arg(long)]
         force: bool,
@@ -180,7 +184,15 @@ fn estimate_text(largest: Option<f64>, available: bool) -> String {
     match (largest, available) {
         (Some(e), _) => format!("{e:.2e} (see \"error_estimate\" in the manifest)"),
         (None, true) => "none (no member completed)".into(),
-        (None, false) => "unavailable (order 1 with fixed steps)".into(),
+        (None, false) => "unavailable (order 1 with fixed steps, error_estimate = false)".into(),
+    }
+}
+
+/// The warning for a largest error estimate that says the run is not converged (printed even
+/// with --quiet).
+fn warn_if_large(largest: Option<f64>) {
+    if let Some(w) = roughlub::output::manifest::large_error_warning(largest) {
+        eprintln!("warning: {w}");
     }
 }
 
@@ -200,6 +212,7 @@ fn report_study(summary: &StudySummary, quiet: bool) {
             summary.out_dir.display()
         );
     }
+    warn_if_large(summary.largest_error_estimate);
     if summary.failed > 0 {
         eprintln!(
             "warning: {} member(s) failed; they are counted and listed (\"failed_members\" in the manifest, status in members.csv), never averaged in",
@@ -221,6 +234,7 @@ fn main() -> ExitCode {
             quiet,
             shard,
             resume,
+            checkpoint_every,
             force,
             allow_large,
         } => (|| {
@@ -243,6 +257,7 @@ fn main() -> ExitCode {
                         resume,
                         force,
                         allow_large,
+                        checkpoint_seconds: checkpoint_every,
                     },
                 )?;
                 report_study(&summary, quiet);
@@ -280,6 +295,7 @@ fn main() -> ExitCode {
                     summary.out_dir.display()
                 );
             }
+            warn_if_large(summary.largest_error_estimate);
             if summary.failed > 0 {
                 // The run itself succeeded; failed members are data, listed in the manifest.
                 eprintln!(

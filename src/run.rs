@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use crate::backend::report::error_estimate_method;
+use crate::backend::report::run_error_estimate_method;
 use crate::backend::{select, Backend, MemberStatus, Precision};
 use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
@@ -360,7 +360,12 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         plan: plan.summary(),
         output_times: plan.output_times.clone(),
         grid: plan.grid,
-        error_estimate: ErrorEstimateRecord::new(plan.order, plan.stepping, largest_error_estimate),
+        error_estimate: ErrorEstimateRecord::new(
+            plan.order,
+            plan.stepping,
+            plan.companion_estimate,
+            largest_error_estimate,
+        ),
         steps_accepted_total: reports.iter().map(|r| r.steps_accepted).sum(),
         steps_rejected_total: reports.iter().map(|r| r.steps_rejected).sum(),
         failed_members: failed_members.clone(),
@@ -389,7 +394,12 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         failed: failed_members.len(),
         wall_seconds: wall,
         largest_error_estimate,
-        error_estimate_available: error_estimate_method(plan.order, plan.stepping).is_some(),
+        error_estimate_available: run_error_estimate_method(
+            plan.order,
+            plan.stepping,
+            plan.companion_estimate,
+        )
+        .is_some(),
     })
 }
 

@@ -36,6 +36,7 @@ fn plan(chain: &Chain, members: Vec<MemberParams>, order: Order, stepping: Stepp
         output_times: vec![0.0, 0.1, 0.2],
         fields: OutputFields::all(),
         grid: 16,
+        companion_estimate: false,
     }
 }
 

@@ -293,18 +293,10 @@ fn reference(scene_path: &Path) -> Reference {
     }
 }
 
-/// Names of the finished chunk files (`chunk_*.state`, not `*.tmp`) in `dir/chunks`.
-fn chunk_files(dir: &Path) -> Vec<String> {
-    let Ok(entries) = std::fs::read_dir(dir.join("chunks")) else {
-        return Vec::new();
-    };
-    let mut names: Vec<String> = entries
-        .filter_map(|e| e.ok())
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| n.starts_with("chunk_") && n.ends_with(".state"))
-        .collect();
-    names.sort();
-    names
+/// Whether `dir` holds a finished checkpoint of a running study (`checkpoint.state`, not its
+/// `.tmp`).
+fn has_checkpoint(dir: &Path) -> bool {
+    dir.join("checkpoint.state").is_file()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -704,16 +696,16 @@ fn members_csv_does_not_depend_on_chunks_or_threads() {
 // ---------------------------------------------------------------------------------------------
 // 4. Resume.
 
-/// Starts a fresh `roughlub run` of `scene` into `dir` (CPU), kills it (SIGKILL) once its
-/// staging directory beside `dir` holds `chunks` finished chunk files, and returns that
-/// staging directory.
-fn kill_after_chunks(scene: &Path, dir: &Path, chunks: usize) -> PathBuf {
+/// Starts a fresh `roughlub run` of `scene` into `dir` (CPU, a checkpoint after every chunk),
+/// kills it (SIGKILL) once its staging directory beside `dir` holds a checkpoint and `wait`
+/// more has passed, and returns that staging directory.
+fn kill_after_checkpoint(scene: &Path, dir: &Path, wait: Duration) -> PathBuf {
     let mut child = Command::new(BIN)
         .arg("run")
         .arg(scene)
         .arg("--out")
         .arg(dir)
-        .args(["--backend", "cpu", "--quiet"])
+        .args(["--backend", "cpu", "--quiet", "--checkpoint-every", "0"])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
@@ -722,17 +714,18 @@ fn kill_after_chunks(scene: &Path, dir: &Path, chunks: usize) -> PathBuf {
     let name = dir.file_name().unwrap().to_string_lossy();
     let staging = dir.with_file_name(format!(".{name}.partial-{}", child.id()));
     let started = Instant::now();
-    while chunk_files(&staging).len() < chunks {
+    while !has_checkpoint(&staging) {
         assert!(
             child.try_wait().unwrap().is_none(),
-            "the run ended before {chunks} chunks were seen"
+            "the run ended before a checkpoint was seen"
         );
         assert!(
             started.elapsed() < Duration::from_secs(60),
-            "no {chunks} chunk files after 60 s"
+            "no checkpoint after 60 s"
         );
         std::thread::sleep(Duration::from_millis(2));
     }
+    std::thread::sleep(wait);
     child.kill().unwrap();
     child.wait().unwrap();
     staging
@@ -743,36 +736,29 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = data("study_resume.toml");
     let dir = tmp.path().join("killed");
-    let staging = kill_after_chunks(&scene, &dir, 2);
-    let kept = chunk_files(&staging);
-    assert!(kept.len() >= 2);
+    let staging = kill_after_checkpoint(&scene, &dir, Duration::from_millis(20));
+    assert!(has_checkpoint(&staging));
     assert!(
-        kept.len() < 20,
-        "the run finished every chunk before it was killed; make the scene bigger"
+        !staging.join("manifest.json").exists(),
+        "the run finished before it was killed; make the scene bigger"
     );
     assert!(
         !dir.exists(),
         "a killed fresh study must leave --out as it was (here: absent)"
     );
-    assert!(!staging.join("manifest.json").exists());
-    eprintln!("killed with {} of 20 chunk files written", kept.len());
 
     let resumed = run(&scene, &dir, &["--resume"]);
     assert_success(&resumed, "roughlub run --resume");
     let man = manifest(&dir);
-    assert_eq!(
-        man["chunks_reused"],
-        kept.len() as u64,
-        "chunks_reused should be the chunks present after the kill"
+    let reused = man["chunks_reused"].as_u64().unwrap();
+    eprintln!("killed with {reused} of 20 chunks checkpointed");
+    assert!(
+        (1..20).contains(&reused),
+        "chunks_reused should be the chunks of the checkpoint (1 to 19), got {reused}"
     );
     assert_eq!(man["chunks"], 20);
-    // The reused chunks were read as they were (not rewritten) while the study ran; once it
-    // completes, partial.state holds their merge and the chunk files are removed.
-    assert_eq!(
-        chunk_files(&dir).len(),
-        0,
-        "a complete study keeps no chunk files"
-    );
+    // Once the study completes, partial.state holds the checkpoint's statistics and the rest.
+    assert!(!has_checkpoint(&dir), "a complete study keeps no checkpoint");
     assert!(dir.join("partial.state").is_file());
     assert!(
         !staging.exists(),
@@ -792,7 +778,8 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
         std::fs::read_to_string(whole.join("members.csv")).unwrap(),
         "members.csv after resume differs from the uninterrupted run"
     );
-    // Chunks are merged in the same order, so the mean is the same to the bit.
+    // The checkpoint is read back bit for bit and chunks are merged in the same order, so the
+    // mean is the same to the bit.
     assert_identical(
         "max_density_mean",
         &stat(&dir, "max_density_mean").1,
@@ -815,7 +802,7 @@ fn a_study_replaces_an_earlier_run_whole() {
     let single_manifest = std::fs::read(dir.join("manifest.json")).unwrap();
     assert!(dir.join("gaps.npy").is_file());
 
-    let staging = kill_after_chunks(&data("study_resume.toml"), &dir, 1);
+    let staging = kill_after_checkpoint(&data("study_resume.toml"), &dir, Duration::ZERO);
     assert_eq!(
         std::fs::read(dir.join("manifest.json")).unwrap(),
         single_manifest,
@@ -1102,10 +1089,13 @@ fn error_estimates_per_member_and_output_time() {
     let want_last: Vec<f64> = want.iter().map(|e| e[t - 1]).collect();
     assert_all_close("members.csv error_estimate", &last, &want_last, 1e-15, 0.0);
 
-    // Order 1 with fixed steps has no estimate: empty statistics.
+    // Order 1 with fixed steps and its companion turned off has no estimate: empty statistics.
     let plain = scene_variant(
         "study_basic.toml",
-        &[("jitter = 0.05", "jitter = 0.05\nstore_members = true")],
+        &[
+            ("jitter = 0.05", "jitter = 0.05\nstore_members = true"),
+            ("backend = \"cpu\"", "backend = \"cpu\"\nerror_estimate = false"),
+        ],
         tmp.path(),
         "plain.toml",
     );
@@ -1126,7 +1116,7 @@ fn resume_finishes_an_interrupted_rerun_over_an_earlier_study() {
     let dir = tmp.path().join("o");
     assert_success(&run(&data("study_basic.toml"), &dir, &[]), "earlier study");
     let scene = data("study_resume.toml");
-    kill_after_chunks(&scene, &dir, 2);
+    kill_after_checkpoint(&scene, &dir, Duration::from_millis(20));
     assert_eq!(
         manifest(&dir)["kind"],
         "ensemble",
@@ -1134,6 +1124,6 @@ fn resume_finishes_an_interrupted_rerun_over_an_earlier_study() {
     );
     let resumed = run(&scene, &dir, &["--resume"]);
     assert_success(&resumed, "resume of the rerun");
-    assert!(manifest(&dir)["chunks_reused"].as_u64().unwrap() >= 2);
+    assert!(manifest(&dir)["chunks_reused"].as_u64().unwrap() >= 1);
     assert_eq!(manifest(&dir)["members_total"], 2000);
 }

@@ -4,6 +4,7 @@
 //!
 //! Single runs (`crate::run`) and studies (`crate::study`) are written once against this seam.
 
+pub mod companion;
 pub mod cpu;
 pub mod error;
 pub mod gpu;

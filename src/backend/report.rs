@@ -51,6 +51,27 @@ pub fn error_estimate_method(
     }
 }
 
+/// How the error estimates of a run are made, counting the companion run that estimates order
+/// 1 with fixed steps (see [`companion`](super::companion)) when `companion` is on; `None` when
+/// the run has none.
+pub fn run_error_estimate_method(
+    order: crate::model::params::Order,
+    stepping: crate::model::params::Stepping,
+    companion: bool,
+) -> Option<&'static str> {
+    use crate::model::params::{Order, Stepping};
+    match (order, stepping) {
+        (Order::Fixed(1), Stepping::Fixed { .. }) if companion => {
+            Some(super::companion::COMPANION_METHOD)
+        }
+        _ => error_estimate_method(order, stepping),
+    }
+}
+
+/// Above this error estimate a run warns that its results are not converged (on stderr and in
+/// the manifest): a tenth of the relative size of the state.
+pub const LARGE_ERROR_ESTIMATE: f64 = 0.1;
+
 /// Why a member stopped (a code, so the GPU can store it in a u32).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]

@@ -132,7 +132,23 @@ pub struct Engine {
 
 impl Engine {
     /// A solver for `chains` (`chains[m]` is member m's initial chain) on this engine.
+    /// Order 1 with fixed steps gets its error estimate from a companion run at 4 dt (see
+    /// [`companion`](super::companion)) unless the plan turns it off.
     pub fn solver(&self, plan: Plan, chains: Vec<Chain>) -> Result<Box<dyn BatchSolver + '_>> {
+        use super::companion::{companion_plan, needs_companion, CompanionEstimate};
+        if !(plan.companion_estimate && needs_companion(&plan)) {
+            return self.plain_solver(plan, chains);
+        }
+        let companion = self.plain_solver(companion_plan(&plan), chains.clone())?;
+        let mut compared = plan.clone();
+        compared.fields.gaps = true;
+        compared.fields.velocities = true;
+        let run = self.plain_solver(compared, chains)?;
+        Ok(Box::new(CompanionEstimate::new(plan, run, companion)))
+    }
+
+    /// A solver of the plan as it is, on this engine's backend.
+    fn plain_solver(&self, plan: Plan, chains: Vec<Chain>) -> Result<Box<dyn BatchSolver + '_>> {
         Ok(match &self.gpu {
             None => Box::new(CpuSolver::with_precision(
                 plan,

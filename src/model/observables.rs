@@ -248,34 +248,50 @@ pub fn observe(
         rho.reserve(cap(f.rho));
         u.reserve(cap(f.u));
         rho_star.reserve(cap(f.rho_star));
-        // Walk the grid and the cells together.
-        let mut cell = 1; // cell i covers [q_{i-1}, q_i)
-        let mut q_left = 0.0;
-        let mut q_right = gap(0) + 2.0 * eps;
+        // Walk the grid and the cells together; a cell's values are computed once, when the
+        // walk enters it (a grid is typically several points per cell).
+        struct Cell {
+            q_left: f64,
+            width: f64,
+            rho: f64,
+            rho_star: f64,
+            u_left: f64,
+            u_right: f64,
+        }
+        let cell_at = |i: usize, q_left: f64| {
+            // Cell i (1-based) covers [q_{i-1}, q_i).
+            let d = gap(i - 1);
+            Cell {
+                q_left,
+                width: d + 2.0 * eps,
+                rho: 2.0 * eps / (d + 2.0 * eps),
+                rho_star: dstar.map_or(f64::NAN, |ds| 2.0 * eps / (ds[i - 1] + 2.0 * eps)),
+                u_left: if i >= 2 { velocities[i - 2] } else { 0.0 },
+                u_right: if i <= n - 1 { velocities[i - 1] } else { 0.0 },
+            }
+        };
+        let mut i = 1;
+        let mut c = cell_at(1, 0.0);
+        let mut q_right = c.width;
         for &x in grid_x {
-            while x >= q_right && cell < n {
-                cell += 1;
-                q_left = q_right;
-                q_right += gap(cell - 1) + 2.0 * eps;
-            }
-            let d = gap(cell - 1);
-            if f.rho {
-                rho.push(2.0 * eps / (d + 2.0 * eps));
-            }
-            if f.rho_star {
-                if let Some(ds) = dstar {
-                    rho_star.push(2.0 * eps / (ds[cell - 1] + 2.0 * eps));
+            if x >= q_right && i < n {
+                while x >= q_right && i < n {
+                    i += 1;
+                    let q_left = q_right;
+                    q_right += gap(i - 1) + 2.0 * eps;
+                    c.q_left = q_left;
                 }
+                c = cell_at(i, c.q_left);
+            }
+            if f.rho {
+                rho.push(c.rho);
+            }
+            if f.rho_star && dstar.is_some() {
+                rho_star.push(c.rho_star);
             }
             if f.u {
-                let u_left = if cell >= 2 { velocities[cell - 2] } else { 0.0 };
-                let u_right = if cell <= n - 1 {
-                    velocities[cell - 1]
-                } else {
-                    0.0
-                };
-                let s = ((x - q_left) / (q_right - q_left)).clamp(0.0, 1.0);
-                u.push(u_left + (u_right - u_left) * s);
+                let s = ((x - c.q_left) / (q_right - c.q_left)).clamp(0.0, 1.0);
+                u.push(c.u_left + (c.u_right - c.u_left) * s);
             }
         }
     }

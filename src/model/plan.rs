@@ -91,6 +91,9 @@ pub struct Plan {
     pub output_times: Vec<f64>,
     pub fields: OutputFields,
     pub grid: usize,
+    /// Order 1 with fixed steps: estimate the error with a companion run (see
+    /// [`crate::backend::companion`]).
+    pub companion_estimate: bool,
 }
 
 #[derive(Debug, Clone, serde::Serialize)]
@@ -123,6 +126,7 @@ impl Plan {
             output_times: scene.output_times.clone(),
             fields,
             grid: scene.grid,
+            companion_estimate: scene.error_estimate,
         }
     }
 

@@ -30,26 +30,49 @@ pub struct ErrorEstimateRecord {
     pub method: &'static str,
     /// The largest estimate over the members that completed (null where unavailable).
     pub largest: Option<f64>,
+    /// Set where the largest estimate is above
+    /// [`LARGE_ERROR_ESTIMATE`](crate::backend::report::LARGE_ERROR_ESTIMATE).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub warning: Option<String>,
 }
 
 impl ErrorEstimateRecord {
+    /// `companion`: whether order 1 with fixed steps ran its error-estimating companion.
     pub fn new(
         order: crate::model::params::Order,
         stepping: crate::model::params::Stepping,
+        companion: bool,
         largest: Option<f64>,
     ) -> Self {
-        match crate::backend::report::error_estimate_method(order, stepping) {
-            Some(method) => ErrorEstimateRecord { method, largest },
+        match crate::backend::report::run_error_estimate_method(order, stepping, companion) {
+            Some(method) => ErrorEstimateRecord {
+                method,
+                largest,
+                warning: large_error_warning(largest),
+            },
             None => ErrorEstimateRecord {
                 method: ERROR_ESTIMATE_UNAVAILABLE,
                 largest: None,
+                warning: None,
             },
         }
     }
 }
 
+/// The warning for an error estimate above
+/// [`LARGE_ERROR_ESTIMATE`](crate::backend::report::LARGE_ERROR_ESTIMATE), if it is.
+pub fn large_error_warning(largest: Option<f64>) -> Option<String> {
+    let limit = crate::backend::report::LARGE_ERROR_ESTIMATE;
+    match largest {
+        Some(e) if !(e <= limit) => Some(format!(
+            "the largest error estimate {e:.2e} is above {limit}: these results are not converged in time; use a smaller dt or a higher order (roughlub accuracy SCENE measures which)"
+        )),
+        _ => None,
+    }
+}
+
 /// Why order 1 with fixed steps has no estimate.
-pub const ERROR_ESTIMATE_UNAVAILABLE: &str = "unavailable: order 1 with fixed steps computes no second solution to compare with (use order >= 2, or adaptive steps)";
+pub const ERROR_ESTIMATE_UNAVAILABLE: &str = "unavailable: order 1 with fixed steps and [solver] error_estimate = false computes no second solution to compare with";
 
 /// `manifest.json` of a single run.
 #[derive(Debug, Serialize)]

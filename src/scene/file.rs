@@ -109,6 +109,8 @@ pub(super) struct SolverSection {
     /// allowed names like every other scene error.
     pub backend: Option<String>,
     pub precision: Option<String>,
+    /// Order 1 with fixed steps: run the companion that estimates the error (default true).
+    pub error_estimate: Option<bool>,
 }
 
 #[derive(Debug, Deserialize)]

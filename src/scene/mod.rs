@@ -69,6 +69,9 @@ pub struct Scene {
     pub order: Order,
     pub backend: Backend,
     pub precision: Precision,
+    /// `[solver] error_estimate`: order 1 with fixed steps runs a companion at 4 dt to estimate
+    /// its error ([`crate::backend::companion`]); false turns it off.
+    pub error_estimate: bool,
     pub grid: usize,
     pub fields: OutputFields,
     pub plots: bool,
@@ -150,6 +153,7 @@ impl Scene {
             order,
             backend,
             precision,
+            error_estimate: file.solver.error_estimate.unwrap_or(true),
             grid: output.grid,
             fields: output.fields,
             plots: output.plots,

@@ -86,37 +86,87 @@ impl FieldBand {
                 got: bad.len(),
             });
         }
+        let Some(first_row) = rows.first() else {
+            return Ok(());
+        };
         let bins = self.bins;
-        // Points outer, members inner: a point's slot counts stay in cache while its column is
-        // read, and its sums are registers. Each point's sums run over the rows in order, so the
-        // result does not depend on the loop order.
-        for (j, (point, slots)) in self.points.iter_mut().zip(&mut self.slots).enumerate() {
-            // Shift by the point's first finite value (keeps the shifted sums well conditioned).
-            let Some(shift) = rows.iter().map(|r| r[j]).find(|x| x.is_finite()) else {
-                point.add_non_finite(rows.len() as u64);
-                continue;
-            };
-            let (mut n, mut non_finite) = (0u64, 0u64);
-            let (mut s1, mut s2) = (0.0f64, 0.0f64);
-            let (mut min, mut max) = (f64::INFINITY, f64::NEG_INFINITY);
-            for row in rows {
-                let x = row[j];
-                if !x.is_finite() {
-                    non_finite += 1;
-                    continue;
-                }
-                n += 1;
-                let d = x - shift;
-                s1 += d;
-                s2 += d * d;
-                min = min.min(x);
-                max = max.max(x);
-                slots[bins.slot(x)] += 1;
+        let (lo, hi, scale) = (bins.lo(), bins.hi(), bins.scale());
+        let last_bin = (bins.len() - 1) as f64;
+        // Slots as i32: `Bins::new` allows at most MAX_BINS bins.
+        let above = (bins.len() + 1) as i32;
+        // Blocks of points, members inner, the points of a row innermost: each point's sums run
+        // over the rows in order (the result does not depend on the blocking), the moment
+        // updates are straight-line over a block (packed SIMD), and a block's slot counts stay
+        // in cache while the rows stream through.
+        const BLOCK: usize = 64;
+        for j0 in (0..g).step_by(BLOCK) {
+            let width = BLOCK.min(g - j0);
+            // Shift each point by its first finite value (keeps the shifted sums well
+            // conditioned); NaN for a point without one, which then adds nothing.
+            let mut shift = [f64::NAN; BLOCK];
+            for (k, s) in shift[..width].iter_mut().enumerate() {
+                let first = first_row[j0 + k];
+                *s = if first.is_finite() {
+                    first
+                } else {
+                    rows.iter()
+                        .map(|r| r[j0 + k])
+                        .find(|x| x.is_finite())
+                        .unwrap_or(f64::NAN)
+                };
             }
-            let mean_d = s1 / n as f64;
-            let m2 = (s2 - s1 * mean_d).max(0.0);
-            point.merge(&RunningStats::from_moments(n, shift + mean_d, m2, min, max));
-            point.add_non_finite(non_finite);
+            let mut n = [0u64; BLOCK];
+            let mut s1 = [0.0f64; BLOCK];
+            let mut s2 = [0.0f64; BLOCK];
+            let mut min = [f64::INFINITY; BLOCK];
+            let mut max = [f64::NEG_INFINITY; BLOCK];
+            let mut slot = [0i32; BLOCK];
+            let slots = &mut self.slots[j0..j0 + width];
+            for row in rows {
+                let xs = &row[j0..j0 + width];
+                for k in 0..width {
+                    let x = xs[k];
+                    let finite = x.is_finite();
+                    // Adding 0.0 to a sum that started at +0.0 leaves it bit for bit as it was.
+                    let d = if finite { x - shift[k] } else { 0.0 };
+                    n[k] += finite as u64;
+                    s1[k] += d;
+                    s2[k] += d * d;
+                    min[k] = min[k].min(if finite { x } else { f64::INFINITY });
+                    max[k] = max[k].max(if finite { x } else { f64::NEG_INFINITY });
+                    // Bins::slot, branch-free: for lo <= x <= hi the bin is (x - lo) scale
+                    // truncated (>= 0, so truncation is floor; i32 converts packed).
+                    let bin = 1 + ((x - lo) * scale).min(last_bin) as i32;
+                    slot[k] = if x < lo {
+                        0
+                    } else if x > hi {
+                        above
+                    } else {
+                        bin
+                    };
+                }
+                for k in 0..width {
+                    if xs[k].is_finite() {
+                        slots[k][slot[k] as usize] += 1;
+                    }
+                }
+            }
+            let points = &mut self.points[j0..j0 + width];
+            for (k, point) in points.iter_mut().enumerate() {
+                let non_finite = rows.len() as u64 - n[k];
+                if n[k] > 0 {
+                    let mean_d = s1[k] / n[k] as f64;
+                    let m2 = (s2[k] - s1[k] * mean_d).max(0.0);
+                    point.merge(&RunningStats::from_moments(
+                        n[k],
+                        shift[k] + mean_d,
+                        m2,
+                        min[k],
+                        max[k],
+                    ));
+                }
+                point.add_non_finite(non_finite);
+            }
         }
         Ok(())
     }

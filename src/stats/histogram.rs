@@ -6,6 +6,10 @@ use serde::{Deserialize, Serialize};
 
 use super::StatsError;
 
+/// The most bins a histogram may have: slots (bins + 2) are counted as i32 in the field bands'
+/// bulk fill.
+pub const MAX_BINS: usize = i32::MAX as usize - 2;
+
 /// `bins` equal bins on `[lo, hi]`: the one binning rule of this crate.
 ///
 /// A finite `lo <= x <= hi` is in bin `min(trunc(fl(fl(x - lo) * fl(bins / (hi - lo)))), bins -
@@ -33,7 +37,7 @@ impl Bins {
     /// `bins` equal bins on `[lo, hi]`; needs finite `lo < hi` with finite `hi - lo`, and
     /// `1 <= bins <= 2^32 - 1`.
     pub fn new(lo: f64, hi: f64, bins: usize) -> Result<Self, StatsError> {
-        if !(lo < hi && (hi - lo).is_finite()) || bins == 0 || bins > u32::MAX as usize {
+        if !(lo < hi && (hi - lo).is_finite()) || bins == 0 || bins > MAX_BINS {
             return Err(StatsError::InvalidHistogram { lo, hi, bins });
         }
         Ok(Bins {
@@ -52,6 +56,11 @@ impl Bins {
     /// Right edge of the range.
     pub fn hi(&self) -> f64 {
         self.hi
+    }
+
+    /// Bins per unit of x: `bins / (hi - lo)`.
+    pub fn scale(&self) -> f64 {
+        self.scale
     }
 
     /// Number of bins.

@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use super::files::{ChunkFile, MemberRow, StudyHeader};
+use super::files::{MemberRow, StudyHeader};
 use super::state::StudyState;
 use super::{ERROR_ESTIMATE, SCALARS};
 use crate::backend::gpu::solver::GpuStats;
@@ -47,8 +47,11 @@ pub(super) fn chunk_plan(
 struct RecordedObservables {
     /// The values of [`SCALARS`], in that order.
     scalars: [f64; SCALARS.len()],
-    /// The rows of the header's band fields, in that order.
-    fields: Vec<Vec<f64>>,
+    /// Where its rows of the header's band fields start in the chunk's `field_rows` (one row
+    /// of G values per band field, in that order).
+    rows_at: usize,
+    /// Bit f set: band field f has a row (a snapshot without that field has none).
+    rows_present: u8,
 }
 
 /// What the solved chunks of one invocation cost beyond the solve itself.
@@ -88,8 +91,14 @@ fn batch_groups(inputs: &[MemberInputs], members: &EnsembleMembers) -> Result<Ve
 }
 
 /// Solves members [first, end) with solvers from `engine` (the study's backend, through the
-/// `BatchSolver` seam; one batch per group of compatible members) and returns the chunk's
-/// statistics, per sweep point, and `members.csv` rows.
+/// `BatchSolver` seam; one batch per group of compatible members), adds their statistics to
+/// `total` (the run's, per sweep point) and returns their `members.csv` rows. `field_rows` is
+/// scratch space for the recorded field rows, kept by the caller from chunk to chunk.
+///
+/// The chunk's scalar statistics are summarised on their own and then merged into `total`; its
+/// field rows go straight into `total`'s bands, which is the same arithmetic as an empty band
+/// merged in (one Chan merge of the chunk's moments per grid point, integer counts) without a
+/// chunk-sized copy of every band.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn solve_chunk(
     dir: &Path,
@@ -97,11 +106,13 @@ pub(super) fn solve_chunk(
     members: &EnsembleMembers,
     header: &StudyHeader,
     engine: &Engine,
-    first: u64,
-    end: u64,
+    (first, end): (u64, u64),
+    total: &mut StudyState,
+    field_rows: &mut Vec<f64>,
     costs: &mut StudyCosts,
     progress: &ProgressReporter,
-) -> Result<ChunkFile> {
+) -> Result<Vec<MemberRow>> {
+    field_rows.clear();
     let inputs: Vec<MemberInputs> = (first..end)
         .map(|m| members.member(m))
         .collect::<Result<_>>()?;
@@ -185,6 +196,24 @@ pub(super) fn solve_chunk(
                     // Responses only: nothing per time is kept.
                     continue;
                 }
+                // Copied into one buffer that lives across chunks: the snapshot's vectors are
+                // freed now and reused by the next output's, instead of a chunk's worth of small
+                // allocations being held, freed and faulted in again for every chunk.
+                let rows_at = field_rows.len();
+                let mut rows_present = 0u8;
+                for (f, name) in header.band_fields.iter().enumerate() {
+                    let row = match name.as_str() {
+                        "rho" => &s.rho,
+                        "u" => &s.u,
+                        _ => &s.rho_star,
+                    };
+                    if row.len() == grid {
+                        field_rows.extend_from_slice(row);
+                        rows_present |= 1 << f;
+                    } else {
+                        field_rows.resize(field_rows.len() + grid, f64::NAN);
+                    }
+                }
                 group_recorded[g].push(Some(RecordedObservables {
                     scalars: [
                         s.max_density,
@@ -194,16 +223,8 @@ pub(super) fn solve_chunk(
                         peak_centre(&header.x, &s.rho),
                         estimate,
                     ],
-                    // Moved, not copied: the snapshot is not read again.
-                    fields: header
-                        .band_fields
-                        .iter()
-                        .map(|f| match f.as_str() {
-                            "rho" => std::mem::take(&mut s.rho),
-                            "u" => std::mem::take(&mut s.u),
-                            _ => std::mem::take(&mut s.rho_star),
-                        })
-                        .collect(),
+                    rows_at,
+                    rows_present,
                 }));
             }
             costs.statistics_seconds += started.elapsed().as_secs_f64();
@@ -229,16 +250,16 @@ pub(super) fn solve_chunk(
         .iter()
         .map(|r| r.status == MemberStatus::Ok)
         .collect();
-    let mut i = 0;
-    while i < count {
-        let p = inputs[i].point;
-        let mut j = i;
-        while j < count && inputs[j].point == p {
-            j += 1;
+    // Consecutive members of one sweep point, [i, j).
+    let mut groups: Vec<(usize, usize)> = Vec::new();
+    for i in 0..count {
+        match groups.last_mut() {
+            Some(g) if inputs[g.0].point == inputs[i].point => g.1 = i + 1,
+            _ => groups.push((i, i + 1)),
         }
-        let setup = inputs[i].setup.clone();
-        let u_range = super::files::band_u_range(&setup.spec, &setup.chain);
-        let stats = state.point_mut(p, header, u_range)?;
+    }
+    for &(i, j) in &groups {
+        let stats = state.point_mut(inputs[i].point, header);
         let detailed_times = if stats.is_detailed() { t_count } else { 0 };
         for k in 0..detailed_times {
             for (m, observed) in recorded[i..j].iter().enumerate() {
@@ -253,6 +274,40 @@ pub(super) fn solve_chunk(
                 }
             }
         }
+        for m in i..j {
+            if !ok_member[m] {
+                stats.failed += 1;
+                continue;
+            }
+            stats.completed += 1;
+            stats.peak_density.push(peak[m].0);
+            stats.min_gap.push(min_gap[m]);
+            stats.final_energy.push(final_energy[m]);
+            if first_hit[m].is_nan() {
+                stats.never_hit += 1;
+            } else {
+                stats.first_hit.push(first_hit[m]);
+            }
+        }
+    }
+    for (i, r) in reports.iter().enumerate() {
+        if r.status == MemberStatus::Ok {
+            state.completed += 1;
+        } else {
+            state.failed.push(first + i as u64);
+        }
+    }
+    total.merge(&state)?;
+
+    // The field rows, into the total's bands.
+    for &(i, j) in &groups {
+        let setup = inputs[i].setup.clone();
+        let u_range = super::files::band_u_range(&setup.spec, &setup.chain);
+        let stats = total
+            .points
+            .get_mut(&inputs[i].point)
+            .expect("merged above");
+        stats.add_bands(header, u_range)?;
         // Each (field, time) band is its own accumulator: they are filled in parallel, each from
         // its rows in member order (the same sums as one after the other).
         let mut bands: Vec<(usize, usize, &mut FieldBand)> = Vec::new();
@@ -275,30 +330,14 @@ pub(super) fn solve_chunk(
                         None
                     }
                 })
-                .map(|o| o.fields[f].as_slice())
-                .filter(|r| r.len() == grid)
+                .filter(|o| o.rows_present & (1 << f) != 0)
+                .map(|o| &field_rows[o.rows_at + f * grid..o.rows_at + (f + 1) * grid])
                 .collect()
         };
         bands.par_iter_mut().for_each(|(f, k, band)| {
             band.push_rows(&rows_of(*f, *k))
                 .expect("rows have the grid's length")
         });
-        for m in i..j {
-            if !ok_member[m] {
-                stats.failed += 1;
-                continue;
-            }
-            stats.completed += 1;
-            stats.peak_density.push(peak[m].0);
-            stats.min_gap.push(min_gap[m]);
-            stats.final_energy.push(final_energy[m]);
-            if first_hit[m].is_nan() {
-                stats.never_hit += 1;
-            } else {
-                stats.first_hit.push(first_hit[m]);
-            }
-        }
-        i = j;
     }
     costs.statistics_seconds += started.elapsed().as_secs_f64();
     if keep {
@@ -348,11 +387,6 @@ pub(super) fn solve_chunk(
             MemberStatus::Failed { time, .. } => ("failed".to_string(), *time),
         };
         let failed = r.status != MemberStatus::Ok;
-        if failed {
-            state.failed.push(m);
-        } else {
-            state.completed += 1;
-        }
         let point = inputs[i].point;
         rows.push(MemberRow {
             member: m,
@@ -380,11 +414,7 @@ pub(super) fn solve_chunk(
             },
         });
     }
-    Ok(ChunkFile {
-        range: (first, end),
-        state,
-        rows,
-    })
+    Ok(rows)
 }
 
 /// Centre of mass of the density peak: the centroid of the excess of rho over its spatial mean

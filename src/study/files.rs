@@ -1,5 +1,5 @@
 //! The files of a study directory: `study.json` ([`StudyHeader`], and the resume check against
-//! it), `chunks/chunk_<first>_<end>.state` ([`ChunkFile`]), `partial.state` ([`PartialFile`]) and
+//! it), `checkpoint.state` ([`CheckpointFile`]), `partial.state` ([`PartialFile`]) and
 //! `members.csv` ([`MemberRow`], streamed by [`CsvOut`]).
 
 use std::collections::BTreeMap;
@@ -119,13 +119,23 @@ pub struct MemberRow {
     pub error_estimate: f64,
 }
 
-/// `chunks/chunk_<first>_<end>.state`: the statistics and `members.csv` rows of one finished
-/// chunk (written atomically; `--resume` reuses it).
+/// `checkpoint.state`: the statistics of the chunks a running study has finished so far (their
+/// member ranges are `state.ranges`), how many bytes of `members.csv.partial` hold their rows,
+/// and their largest error estimate. Written atomically every `--checkpoint-every` seconds;
+/// `--resume` continues from it, and a complete study removes it.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub(super) struct ChunkFile {
-    pub range: (u64, u64),
+pub(super) struct CheckpointFile {
     pub state: StudyState,
-    pub rows: Vec<MemberRow>,
+    pub csv_bytes: u64,
+    pub largest_error_estimate: Option<f64>,
+}
+
+/// [`CheckpointFile`] borrowed, for writing it without a copy of the state.
+#[derive(Serialize)]
+pub(super) struct CheckpointFileRef<'a> {
+    pub state: &'a StudyState,
+    pub csv_bytes: u64,
+    pub largest_error_estimate: Option<f64>,
 }
 
 /// FNV-1a of the scene text: identifies the study for resume and merge.
@@ -274,18 +284,47 @@ impl CsvOut {
         self.write(record)
     }
 
+    /// Continues the `members.csv.partial` of an interrupted run after its first `bytes` bytes
+    /// (the rows of the chunks its checkpoint holds; rows written after it are dropped).
+    pub fn resume(path: PathBuf, bytes: u64) -> Result<CsvOut> {
+        let partial = path.with_extension("csv.partial");
+        let mut file = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&partial)
+            .map_err(|e| Error::io(&partial, e))?;
+        if file.metadata().map_err(|e| Error::io(&partial, e))?.len() < bytes {
+            return Err(Error::Output {
+                path: partial,
+                message: format!("shorter than the {bytes} bytes its checkpoint recorded: rerun without --resume"),
+            });
+        }
+        file.set_len(bytes).map_err(|e| Error::io(&partial, e))?;
+        std::io::Seek::seek(&mut file, std::io::SeekFrom::End(0)).map_err(|e| Error::io(&partial, e))?;
+        Ok(CsvOut {
+            path,
+            partial,
+            writer: csv::Writer::from_writer(file),
+        })
+    }
+
+    /// Flushes the rows written so far and returns the file's length (for a checkpoint).
+    pub fn flushed_len(&mut self) -> Result<u64> {
+        self.writer
+            .flush()
+            .map_err(|e| Error::io(&self.partial, e))?;
+        self.writer
+            .get_ref()
+            .metadata()
+            .map(|m| m.len())
+            .map_err(|e| Error::io(&self.partial, e))
+    }
+
     pub fn finish(mut self) -> Result<()> {
         self.writer
             .flush()
             .map_err(|e| Error::io(&self.partial, e))?;
         std::fs::rename(&self.partial, &self.path).map_err(|e| Error::io(&self.path, e))
     }
-}
-
-/// `chunks/chunk_<first>_<end>.state` of `dir`.
-pub(super) fn chunk_path(dir: &Path, first: u64, end: u64) -> PathBuf {
-    dir.join("chunks")
-        .join(format!("chunk_{first:012}_{end:012}.state"))
 }
 
 /// Members [K·M/N, (K+1)·M/N) of M for shard K of N.

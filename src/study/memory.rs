@@ -3,7 +3,7 @@
 //! unless `--allow-large`, so that no study dies by the kernel's OOM killer without a message.
 //!
 //! The estimate follows what the study holds at once: the per-time statistics of the detailed
-//! points (the run's total and one chunk's own, the field bands dense in memory), the responses
+//! points (the run's total, its field bands dense in memory, and one chunk's scalar summaries), the responses
 //! of every point, and one chunk's members (solver state, recorded observables, kept arrays).
 
 use super::files::StudyHeader;
@@ -40,11 +40,12 @@ pub fn estimate(header: &StudyHeader, spec: &EnsembleSpec, particles: usize) -> 
     let chunk = spec.chunk as u64;
     // A field band: per grid point its moments and bins + 2 dense slot counts.
     let band = g * (64 + (header.bins as u64 + 2) * 8);
-    let per_detailed =
-        header.band_fields.len() as u64 * t * band + SCALARS.len() as u64 * t * SUMMARY_BYTES;
-    // The run's total and the chunk's own statistics of the detailed points it touches.
+    let scalars = SCALARS.len() as u64 * t * SUMMARY_BYTES;
+    let per_detailed = header.band_fields.len() as u64 * t * band + scalars;
+    // The run's total, and the chunk's own scalar statistics of the detailed points it touches
+    // (its field rows go straight into the total's bands).
     let touched = detailed.min(chunk.div_ceil(per_point) + 1);
-    let detailed_bytes = (detailed + touched) * per_detailed;
+    let detailed_bytes = detailed * per_detailed + touched * scalars;
     let responses_bytes = 2 * points * POINT_RESPONSE_BYTES;
     let n = particles as u64;
     let recorded = (header.band_fields.len() as u64 * g + SCALARS.len() as u64) * 8 * t;

@@ -7,15 +7,16 @@
 //! A fresh study is written into a staging directory beside `--out` (`.NAME.partial-PID`) and
 //! swapped in whole when it completes, so `--out` is always a complete run (the earlier one until
 //! then). `--resume` continues in `--out` when it holds the study, or adopts the staging
-//! directory a killed fresh run left behind, reusing its finished chunks.
+//! directory a killed fresh run left behind, from its last checkpoint.
 //!
 //! Layout of a study directory:
 //! - `study.json`: what is being computed (scene text and hash, shard, member range, times, grid);
 //!   written first, checked by `--resume` and `merge`;
-//! - `chunks/chunk_<first>_<end>.state`: the statistics and CSV rows of each finished chunk,
-//!   written atomically while the study runs (a killed run keeps every finished chunk;
-//!   `--resume` skips them), removed when the study completes (`partial.state` holds their
-//!   merge, `members.csv` their rows);
+//! - `checkpoint.state`: the statistics of the chunks finished so far and the length of
+//!   `members.csv.partial` that holds their rows, written atomically every
+//!   `--checkpoint-every` seconds while the study runs (`--resume` continues from it), removed
+//!   when the study completes. Chunks add to the run's total in memory; a per-chunk copy of
+//!   the statistics would cost as much as the members' own data for small chains;
 //! - `partial.state`: the mergeable statistics of all members of this run (or shard);
 //! - `stats/*.npy`, `members.csv`, `plots/*.png`, and `manifest.json` last.
 //!
@@ -25,7 +26,7 @@
 //! The code follows the pipeline: [`EnsembleMembers`](crate::ensemble::members::EnsembleMembers)
 //! builds each member's inputs; `chunk.rs` solves a chunk of members through the backend seam and
 //! summarises it into a [`StudyState`] (`state.rs`, everything mergeable); `files.rs` holds the
-//! header, chunk and partial files, members.csv and the resume check; `report.rs` writes
+//! header, checkpoint and partial files, members.csv and the resume check; `report.rs` writes
 //! `stats/*.npy` and the plots; `merge.rs` is `roughlub merge` over shards. This file
 //! orchestrates a run ([`run_study`]).
 
@@ -40,7 +41,7 @@ mod state;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::backend::report::error_estimate_method;
+use crate::backend::report::run_error_estimate_method;
 use crate::backend::{select, Backend, Engine, Precision};
 use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
@@ -53,8 +54,8 @@ use crate::scene::{EnsembleSpec, Scene};
 
 use chunk::{chunk_plan, solve_chunk, StudyCosts};
 use files::{
-    check_resume, chunk_path, header_for, shard_range, ChunkFile, CsvOut, PartialFile,
-    PartialFileRef,
+    check_resume, header_for, shard_range, CheckpointFile, CheckpointFileRef, CsvOut,
+    PartialFile, PartialFileRef,
 };
 use report::{finalize, quantile_method};
 
@@ -68,6 +69,10 @@ pub use state::StudyState;
 
 /// The mergeable statistics of a run, shard or merge (a binary state file).
 pub const PARTIAL: &str = "partial.state";
+/// The finished chunks of a running study (see [`StudyOptions::checkpoint_seconds`]).
+pub const CHECKPOINT: &str = "checkpoint.state";
+/// Seconds between checkpoints unless `--checkpoint-every` says otherwise.
+pub const DEFAULT_CHECKPOINT_SECONDS: f64 = 60.0;
 /// What roughlub 0.1 wrote instead (JSON, state format 1): refused by name.
 const OLD_PARTIAL: &str = "partial.json";
 
@@ -103,6 +108,10 @@ pub struct StudyOptions {
     pub force: bool,
     /// Accept more sweep points than [`MAX_SWEEP_POINTS`](crate::scene::MAX_SWEEP_POINTS).
     pub allow_large: bool,
+    /// Seconds of solving between checkpoints of the finished chunks ([`CHECKPOINT`]): what an
+    /// interrupted run can lose, against the time of writing the statistics so far (0: after
+    /// every chunk).
+    pub checkpoint_seconds: f64,
 }
 
 #[derive(Debug, Clone)]
@@ -286,7 +295,16 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             }
         }
     }
-    std::fs::create_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
+    if chunks_dir.is_dir() {
+        // Chunk files of roughlub 0.2.0's interrupted runs: this version checkpoints instead.
+        if !options.quiet {
+            eprintln!(
+                "{}: chunk files of an earlier roughlub are not reused; their members are solved again",
+                chunks_dir.display()
+            );
+        }
+        std::fs::remove_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
+    }
     prepare_dir(dir)?;
     write_json_atomic(&header_path, &header)?;
 
@@ -297,32 +315,48 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         .collect();
     let progress = ProgressReporter::new(end - first, "members", options.quiet);
     let mut costs = StudyCosts::default();
+    let checkpoint_path = dir.join(CHECKPOINT);
+    // The chunks an interrupted run checkpointed, with the rows and error estimates they wrote.
+    let checkpoint: Option<CheckpointFile> = if options.resume && checkpoint_path.exists() {
+        Some(read_state(&checkpoint_path)?)
+    } else {
+        None
+    };
+    let members_csv = dir.join("members.csv");
+    let (mut total, mut csv_out, mut largest_error_estimate) = match checkpoint {
+        Some(c) => (
+            c.state,
+            CsvOut::resume(members_csv, c.csv_bytes)?,
+            c.largest_error_estimate,
+        ),
+        None => (
+            StudyState::new(),
+            CsvOut::create(members_csv, &header.sweep_names)?,
+            None,
+        ),
+    };
     let mut reused = 0;
-    let mut total: Option<StudyState> = None;
-    let mut csv_out = CsvOut::create(dir.join("members.csv"), &header.sweep_names)?;
-    let mut largest_error_estimate: Option<f64> = None;
+    let mut last_checkpoint = Instant::now();
+    let mut field_rows: Vec<f64> = Vec::new();
     for &(a, b) in &bounds {
-        let path = chunk_path(dir, a, b);
-        let chunk: ChunkFile = if path.exists() {
+        if total.ranges.contains(&(a, b)) {
             reused += 1;
             progress.inc(b - a);
-            read_state(&path)?
-        } else {
-            let c = solve_chunk(
-                dir, spec, &members, &header, &engine, a, b, &mut costs, &progress,
-            )?;
-            let t0 = Instant::now();
-            write_state_atomic(&path, &c)?;
-            costs.statistics_seconds += t0.elapsed().as_secs_f64();
-            c
-        };
-        let t0 = Instant::now();
-        match &mut total {
-            None => total = Some(chunk.state),
-            Some(s) => s.merge(&chunk.state)?,
+            continue;
         }
-        costs.statistics_seconds += t0.elapsed().as_secs_f64();
-        for row in &chunk.rows {
+        let rows = solve_chunk(
+            dir,
+            spec,
+            &members,
+            &header,
+            &engine,
+            (a, b),
+            &mut total,
+            &mut field_rows,
+            &mut costs,
+            &progress,
+        )?;
+        for row in &rows {
             csv_out.push(row)?;
             if !row.error_estimate.is_nan() {
                 largest_error_estimate = Some(
@@ -331,10 +365,24 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
                 );
             }
         }
+        if b < end && last_checkpoint.elapsed().as_secs_f64() >= options.checkpoint_seconds {
+            let t0 = Instant::now();
+            let csv_bytes = csv_out.flushed_len()?;
+            write_state_atomic(
+                &checkpoint_path,
+                &CheckpointFileRef {
+                    state: &total,
+                    csv_bytes,
+                    largest_error_estimate,
+                },
+            )?;
+            costs.statistics_seconds += t0.elapsed().as_secs_f64();
+            last_checkpoint = Instant::now();
+        }
     }
     progress.finish();
     csv_out.finish()?;
-    let state = total.unwrap_or_default();
+    let state = total;
     let t0 = Instant::now();
     write_state_atomic(
         &dir.join(PARTIAL),
@@ -344,8 +392,10 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         },
     )?;
     finalize(dir, &[header.clone()], &state, scene.plots)?;
-    // The chunks are in partial.state and members.csv now: a complete study keeps no copy.
-    std::fs::remove_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
+    // partial.state and members.csv hold everything the checkpoint did.
+    if checkpoint_path.exists() {
+        std::fs::remove_file(&checkpoint_path).map_err(|e| Error::io(&checkpoint_path, e))?;
+    }
     costs.statistics_seconds += t0.elapsed().as_secs_f64();
     let wall = started.elapsed().as_secs_f64();
     write_json_atomic(
@@ -368,6 +418,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             error_estimate: ErrorEstimateRecord::new(
                 scene.order,
                 scene.stepping,
+                scene.error_estimate,
                 largest_error_estimate,
             ),
             chunks: bounds.len(),
@@ -391,7 +442,8 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         StudySummary::of(target, &state, reused, wall, costs.statistics_seconds)
             .with_error_estimate(
                 largest_error_estimate,
-                error_estimate_method(scene.order, scene.stepping).is_some(),
+                run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate)
+                    .is_some(),
             ),
     )
 }

@@ -59,6 +59,14 @@ impl PointStats {
 
     /// As [`for_header`](Self::for_header), with the point's own velocity range of the u band.
     pub fn with_u_range(header: &StudyHeader, p: u64, u_range: (f64, f64)) -> Result<PointStats> {
+        let mut stats = PointStats::without_bands(header, p);
+        stats.add_bands(header, u_range)?;
+        Ok(stats)
+    }
+
+    /// The empty statistics of point `p` with no field bands yet (a chunk's own: its bands go
+    /// straight into the run's total, see `solve_chunk`).
+    pub fn without_bands(header: &StudyHeader, p: u64) -> PointStats {
         let mut stats = PointStats {
             completed: 0,
             failed: 0,
@@ -70,8 +78,21 @@ impl PointStats {
             scalars: BTreeMap::new(),
             fields: BTreeMap::new(),
         };
-        if !header.is_detailed(p) {
-            return Ok(stats);
+        if header.is_detailed(p) {
+            let times = header.times.len();
+            stats.scalars = SCALARS
+                .iter()
+                .map(|s| (s.to_string(), (0..times).map(|_| summary()).collect()))
+                .collect();
+        }
+        stats
+    }
+
+    /// Adds the empty bands of the header's band fields to a detailed point that has none (the
+    /// u band on `u_range`); nothing for a point without per-time statistics.
+    pub fn add_bands(&mut self, header: &StudyHeader, u_range: (f64, f64)) -> Result<()> {
+        if !self.is_detailed() || !self.fields.is_empty() {
+            return Ok(());
         }
         let times = header.times.len();
         for f in &header.band_fields {
@@ -88,13 +109,9 @@ impl PointStats {
                     "finite lo < hi, bins >= 1",
                 )
             })?;
-            stats.fields.insert(f.to_string(), vec![band; times]);
+            self.fields.insert(f.to_string(), vec![band; times]);
         }
-        stats.scalars = SCALARS
-            .iter()
-            .map(|s| (s.to_string(), (0..times).map(|_| summary()).collect()))
-            .collect();
-        Ok(stats)
+        Ok(())
     }
 
     /// Whether this point keeps statistics per output time.
@@ -153,19 +170,12 @@ impl StudyState {
         }
     }
 
-    /// The statistics of point `p`, created empty for `header` (and the point's velocity range
-    /// of the u band) on first use.
-    pub fn point_mut(
-        &mut self,
-        p: u64,
-        header: &StudyHeader,
-        u_range: (f64, f64),
-    ) -> Result<&mut PointStats> {
-        if !self.points.contains_key(&p) {
-            self.points
-                .insert(p, PointStats::with_u_range(header, p, u_range)?);
-        }
-        Ok(self.points.get_mut(&p).expect("inserted"))
+    /// The statistics of point `p`, created empty for `header` (without field bands) on first
+    /// use.
+    pub fn point_mut(&mut self, p: u64, header: &StudyHeader) -> &mut PointStats {
+        self.points
+            .entry(p)
+            .or_insert_with(|| PointStats::without_bands(header, p))
     }
 
     pub fn merge(&mut self, other: &StudyState) -> Result<()> {

@@ -44,6 +44,7 @@ pub fn plan_for(
             ..all_fields()
         },
         grid: 64,
+        companion_estimate: false,
     }
 }
 
