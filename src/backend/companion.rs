@@ -5,6 +5,8 @@
 //! |y(dt) − y(k dt)| / (k − 1) estimates the run's own global error, propagation included. The
 //! companion costs 1/k of the run's steps.
 
+use rayon::prelude::*;
+
 use super::{BatchSolver, MemberReport, MemberStatus};
 use crate::error::Result;
 use crate::model::observables::Snapshot;
@@ -85,7 +87,8 @@ fn difference(fine: &Snapshot, coarse: &Snapshot) -> f64 {
     let mut worst = 0.0f64;
     for (&a, &b) in fine.gaps.iter().zip(&coarse.gaps) {
         let e = if a > 0.0 && b > 0.0 {
-            (a.ln() - b.ln()).abs()
+            // |ln a - ln b| with one logarithm.
+            (a / b).ln().abs()
         } else if a == b {
             0.0
         } else {
@@ -111,22 +114,30 @@ impl BatchSolver for CompanionEstimate<'_> {
         let coarse = self.companion.next_output(&|_| {})?;
         let run_ok = self.run.reports();
         let companion_ok = self.companion.reports();
-        for (m, s) in snaps.iter_mut().enumerate() {
-            let estimate = match (&coarse, run_ok[m].status == MemberStatus::Ok) {
-                (_, false) => f64::NAN,
-                (Some(c), true) if companion_ok[m].status == MemberStatus::Ok => {
-                    difference(s, &c[m])
+        let (keep_gaps, keep_velocities) = (self.keep_gaps, self.keep_velocities);
+        let estimates: Vec<f64> = snaps
+            .par_iter_mut()
+            .enumerate()
+            .map(|(m, s)| {
+                let estimate = match (&coarse, run_ok[m].status == MemberStatus::Ok) {
+                    (_, false) => f64::NAN,
+                    (Some(c), true) if companion_ok[m].status == MemberStatus::Ok => {
+                        difference(s, &c[m])
+                    }
+                    // The companion failed (or ended) where the run did not.
+                    _ => f64::INFINITY,
+                };
+                if !keep_gaps {
+                    s.gaps = Vec::new();
                 }
-                // The companion failed (or ended) where the run did not.
-                _ => f64::INFINITY,
-            };
-            self.estimates[m].push(estimate);
-            if !self.keep_gaps {
-                s.gaps = Vec::new();
-            }
-            if !self.keep_velocities {
-                s.velocities = Vec::new();
-            }
+                if !keep_velocities {
+                    s.velocities = Vec::new();
+                }
+                estimate
+            })
+            .collect();
+        for (per_member, e) in self.estimates.iter_mut().zip(estimates) {
+            per_member.push(e);
         }
         Ok(Some(snaps))
     }

@@ -47,11 +47,16 @@ pub(super) fn chunk_plan(
 struct RecordedObservables {
     /// The values of [`SCALARS`], in that order.
     scalars: [f64; SCALARS.len()],
-    /// Where its rows of the header's band fields start in the chunk's `field_rows` (one row
-    /// of G values per band field, in that order).
-    rows_at: usize,
-    /// Bit f set: band field f has a row (a snapshot without that field has none).
+    /// Bit f set: band field f has a row in the chunk's `field_rows` (a snapshot without that
+    /// field has none; see [`row_offset`] for where it is).
     rows_present: u8,
+}
+
+/// Where the row of band field `f` at output time `k` of the chunk's member `i` starts in the
+/// chunk's `field_rows`: laid out [field][time][member][grid point], so that the rows one band
+/// reads are consecutive in memory (streamed, not gathered from rows a whole member apart).
+fn row_offset(f: usize, k: usize, i: usize, (times, count, grid): (usize, usize, usize)) -> usize {
+    ((f * times + k) * count + i) * grid
 }
 
 /// What the solved chunks of one invocation cost beyond the solve itself.
@@ -112,12 +117,20 @@ pub(super) fn solve_chunk(
     costs: &mut StudyCosts,
     progress: &ProgressReporter,
 ) -> Result<Vec<MemberRow>> {
-    field_rows.clear();
     let inputs: Vec<MemberInputs> = (first..end)
         .map(|m| members.member(m))
         .collect::<Result<_>>()?;
     let t_count = header.times.len();
     let grid = header.x.len();
+    let shape = (t_count, (end - first) as usize, grid);
+    let any_detailed = inputs.iter().any(|inp| header.is_detailed(inp.point));
+    let needed = if any_detailed {
+        header.band_fields.len() * t_count * shape.1 * grid
+    } else {
+        0
+    };
+    field_rows.clear();
+    field_rows.resize(needed, f64::NAN);
     let mut state = StudyState::new();
     state.ranges.push((first, end));
     let count = (end - first) as usize;
@@ -199,7 +212,6 @@ pub(super) fn solve_chunk(
                 // Copied into one buffer that lives across chunks: the snapshot's vectors are
                 // freed now and reused by the next output's, instead of a chunk's worth of small
                 // allocations being held, freed and faulted in again for every chunk.
-                let rows_at = field_rows.len();
                 let mut rows_present = 0u8;
                 for (f, name) in header.band_fields.iter().enumerate() {
                     let row = match name.as_str() {
@@ -208,10 +220,9 @@ pub(super) fn solve_chunk(
                         _ => &s.rho_star,
                     };
                     if row.len() == grid {
-                        field_rows.extend_from_slice(row);
+                        let at = row_offset(f, k, i, shape);
+                        field_rows[at..at + grid].copy_from_slice(row);
                         rows_present |= 1 << f;
-                    } else {
-                        field_rows.resize(field_rows.len() + grid, f64::NAN);
                     }
                 }
                 group_recorded[g].push(Some(RecordedObservables {
@@ -223,7 +234,6 @@ pub(super) fn solve_chunk(
                         peak_centre(&header.x, &s.rho),
                         estimate,
                     ],
-                    rows_at,
                     rows_present,
                 }));
             }
@@ -320,18 +330,18 @@ pub(super) fn solve_chunk(
             bands.extend(per_time.iter_mut().enumerate().map(|(k, b)| (f, k, b)));
         }
         let rows_of = |f: usize, k: usize| -> Vec<&[f64]> {
-            recorded[i..j]
-                .iter()
-                .zip(&ok_member[i..j])
-                .filter_map(|(observed, &ok)| {
-                    if ok {
-                        observed.get(k).and_then(Option::as_ref)
-                    } else {
-                        None
-                    }
+            (i..j)
+                .filter(|&m| ok_member[m])
+                .filter(|&m| {
+                    recorded[m]
+                        .get(k)
+                        .and_then(Option::as_ref)
+                        .is_some_and(|o| o.rows_present & (1 << f) != 0)
                 })
-                .filter(|o| o.rows_present & (1 << f) != 0)
-                .map(|o| &field_rows[o.rows_at + f * grid..o.rows_at + (f + 1) * grid])
+                .map(|m| {
+                    let at = row_offset(f, k, m, shape);
+                    &field_rows[at..at + grid]
+                })
                 .collect()
         };
         bands.par_iter_mut().for_each(|(f, k, band)| {
