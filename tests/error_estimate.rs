@@ -198,8 +198,7 @@ fn the_companion_can_be_turned_off_and_does_not_change_the_run() {
     let (off, stderr_off) = run("off", "error_estimate = false");
     assert!(!stderr_off.contains("error estimate"), "{stderr_off}");
     let manifest: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(off.join("manifest.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(off.join("manifest.json")).unwrap()).unwrap();
     assert!(manifest["error_estimate"]["largest"].is_null());
     assert!(manifest["error_estimate"]["method"]
         .as_str()

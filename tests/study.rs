@@ -758,7 +758,10 @@ fn resume_after_kill_reuses_chunks_and_matches_uninterrupted_run() {
     );
     assert_eq!(man["chunks"], 20);
     // Once the study completes, partial.state holds the checkpoint's statistics and the rest.
-    assert!(!has_checkpoint(&dir), "a complete study keeps no checkpoint");
+    assert!(
+        !has_checkpoint(&dir),
+        "a complete study keeps no checkpoint"
+    );
     assert!(dir.join("partial.state").is_file());
     assert!(
         !staging.exists(),
@@ -1094,7 +1097,10 @@ fn error_estimates_per_member_and_output_time() {
         "study_basic.toml",
         &[
             ("jitter = 0.05", "jitter = 0.05\nstore_members = true"),
-            ("backend = \"cpu\"", "backend = \"cpu\"\nerror_estimate = false"),
+            (
+                "backend = \"cpu\"",
+                "backend = \"cpu\"\nerror_estimate = false",
+            ),
         ],
         tmp.path(),
         "plain.toml",

@@ -100,7 +100,12 @@ fn difference(fine: &Snapshot, coarse: &Snapshot) -> f64 {
     for (&a, &b) in fine.velocities.iter().zip(&coarse.velocities) {
         worst = worst.max((a - b).abs() / (1.0 + a.abs()));
     }
-    if fine.gaps.iter().chain(&fine.velocities).any(|v| !v.is_finite()) {
+    if fine
+        .gaps
+        .iter()
+        .chain(&fine.velocities)
+        .any(|v| !v.is_finite())
+    {
         return f64::NAN;
     }
     worst / (COARSENING - 1.0)

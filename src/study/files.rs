@@ -299,7 +299,8 @@ impl CsvOut {
             });
         }
         file.set_len(bytes).map_err(|e| Error::io(&partial, e))?;
-        std::io::Seek::seek(&mut file, std::io::SeekFrom::End(0)).map_err(|e| Error::io(&partial, e))?;
+        std::io::Seek::seek(&mut file, std::io::SeekFrom::End(0))
+            .map_err(|e| Error::io(&partial, e))?;
         Ok(CsvOut {
             path,
             partial,

@@ -54,8 +54,8 @@ use crate::scene::{EnsembleSpec, Scene};
 
 use chunk::{chunk_plan, solve_chunk, StudyCosts};
 use files::{
-    check_resume, header_for, shard_range, CheckpointFile, CheckpointFileRef, CsvOut,
-    PartialFile, PartialFileRef,
+    check_resume, header_for, shard_range, CheckpointFile, CheckpointFileRef, CsvOut, PartialFile,
+    PartialFileRef,
 };
 use report::{finalize, quantile_method};
 
