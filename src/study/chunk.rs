@@ -129,8 +129,11 @@ pub(super) fn solve_chunk(
     } else {
         0
     };
-    field_rows.clear();
-    field_rows.resize(needed, f64::NAN);
+    // Only rows written for this chunk are read back (`rows_present`), so the buffer is grown,
+    // never cleared: refilling it would write every chunk's worth of rows twice.
+    if field_rows.len() < needed {
+        field_rows.resize(needed, f64::NAN);
+    }
     let mut state = StudyState::new();
     state.ranges.push((first, end));
     let count = (end - first) as usize;
