@@ -844,6 +844,9 @@ fn field_band_matches_direct_computation() {
             };
         }
     }
+    // Infinities, which the bulk fill takes apart from the finite rows (non-finite, like NaN).
+    data[5 * G + 3] = f64::INFINITY;
+    data[6 * G + 11] = f64::NEG_INFINITY;
     // The range holds most values; the large-amplitude tail overflows, the lowest underflow.
     let (lo, hi, bins) = (-9.5, 30.0, 400);
     let half_bin = (hi - lo) / (2.0 * bins as f64);
@@ -933,6 +936,15 @@ fn field_band_matches_direct_computation() {
             assert_eq!(
                 row[g].to_bits(),
                 whole.quantile_row(q).unwrap()[g].to_bits()
+            );
+        }
+        // Several levels from one pass, in any order and repeated: each as read on its own.
+        let levels = [0.9, 0.1, 0.5, 1.0, 0.5, 0.0, 0.25];
+        for (q, row) in levels.iter().zip(merged.quantile_rows(&levels).unwrap()) {
+            assert_eq!(
+                row[g].to_bits(),
+                merged.quantile_row(*q).unwrap()[g].to_bits(),
+                "point {g}, level {q} among several"
             );
         }
         assert_eq!(merged.min_row()[g], sorted[0]);

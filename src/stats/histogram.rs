@@ -143,7 +143,13 @@ impl Bins {
     /// bin width `(hi - lo) / (2 bins)` of it. NaN when nothing is counted or that value is
     /// below `lo` or above `hi` (reported, never guessed). Fails if `q` is not in `[0, 1]`.
     pub fn quantile(&self, slots: &[u64], q: f64) -> Result<f64, StatsError> {
-        if !(0.0..=1.0).contains(&q) {
+        Ok(self.quantiles(slots, &[q])?[0])
+    }
+
+    /// [`quantile`](Self::quantile) at each level of `qs`, in that order, from one pass over the
+    /// slots. Fails if a level is not in `[0, 1]`.
+    pub fn quantiles(&self, slots: &[u64], qs: &[f64]) -> Result<Vec<f64>, StatsError> {
+        if let Some(&q) = qs.iter().find(|q| !(0.0..=1.0).contains(*q)) {
             return Err(StatsError::InvalidQuantile(q));
         }
         if slots.len() != self.bins + 2 {
@@ -153,23 +159,38 @@ impl Bins {
                 got: slots.len(),
             });
         }
+        let mut out = vec![f64::NAN; qs.len()];
         let n: u64 = slots.iter().sum();
         if n == 0 {
-            return Ok(f64::NAN);
+            return Ok(out);
         }
-        let rank = ((q * (n - 1) as f64).floor() as u64).min(n - 1);
+        // The levels by rank, so that one walk up the cumulative counts finds each in turn.
+        let mut by_rank: Vec<(u64, usize)> = qs
+            .iter()
+            .enumerate()
+            .map(|(i, &q)| (((q * (n - 1) as f64).floor() as u64).min(n - 1), i))
+            .collect();
+        by_rank.sort_unstable();
+        let mut pending = by_rank.into_iter().peekable();
         let mut seen = 0;
         for (s, &c) in slots.iter().enumerate() {
             seen += c;
-            if rank < seen {
-                return Ok(if s == 0 || s == self.bins + 1 {
+            while let Some(&(rank, i)) = pending.peek() {
+                if rank >= seen {
+                    break;
+                }
+                out[i] = if s == 0 || s == self.bins + 1 {
                     f64::NAN
                 } else {
                     self.midpoint(s - 1)
-                });
+                };
+                pending.next();
+            }
+            if pending.peek().is_none() {
+                break;
             }
         }
-        Ok(f64::NAN)
+        Ok(out)
     }
 
     /// Fails unless `other` has the same range and number of bins (bit for bit).

@@ -59,6 +59,16 @@ fn row_offset(f: usize, k: usize, i: usize, (times, count, grid): (usize, usize,
     ((f * times + k) * count + i) * grid
 }
 
+/// The row of band field `name` ("rho", "u" or "rho_star") in a snapshot (empty when the
+/// snapshot has none).
+fn band_row<'s>(s: &'s Snapshot, name: &str) -> &'s [f64] {
+    match name {
+        "rho" => &s.rho,
+        "u" => &s.u,
+        _ => &s.rho_star,
+    }
+}
+
 /// What the solved chunks of one invocation cost beyond the solve itself.
 #[derive(Debug, Default)]
 pub(super) struct StudyCosts {
@@ -184,11 +194,43 @@ pub(super) fn solve_chunk(
             let started = Instant::now();
             let reports_now = solver.reports();
             let t = header.times[k];
+            let ok_now = |g: usize| reports_now[g].status == MemberStatus::Ok;
+            let recorded_here = |g: usize| ok_now(g) && header.is_detailed(inputs[a + g].point);
+            // The per-member work of this output, in parallel: the rows copied into the buffer
+            // that lives across chunks (the snapshot's vectors are freed now and reused by the
+            // next output's, instead of a chunk's worth of small allocations being held, freed
+            // and faulted in again for every chunk), and the peak's centre.
+            if any_detailed {
+                for (f, name) in header.band_fields.iter().enumerate() {
+                    let rows = row_offset(f, k, a, shape)..row_offset(f, k, b, shape);
+                    field_rows[rows]
+                        .par_chunks_mut(grid)
+                        .zip(snaps.par_iter())
+                        .enumerate()
+                        .filter(|&(g, _)| recorded_here(g))
+                        .for_each(|(_, (into, s))| {
+                            let row = band_row(s, name);
+                            if row.len() == grid {
+                                into.copy_from_slice(row);
+                            }
+                        });
+                }
+            }
+            let centres: Vec<f64> = snaps
+                .par_iter()
+                .enumerate()
+                .map(|(g, s)| {
+                    if recorded_here(g) {
+                        peak_centre(&header.x, &s.rho)
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect();
             for (g, s) in snaps.iter_mut().enumerate() {
                 let i = a + g;
-                let ok_now = reports_now[g].status == MemberStatus::Ok;
                 // The estimate of the state at this output time (the last one recorded).
-                let estimate = match (&reports_now[g].error_estimate, ok_now) {
+                let estimate = match (&reports_now[g].error_estimate, ok_now(g)) {
                     (Some(e), true) => e.last().copied().unwrap_or(f64::NAN),
                     _ => f64::NAN,
                 };
@@ -196,7 +238,7 @@ pub(super) fn solve_chunk(
                     group_kept[g].push(s.clone());
                     group_estimates[g].push(estimate);
                 }
-                if !ok_now {
+                if !ok_now(g) {
                     group_recorded[g].push(None);
                     continue;
                 }
@@ -208,23 +250,13 @@ pub(super) fn solve_chunk(
                 if first_hit[i].is_nan() && s.max_density >= spec.threshold {
                     first_hit[i] = t;
                 }
-                if !header.is_detailed(inputs[i].point) {
+                if !recorded_here(g) {
                     // Responses only: nothing per time is kept.
                     continue;
                 }
-                // Copied into one buffer that lives across chunks: the snapshot's vectors are
-                // freed now and reused by the next output's, instead of a chunk's worth of small
-                // allocations being held, freed and faulted in again for every chunk.
                 let mut rows_present = 0u8;
                 for (f, name) in header.band_fields.iter().enumerate() {
-                    let row = match name.as_str() {
-                        "rho" => &s.rho,
-                        "u" => &s.u,
-                        _ => &s.rho_star,
-                    };
-                    if row.len() == grid {
-                        let at = row_offset(f, k, i, shape);
-                        field_rows[at..at + grid].copy_from_slice(row);
+                    if band_row(s, name).len() == grid {
                         rows_present |= 1 << f;
                     }
                 }
@@ -234,7 +266,7 @@ pub(super) fn solve_chunk(
                         s.min_gap,
                         s.energy,
                         s.dissipation,
-                        peak_centre(&header.x, &s.rho),
+                        centres[g],
                         estimate,
                     ],
                     rows_present,

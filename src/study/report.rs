@@ -3,6 +3,8 @@
 
 use std::path::Path;
 
+use rayon::prelude::*;
+
 use super::files::StudyHeader;
 use super::state::{PointStats, StudyState};
 use super::{SCALARS, SCALAR_ALPHA, SCALAR_BINS};
@@ -179,11 +181,19 @@ pub(super) fn finalize(
         let mut var: Vec<f64> = Vec::new();
         let mut quant: Vec<f64> = Vec::new();
         for &p in &detailed {
-            for band in &point(p).fields[name.as_str()] {
-                mean.extend(band.mean_row());
-                var.extend(band.variance_row());
-                for &q in qs {
-                    quant.extend(band.quantile_row(q).map_err(|e| stats_error(&stats, e))?);
+            // The bands of one point, each read on its own (in parallel), written in time order.
+            let rows: Vec<_> = point(p).fields[name.as_str()]
+                .par_iter()
+                .map(|band| {
+                    let quantiles = band.quantile_rows(qs);
+                    (band.mean_row(), band.variance_row(), quantiles)
+                })
+                .collect();
+            for (band_mean, band_var, band_quantiles) in rows {
+                mean.extend(band_mean);
+                var.extend(band_var);
+                for row in band_quantiles.map_err(|e| stats_error(&stats, e))? {
+                    quant.extend(row);
                 }
             }
         }
