@@ -2,8 +2,11 @@
 //!
 //! A reference solution (order auto, adaptive, a tight tolerance, checked against a run ten times
 //! tighter), then a ladder of settings (orders 1, 2, 4, 6 (and auto) × adaptive tolerances and fixed steps, on each
-//! backend and precision asked for), each run once on the scene's first members and compared
-//! with the reference at every output time. Written: `work_precision.csv` (one row per setting),
+//! backend and precision asked for), each run once on the measured members and compared with the
+//! reference at every output time. In a parameter study the measured members are spread over
+//! the sweep points, the first and the last point always among them (the first point of a sweep
+//! is often its easiest, spread 0, and the last its hardest), and each setting is judged by its
+//! worst member. Written: `work_precision.csv` (one row per setting),
 //! `work_precision.png` (error against wall time, log–log, one line per order, stepping,
 //! backend and precision), the reference arrays, and `manifest.json`; printed: the cheapest
 //! setting that meets `--target`.
@@ -33,8 +36,11 @@ pub struct AccuracyOptions {
     pub out_dir: PathBuf,
     /// The error the user wants to reach.
     pub target: f64,
-    /// How many of the scene's first members are solved (the error is the largest over them).
-    pub members: usize,
+    /// How many members are solved (the error is the largest over them): the scene's first, or
+    /// in a parameter study members spread over its sweep points (see [`measured_members`]).
+    /// `None`: one, or in a parameter study one at each of up to [`DEFAULT_SWEEP_POINTS`]
+    /// points.
+    pub members: Option<usize>,
     /// (backend, precision) pairs of the ladder; the reference is always CPU f64.
     pub backends: Vec<(Backend, Precision)>,
     pub quiet: bool,
@@ -120,6 +126,15 @@ pub struct Measurement {
     pub steps_accepted: u64,
     pub steps_rejected: u64,
     pub particle_steps_per_second: f64,
+    /// The sweep point whose members' error is the largest (`None` without a sweep or when a
+    /// member failed).
+    pub worst_point: Option<u64>,
+    /// Against the previous rung of the same line (order, stepping, backend and precision):
+    /// d ln(error) / d ln(dt) for fixed steps (halved from rung to rung: the observed order of
+    /// convergence), -d ln(error) / d ln(steps) for tolerances (how the error falls with the
+    /// work). `None` on a line's first
+    /// rung and where either rung failed.
+    pub observed_order: Option<f64>,
 }
 
 /// What `roughlub accuracy` found.
@@ -142,65 +157,158 @@ struct Run {
     failed: bool,
 }
 
-/// The members the trade is measured on: the scene's first `count` (members of an ensemble are
-/// built as the study builds them).
-fn first_members(scene: &Scene, count: usize) -> Result<(Scene, Vec<Chain>, Vec<MemberParams>)> {
+/// How many sweep points a parameter study's accuracy measures by default: the first, the last
+/// and two between.
+pub const DEFAULT_SWEEP_POINTS: u64 = 4;
+
+/// Measured members that one plan holds: the members of one sweep point (or the scene's).
+struct MeasuredGroup {
+    plan: Plan,
+    chains: Vec<Chain>,
+    /// The sweep point (`None` without a sweep).
+    point: Option<u64>,
+}
+
+/// The sweep points measured when `count` members are asked for out of `points` points: evenly
+/// spread, the first and the last always among them, each point at most once.
+fn spread_points(points: u64, count: u64) -> Vec<u64> {
+    if count <= 1 || points <= 1 {
+        return vec![0];
+    }
+    let k = count.min(points);
+    let mut chosen: Vec<u64> = (0..k)
+        .map(|j| ((j as f64 * (points - 1) as f64 / (k - 1) as f64).round() as u64).min(points - 1))
+        .collect();
+    chosen.dedup();
+    chosen
+}
+
+/// The members the trade is measured on, in groups that one plan holds. Without a sweep: the
+/// scene's first `count` (default 1). In a parameter study: the first members of sweep points
+/// spread over the sweep ([`spread_points`]; default [`DEFAULT_SWEEP_POINTS`] points), and when
+/// `count` exceeds the points, every point with `count / points` members (rounded up), built as
+/// the study builds them. Also returns the scene of the first measured point (its time settings
+/// are every point's).
+fn measured_members(scene: &Scene, count: Option<usize>) -> Result<(Scene, Vec<MeasuredGroup>)> {
     if let Some(spec) = &scene.ensemble {
         let members = EnsembleMembers::new(scene, spec)?;
-        // Only the first sweep point's members: one plan (one N, one forcing) holds them.
-        let count = (count as u64).min(members.per_point).max(1);
-        let mut chains = Vec::new();
-        let mut params = Vec::new();
-        for m in 0..count {
-            let inputs = members.member(m)?;
-            chains.push(inputs.chain);
-            params.push(inputs.params);
+        let count = match count {
+            Some(c) => c as u64,
+            None => members.points.min(DEFAULT_SWEEP_POINTS),
+        };
+        let points = spread_points(members.points, count);
+        let per_point = count
+            .div_ceil(points.len() as u64)
+            .clamp(1, members.per_point);
+        let mut groups = Vec::new();
+        for &p in &points {
+            let mut chains = Vec::new();
+            let mut params = Vec::new();
+            for j in 0..per_point {
+                let inputs = members.member(p * members.per_point + j)?;
+                chains.push(inputs.chain);
+                params.push(inputs.params);
+            }
+            let setup = members.setup(p)?;
+            let mut plan = Plan::new(&setup.scene, &chains[0]);
+            plan.members = params;
+            groups.push(MeasuredGroup {
+                plan,
+                chains,
+                point: (members.points > 1).then_some(p),
+            });
         }
-        let scene = members.setup(0)?.scene.clone();
-        return Ok((scene, chains, params));
+        let scene = members.setup(points[0])?.scene.clone();
+        return Ok((scene, groups));
     }
     let chain = scene.initial_chain()?;
     let params: Vec<MemberParams> = scene
         .member_parameters()
         .into_iter()
-        .take(count.max(1))
+        .take(count.unwrap_or(1).max(1))
         .collect();
-    Ok((scene.clone(), vec![chain; params.len()], params))
+    let mut plan = Plan::new(scene, &chain);
+    plan.members = params;
+    let chains = vec![chain; plan.members.len()];
+    Ok((
+        scene.clone(),
+        vec![MeasuredGroup {
+            plan,
+            chains,
+            point: None,
+        }],
+    ))
 }
 
-fn solve(base: &Plan, chains: &[Chain], setting: &Setting) -> Result<Run> {
-    let mut plan = base.clone();
-    plan.order = setting.order;
-    plan.stepping = setting.stepping;
-    let engine = select(setting.backend, setting.precision, &plan)?;
-    let started = Instant::now();
-    let mut solver = engine.solver(plan, chains.to_vec())?;
-    let mut snapshots = Vec::new();
-    while let Some(s) = solver.next_output(&|_| {})? {
-        snapshots.push(s);
-    }
-    let wall = started.elapsed().as_secs_f64();
-    let reports = solver.reports();
-    Ok(Run {
-        snapshots,
-        wall,
-        accepted: reports.iter().map(|r| r.steps_accepted).sum(),
-        rejected: reports.iter().map(|r| r.steps_rejected).sum(),
-        failed: reports
+/// Runs every group at `setting`; the snapshots are the groups' members side by side (per output
+/// time, the members of the first group, then of the second, ...), the wall time and the steps
+/// their sums.
+fn solve(groups: &[MeasuredGroup], setting: &Setting) -> Result<Run> {
+    let mut run = Run {
+        snapshots: Vec::new(),
+        wall: 0.0,
+        accepted: 0,
+        rejected: 0,
+        failed: false,
+    };
+    for group in groups {
+        let mut plan = group.plan.clone();
+        plan.order = setting.order;
+        plan.stepping = setting.stepping;
+        let engine = select(setting.backend, setting.precision, &plan)?;
+        let started = Instant::now();
+        let mut solver = engine.solver(plan, group.chains.clone())?;
+        let mut k = 0;
+        while let Some(s) = solver.next_output(&|_| {})? {
+            match run.snapshots.get_mut(k) {
+                Some(at) => at.extend(s),
+                None => run.snapshots.push(s),
+            }
+            k += 1;
+        }
+        run.wall += started.elapsed().as_secs_f64();
+        let reports = solver.reports();
+        run.accepted += reports.iter().map(|r| r.steps_accepted).sum::<u64>();
+        run.rejected += reports.iter().map(|r| r.steps_rejected).sum::<u64>();
+        run.failed |= reports
             .iter()
-            .any(|r| r.status != crate::backend::MemberStatus::Ok),
-    })
+            .any(|r| r.status != crate::backend::MemberStatus::Ok);
+    }
+    Ok(run)
+}
+
+/// The members of each group in the side-by-side snapshots of [`solve`].
+fn member_ranges(groups: &[MeasuredGroup]) -> Vec<std::ops::Range<usize>> {
+    let mut first = 0;
+    groups
+        .iter()
+        .map(|g| {
+            let range = first..first + g.chains.len();
+            first = range.end;
+            range
+        })
+        .collect()
 }
 
 /// The errors of `run` against `reference` (see the module documentation).
 pub fn errors(run: &[Vec<Snapshot>], reference: &[Vec<Snapshot>]) -> Errors {
+    let members = reference.first().map_or(0, Vec::len);
+    errors_of_members(run, reference, 0..members)
+}
+
+/// [`errors`] over the members in `members` only.
+fn errors_of_members(
+    run: &[Vec<Snapshot>],
+    reference: &[Vec<Snapshot>],
+    members: std::ops::Range<usize>,
+) -> Errors {
     let mut e = Errors {
         gaps: 0.0,
         velocities: 0.0,
         rho: 0.0,
     };
     for (at, ref_at) in run.iter().zip(reference) {
-        for (s, r) in at.iter().zip(ref_at) {
+        for (s, r) in at[members.clone()].iter().zip(&ref_at[members.clone()]) {
             for (&d, &dr) in s.gaps.iter().zip(&r.gaps) {
                 let diff = if d == dr {
                     0.0
@@ -313,37 +421,71 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
             "0 < target < 1, e.g. 1e-6",
         ));
     }
-    if options.members == 0 || options.members > 4096 {
+    if options.members.is_some_and(|m| m == 0 || m > 4096) {
         return Err(Error::invalid(
             "--members",
-            options.members,
-            "how many of the scene's first members are measured",
+            options.members.unwrap_or(0),
+            "how many members are measured",
             "1 ..= 4096",
         ));
     }
-    let (scene, chains, params) = first_members(scene, options.members)?;
-    let mut base = Plan::new(&scene, &chains[0]);
-    base.members = params;
-    base.fields = OutputFields {
-        gaps: true,
-        velocities: true,
-        rho: true,
-        u: false,
-        rho_star: false,
-        energy: false,
-    };
+    let (scene, mut groups) = measured_members(scene, options.members)?;
+    for group in &mut groups {
+        group.plan.fields = OutputFields {
+            gaps: true,
+            velocities: true,
+            rho: true,
+            u: false,
+            rho_star: false,
+            energy: false,
+        };
+    }
+    let ranges = member_ranges(&groups);
+    let member_count = ranges.last().map_or(0, |r| r.end);
+    let base = &groups[0].plan;
+    if let Some(g) = groups
+        .iter()
+        .find(|g| g.plan.output_times != base.output_times)
+    {
+        return Err(Error::invalid(
+            "[time]",
+            format!(
+                "{} output times at sweep point {:?}",
+                g.plan.output_times.len(),
+                g.point
+            ),
+            "the output times of the measured sweep points",
+            "the same at every point (accuracy compares them time by time)",
+        ));
+    }
     let say = |line: String| {
         if !options.quiet {
             eprintln!("{line}");
         }
     };
-    say(format!(
-        "accuracy of {}: the scene's first {} member(s), N = {}, {} output times",
-        scene.name,
-        chains.len(),
-        base.particles,
-        base.output_times.len()
-    ));
+    let points: Vec<u64> = groups.iter().filter_map(|g| g.point).collect();
+    say(if points.is_empty() {
+        format!(
+            "accuracy of {}: the scene's first {} member(s), N = {}, {} output times",
+            scene.name,
+            member_count,
+            base.particles,
+            base.output_times.len()
+        )
+    } else {
+        format!(
+            "accuracy of {}: {} member(s) at sweep points {:?} (N = {}), {} output times; each setting judged by its worst member",
+            scene.name,
+            member_count,
+            points,
+            groups
+                .iter()
+                .map(|g| g.plan.particles.to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            base.output_times.len()
+        )
+    });
 
     // The reference, and its own check ten times tighter.
     let reference_tolerance = (options.target * 1e-3).clamp(1e-11, 1e-8);
@@ -357,12 +499,8 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         backend: Backend::Cpu,
         precision: Precision::F64,
     };
-    let reference = solve(&base, &chains, &reference_setting(reference_tolerance))?;
-    let check = solve(
-        &base,
-        &chains,
-        &reference_setting(reference_tolerance / 10.0),
-    )?;
+    let reference = solve(&groups, &reference_setting(reference_tolerance))?;
+    let check = solve(&groups, &reference_setting(reference_tolerance / 10.0))?;
     if reference.failed || check.failed {
         return Err(Error::missing(
             "accuracy",
@@ -389,9 +527,41 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     // Wall time of the cheapest setting so far that meets the target.
     let mut cheapest: Option<f64> = None;
     let mut measure = |setting: Setting| -> Result<(Option<f64>, bool)> {
-        let run = solve(&base, &chains, &setting)?;
+        let run = solve(&groups, &setting)?;
         let errors = (!run.failed).then(|| errors(&run.snapshots, &reference.snapshots));
-        let particle_steps = (run.accepted * base.particles as u64) as f64;
+        // The point of the worst member (the same largest error as `errors`, found by group).
+        let worst_point = match (&errors, points.len() > 1) {
+            (Some(_), true) => groups
+                .iter()
+                .zip(&ranges)
+                .map(|(g, r)| {
+                    let e = errors_of_members(&run.snapshots, &reference.snapshots, r.clone());
+                    (g.point, e.worst())
+                })
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .and_then(|(p, _)| p),
+            _ => None,
+        };
+        let particle_steps: f64 = groups.iter().map(|g| g.plan.particles as f64).sum::<f64>()
+            / groups.len() as f64
+            * run.accepted as f64;
+        // The observed order against the previous rung of the same line (the last measurement
+        // when its scheme is this one): d ln(error) / d ln(dt) for fixed steps (log2 of the
+        // error ratio where the rungs halve dt: the scheme's order in its asymptotic range),
+        // -d ln(error) / d ln(steps) for tolerances.
+        let observed_order = measurements.last().and_then(|previous: &Measurement| {
+            let (e0, e1) = (previous.errors?.worst(), errors?.worst());
+            let work_ratio = match (previous.setting.stepping, setting.stepping) {
+                (Stepping::Fixed { dt: dt0, .. }, Stepping::Fixed { dt: dt1, .. }) => dt0 / dt1,
+                _ => run.accepted as f64 / previous.steps_accepted as f64,
+            };
+            (previous.setting.scheme() == setting.scheme()
+                && work_ratio.is_finite()
+                && work_ratio != 1.0
+                && e0 > 0.0
+                && e1 > 0.0)
+                .then(|| (e0 / e1).ln() / work_ratio.ln())
+        });
         let m = Measurement {
             setting,
             errors,
@@ -399,14 +569,20 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
             steps_accepted: run.accepted,
             steps_rejected: run.rejected,
             particle_steps_per_second: particle_steps / run.wall.max(1e-9),
+            worst_point,
+            observed_order,
         };
         say(format!(
-            "  {:<40} error {:>9}  {:>8.3} s  {:>8} steps",
+            "  {:<40} error {:>9}  {:>8.3} s  {:>8} steps  {:>12}{}",
             setting.label(),
             m.errors
                 .map_or("failed".to_string(), |e| format!("{:.2e}", e.worst())),
             m.wall_seconds,
-            m.steps_accepted
+            m.steps_accepted,
+            m.observed_order
+                .map_or(String::new(), |p| format!("order {p:.2}")),
+            m.worst_point
+                .map_or(String::new(), |p| format!("  (worst: point {p})"))
         ));
         let error = errors.map(|e| e.worst());
         if error.is_some_and(|e| e <= options.target) {
@@ -472,20 +648,20 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         &dir.join("work_precision.png"),
         &format!(
             "{}: error against wall time ({} member(s))",
-            scene.name,
-            chains.len()
+            scene.name, member_count
         ),
         &lines,
         Some(options.target),
     )?;
-    write_reference(&dir, &base, &reference.snapshots)?;
+    write_reference(&dir, &groups, &ranges, &reference.snapshots)?;
     write_json_atomic(
         &dir.join(MANIFEST),
         &serde_json::json!({
             "roughlub_version": VERSION,
             "kind": "accuracy",
             "scene": { "name": scene.name, "text": scene.source_text },
-            "members": chains.len(),
+            "members": member_count,
+            "sweep_points": points,
             "target": options.target,
             "error_definition": "largest over output times and members of: max |ln d - ln d_ref| (gaps), max |u - u_ref| / max |u_ref| (velocities), grid mean of |rho - rho_ref| (L1 of rho)",
             "reference": {
@@ -502,12 +678,14 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         Some(i) => {
             let m = &measurements[i];
             say(format!(
-                "cheapest setting that meets {:e}: {} (error {:.2e}, {:.3} s for {} member(s))",
+                "cheapest setting that meets {:e}: {} (error {:.2e}, {:.3} s for {} member(s){})",
                 options.target,
                 m.setting.label(),
                 m.errors.map_or(f64::NAN, |e| e.worst()),
                 m.wall_seconds,
-                chains.len()
+                member_count,
+                m.worst_point
+                    .map_or(String::new(), |p| format!("; worst at sweep point {p}"))
             ));
         }
         None => say(format!(
@@ -548,6 +726,8 @@ fn write_csv(path: &Path, measurements: &[Measurement]) -> Result<()> {
         "steps_rejected",
         "particle_steps_per_second",
         "status",
+        "worst_point",
+        "observed_order",
     ])
     .map_err(err)?;
     for m in measurements {
@@ -573,38 +753,65 @@ fn write_csv(path: &Path, measurements: &[Measurement]) -> Result<()> {
             m.steps_rejected.to_string(),
             format!("{:e}", m.particle_steps_per_second),
             if e.is_some() { "ok" } else { "failed" }.to_string(),
+            m.worst_point.map_or(String::new(), |p| p.to_string()),
+            num(m.observed_order),
         ])
         .map_err(err)?;
     }
     w.flush().map_err(|e| Error::io(path, e))
 }
 
-/// The reference's gaps, velocities and rho, [T, B, ...], for checking any later run by hand.
-fn write_reference(dir: &Path, plan: &Plan, snapshots: &[Vec<Snapshot>]) -> Result<()> {
-    let (t, b) = (snapshots.len() as u64, plan.members.len() as u64);
-    let (n, g) = (plan.particles as u64, plan.grid as u64);
-    let flat = |f: &dyn Fn(&Snapshot) -> &Vec<f64>| -> Vec<f64> {
-        snapshots
+/// The reference's gaps, velocities and rho, [T, B, ...], for checking any later run by hand:
+/// `reference_*.npy` over every measured member when they share N, otherwise one set per sweep
+/// point, `reference_*_point{p}.npy`.
+fn write_reference(
+    dir: &Path,
+    groups: &[MeasuredGroup],
+    ranges: &[std::ops::Range<usize>],
+    snapshots: &[Vec<Snapshot>],
+) -> Result<()> {
+    let same_n = groups
+        .iter()
+        .all(|g| g.plan.particles == groups[0].plan.particles);
+    let sets: Vec<(String, std::ops::Range<usize>, &Plan)> = if same_n {
+        let all = 0..ranges.last().map_or(0, |r| r.end);
+        vec![(String::new(), all, &groups[0].plan)]
+    } else {
+        groups
             .iter()
-            .flatten()
-            .flat_map(|s| f(s).iter().copied())
+            .zip(ranges)
+            .map(|(g, r)| {
+                (
+                    format!("_point{}", g.point.unwrap_or(0)),
+                    r.clone(),
+                    &g.plan,
+                )
+            })
             .collect()
     };
+    for (suffix, members, plan) in sets {
+        let (t, b) = (snapshots.len() as u64, members.len() as u64);
+        let (n, g) = (plan.particles as u64, plan.grid as u64);
+        let flat = |f: &dyn Fn(&Snapshot) -> &Vec<f64>| -> Vec<f64> {
+            snapshots
+                .iter()
+                .flat_map(|at| &at[members.clone()])
+                .flat_map(|s| f(s).iter().copied())
+                .collect()
+        };
+        let name = |what: &str| dir.join(format!("reference_{what}{suffix}.npy"));
+        write_npy(name("gaps"), &[t, b, n], &flat(&|s| &s.gaps))?;
+        write_npy(
+            name("velocities"),
+            &[t, b, n - 1],
+            &flat(&|s| &s.velocities),
+        )?;
+        write_npy(name("rho"), &[t, b, g], &flat(&|s| &s.rho))?;
+    }
     write_npy(
-        dir.join("reference_gaps.npy"),
-        &[t, b, n],
-        &flat(&|s| &s.gaps),
+        dir.join("times.npy"),
+        &[snapshots.len() as u64],
+        &groups[0].plan.output_times,
     )?;
-    write_npy(
-        dir.join("reference_velocities.npy"),
-        &[t, b, n - 1],
-        &flat(&|s| &s.velocities),
-    )?;
-    write_npy(
-        dir.join("reference_rho.npy"),
-        &[t, b, g],
-        &flat(&|s| &s.rho),
-    )?;
-    write_npy(dir.join("times.npy"), &[t], &plan.output_times)?;
     Ok(())
 }

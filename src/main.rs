@@ -59,7 +59,8 @@ enum Command {
     },
     /// Measure the speed/accuracy trade on a scene: a reference, a ladder of settings (orders x
     /// tolerances and fixed steps), work_precision.csv and .png, and the cheapest setting that
-    /// meets --target. Uses the scene's first member(s).
+    /// meets --target. Uses the scene's first member(s), or in a parameter study members spread
+    /// over its sweep points (the first and the last among them), judged by the worst.
     Accuracy {
         /// Scene file (TOML).
         scene: PathBuf,
@@ -69,9 +70,11 @@ enum Command {
         /// Output directory [default: out/<scene name>_accuracy].
         #[arg(long)]
         out: Option<PathBuf>,
-        /// How many of the scene's first members to measure.
-        #[arg(long, default_value_t = 1)]
-        members: usize,
+        /// How many members to measure: the scene's first (default 1), or in a parameter study
+        /// one at each of K sweep points spread over the sweep, first and last included (default
+        /// 4 points), and more per point when K exceeds the points.
+        #[arg(long)]
+        members: Option<usize>,
         /// Backends and precisions of the ladder: a comma list of cpu (f64), cpu-f32, gpu (f64),
         /// gpu-f32, or "available": the CPU in f64 and f32, and the GPU in f64 and f32 where an
         /// adapter is found.

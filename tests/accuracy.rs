@@ -132,6 +132,22 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
             (observed - want).abs() <= 0.3,
             "order {order}: observed {observed:.2} from {errors:?}"
         );
+        // The observed order the CSV gives beside each rung: log2 of the error ratio of
+        // successive halvings (none on the first rung); tolerance 1e-9, the printed digits.
+        let given: Vec<f64> = rows
+            .iter()
+            .filter(|r| &r[col("order")] == order && &r[col("stepping")] == "fixed")
+            .map(|r| r[col("observed_order")].parse().unwrap())
+            .collect();
+        assert!(given[0].is_nan(), "order {order}: {given:?}");
+        for i in 1..k {
+            let want = (errors[i - 1] / errors[i]).log2();
+            assert!(
+                (given[i] - want).abs() <= 1e-9 * want.abs().max(1.0),
+                "order {order}, rung {i}: {} against {want}",
+                given[i]
+            );
+        }
     }
 
     // The recommendation, rerun as a user would.
@@ -172,11 +188,97 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
     assert!(reported <= TARGET);
 }
 
-/// On a parameter study, the trade is measured on the first sweep point's members only (one
-/// plan holds them): --members beyond a point's count is cut to it, with no mixing of points
-/// that differ in N.
+/// On a parameter study the trade is measured at sweep points spread over the sweep (the first
+/// and the last among them), each setting judged by its worst member: every setting's error is
+/// the largest of the errors that `accuracy` measures at each of those points on its own (a scene
+/// without the sweep, the point's spread set, the same member draws), and its worst point is the
+/// point of that largest error.
 #[test]
-fn accuracy_of_a_parameter_study_uses_the_first_point() {
+fn accuracy_of_a_parameter_study_is_judged_by_its_worst_point() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = SCENE
+        .replace("end = 0.1", "end = 0.02")
+        .replace("outputs = 5", "outputs = 3");
+    let ensemble = |spread: f64| {
+        format!("\n[ensemble]\nmembers = 2\nseed = 4\nroughness = {{ kind = \"lognormal\", spread = {spread} }}\n")
+    };
+    let spreads = [0.0, 0.2, 0.4];
+    // Each setting's (error, worst point) from work_precision.csv, keyed by its scheme and step.
+    let measure = |name: &str, text: String, extra: &[&str]| {
+        let scene = tmp.path().join(format!("{name}.toml"));
+        std::fs::write(&scene, text).unwrap();
+        let out = tmp.path().join(format!("{name}_out"));
+        let o = Command::new(BIN)
+            .args(["accuracy", scene.to_str().unwrap(), "--target", "1e-4"])
+            .args(["--out", out.to_str().unwrap(), "--backends", "cpu"])
+            .args(extra)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(o.status.success(), "{stderr}");
+        let mut rows = std::collections::BTreeMap::new();
+        let mut csv = csv::Reader::from_path(out.join("work_precision.csv")).unwrap();
+        let head = csv.headers().unwrap().clone();
+        let col = |n: &str| head.iter().position(|h| h == n).unwrap();
+        for r in csv.records() {
+            let r = r.unwrap();
+            let key = format!(
+                "{} {} {}",
+                r[col("order")].to_string(),
+                &r[col("stepping")],
+                &r[col("dt_or_tolerance")]
+            );
+            let error: f64 = r[col("error")].parse().unwrap();
+            let worst: Option<u64> = r[col("worst_point")].parse().ok();
+            rows.insert(key, (error, worst));
+        }
+        (rows, stderr, out)
+    };
+    let sweep_text =
+        base.clone() + &ensemble(0.1) + &format!("\n[sweep]\nroughness_spread = {spreads:?}\n");
+    let (sweep, stderr, _) = measure("sweep", sweep_text, &[]);
+    assert!(stderr.contains("sweep points [0, 1, 2]"), "{stderr}");
+    let alone: Vec<_> = spreads
+        .iter()
+        .enumerate()
+        .map(|(p, &s)| {
+            measure(
+                &format!("point{p}"),
+                base.clone() + &ensemble(s),
+                &["--members", "1"],
+            )
+            .0
+        })
+        .collect();
+    let mut compared = 0;
+    for (key, &(error, worst)) in &sweep {
+        let at: Vec<f64> = match alone
+            .iter()
+            .map(|rows| rows.get(key).map(|r| r.0))
+            .collect()
+        {
+            Some(v) => v,
+            None => continue, // a rung one ladder cut short by its time budget
+        };
+        let largest = at.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        // Tolerance: the same members solved alone and in the sweep give the same bits.
+        assert!(
+            (error - largest).abs() <= 1e-12 * largest,
+            "{key}: sweep error {error:e}, the points' {at:?}"
+        );
+        let argmax = at.iter().position(|&e| e == largest).unwrap() as u64;
+        assert_eq!(worst, Some(argmax), "{key}: {at:?}");
+        compared += 1;
+    }
+    assert!(compared >= 10, "only {compared} settings in common");
+    eprintln!("{compared} settings: sweep error = the largest of its points' errors");
+}
+
+/// Points of a sweep that differ in N are measured each in a plan of its own, with reference
+/// arrays per point; --members beyond the points is spread as members per point (up to a
+/// point's count).
+#[test]
+fn accuracy_of_a_sweep_over_n_writes_references_per_point() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = tmp.path().join("sw.toml");
     let text = SCENE
@@ -199,7 +301,12 @@ fn accuracy_of_a_parameter_study_uses_the_first_point() {
         .unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stderr}");
-    assert!(stderr.contains("first 3 member(s), N = 20"), "{stderr}");
-    let (shape, _) = npy(&out.join("reference_gaps.npy"));
+    assert!(
+        stderr.contains("6 member(s) at sweep points [0, 1] (N = 20, 30)"),
+        "{stderr}"
+    );
+    let (shape, _) = npy(&out.join("reference_gaps_point0.npy"));
     assert_eq!(shape, [2, 3, 20]);
+    let (shape, _) = npy(&out.join("reference_gaps_point1.npy"));
+    assert_eq!(shape, [2, 3, 30]);
 }
