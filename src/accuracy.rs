@@ -24,7 +24,7 @@ use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
 use crate::model::chain::Chain;
 use crate::model::observables::Snapshot;
-use crate::model::params::{MemberParams, Order, OutputFields, Stepping};
+use crate::model::params::{Order, OutputFields, Stepping};
 use crate::model::plan::Plan;
 use crate::output::manifest::VERSION;
 use crate::output::{write_json_atomic, write_npy, StagedDir, MANIFEST};
@@ -129,11 +129,11 @@ pub struct Measurement {
     /// The sweep point whose members' error is the largest (`None` without a sweep or when a
     /// member failed).
     pub worst_point: Option<u64>,
-    /// Against the previous rung of the same line (order, stepping, backend and precision):
-    /// d ln(error) / d ln(dt) for fixed steps (halved from rung to rung: the observed order of
-    /// convergence), -d ln(error) / d ln(steps) for tolerances (how the error falls with the
-    /// work). `None` on a line's first
-    /// rung and where either rung failed.
+    /// -d ln(error) / d ln(steps) against the previous rung of the same line (order, stepping,
+    /// backend and precision): for fixed steps the observed order of convergence, for
+    /// tolerances how the error falls with the work. `None` on a line's first rung, where
+    /// either rung failed, and where the steps grew by less than 1.25 times (set by the output
+    /// times).
     pub observed_order: Option<f64>,
 }
 
@@ -221,23 +221,42 @@ fn measured_members(scene: &Scene, count: Option<usize>) -> Result<(Scene, Vec<M
         let scene = members.setup(points[0])?.scene.clone();
         return Ok((scene, groups));
     }
+    // A `[batch]` (mu and gamma lists) is a sweep of one member per value: its members are
+    // spread like sweep points.
     let chain = scene.initial_chain()?;
-    let params: Vec<MemberParams> = scene
-        .member_parameters()
-        .into_iter()
-        .take(count.unwrap_or(1).max(1))
-        .collect();
+    let all = scene.member_parameters();
+    let listed = all.len() as u64;
+    let chosen = if listed > 1 {
+        spread_points(listed, count.map_or(DEFAULT_SWEEP_POINTS, |c| c as u64))
+    } else {
+        vec![0]
+    };
     let mut plan = Plan::new(scene, &chain);
-    plan.members = params;
+    plan.members = chosen.iter().map(|&m| all[m as usize]).collect();
     let chains = vec![chain; plan.members.len()];
-    Ok((
-        scene.clone(),
+    // With several listed members, each is a group of its own, so the worst can be named.
+    let groups = if listed > 1 {
+        chosen
+            .iter()
+            .zip(&plan.members)
+            .map(|(&m, &params)| {
+                let mut one = plan.clone();
+                one.members = vec![params];
+                MeasuredGroup {
+                    plan: one,
+                    chains: vec![chains[0].clone()],
+                    point: Some(m),
+                }
+            })
+            .collect()
+    } else {
         vec![MeasuredGroup {
             plan,
             chains,
             point: None,
-        }],
-    ))
+        }]
+    };
+    Ok((scene.clone(), groups))
 }
 
 /// Runs every group at `setting`; the snapshots are the groups' members side by side (per output
@@ -546,18 +565,17 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
             / groups.len() as f64
             * run.accepted as f64;
         // The observed order against the previous rung of the same line (the last measurement
-        // when its scheme is this one): d ln(error) / d ln(dt) for fixed steps (log2 of the
-        // error ratio where the rungs halve dt: the scheme's order in its asymptotic range),
-        // -d ln(error) / d ln(steps) for tolerances.
+        // when its scheme is this one): -d ln(error) / d ln(steps). For fixed steps the steps
+        // give the mean step actually taken (a dt that does not divide the output interval is
+        // shortened to fit it), so this is the scheme's order in its asymptotic range.
         let observed_order = measurements.last().and_then(|previous: &Measurement| {
             let (e0, e1) = (previous.errors?.worst(), errors?.worst());
-            let work_ratio = match (previous.setting.stepping, setting.stepping) {
-                (Stepping::Fixed { dt: dt0, .. }, Stepping::Fixed { dt: dt1, .. }) => dt0 / dt1,
-                _ => run.accepted as f64 / previous.steps_accepted as f64,
-            };
+            let work_ratio = run.accepted as f64 / previous.steps_accepted as f64;
+            // Below 1.25 more steps the output times, not the tolerance, set the steps: no
+            // order can be read from them.
             (previous.setting.scheme() == setting.scheme()
                 && work_ratio.is_finite()
-                && work_ratio != 1.0
+                && work_ratio >= 1.25
                 && e0 > 0.0
                 && e1 > 0.0)
                 .then(|| (e0 / e1).ln() / work_ratio.ln())

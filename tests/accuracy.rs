@@ -132,16 +132,19 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
             (observed - want).abs() <= 0.3,
             "order {order}: observed {observed:.2} from {errors:?}"
         );
-        // The observed order the CSV gives beside each rung: log2 of the error ratio of
-        // successive halvings (none on the first rung); tolerance 1e-9, the printed digits.
-        let given: Vec<f64> = rows
+        // The observed order the CSV gives beside each rung: the log of the error ratio of
+        // successive rungs over the log of their steps' ratio (none on the first rung);
+        // tolerance 1e-9, the printed digits.
+        let line: Vec<&csv::StringRecord> = rows
             .iter()
             .filter(|r| &r[col("order")] == order && &r[col("stepping")] == "fixed")
-            .map(|r| r[col("observed_order")].parse().unwrap())
             .collect();
+        let value = |r: &csv::StringRecord, c: &str| -> f64 { r[col(c)].parse().unwrap() };
+        let given: Vec<f64> = line.iter().map(|r| value(r, "observed_order")).collect();
         assert!(given[0].is_nan(), "order {order}: {given:?}");
         for i in 1..k {
-            let want = (errors[i - 1] / errors[i]).log2();
+            let steps = value(line[i], "steps_accepted") / value(line[i - 1], "steps_accepted");
+            let want = (errors[i - 1] / errors[i]).ln() / steps.ln();
             assert!(
                 (given[i] - want).abs() <= 1e-9 * want.abs().max(1.0),
                 "order {order}, rung {i}: {} against {want}",
@@ -309,4 +312,44 @@ fn accuracy_of_a_sweep_over_n_writes_references_per_point() {
     assert_eq!(shape, [2, 3, 20]);
     let (shape, _) = npy(&out.join("reference_gaps_point1.npy"));
     assert_eq!(shape, [2, 3, 30]);
+}
+
+/// A `[batch]` of five mu values is measured like a sweep: by default 4 of its members, spread
+/// evenly with the first and the last (round(j 4/3): 0, 1, 3, 4), the worst of them named.
+#[test]
+fn accuracy_of_a_batch_spreads_its_members() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("batch.toml");
+    let text = SCENE
+        .replace("end = 0.1", "end = 0.01")
+        .replace("outputs = 5", "outputs = 2")
+        + "\n[batch]\nmu = [0.001, 0.01, 0.1, 1.0, 0.3]\n";
+    std::fs::write(&scene, text).unwrap();
+    let out = tmp.path().join("batch_out");
+    let o = Command::new(BIN)
+        .args(["accuracy", scene.to_str().unwrap(), "--target", "1e-3"])
+        .args(["--out", out.to_str().unwrap(), "--backends", "cpu"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("4 member(s) at sweep points [0, 1, 3, 4]"),
+        "{stderr}"
+    );
+    let mut csv = csv::Reader::from_path(out.join("work_precision.csv")).unwrap();
+    let worst = csv
+        .headers()
+        .unwrap()
+        .iter()
+        .position(|h| h == "worst_point")
+        .unwrap();
+    let named: Vec<u64> = csv
+        .records()
+        .filter_map(|r| r.unwrap()[worst].parse().ok())
+        .collect();
+    assert!(named.len() >= 10, "{named:?}");
+    assert!(named.iter().all(|p| [0, 1, 3, 4].contains(p)), "{named:?}");
+    let (shape, _) = npy(&out.join("reference_gaps.npy"));
+    assert_eq!(shape, [2, 4, 24]);
 }
