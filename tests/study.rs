@@ -854,6 +854,25 @@ fn resume_into_a_directory_of_another_scene_is_refused() {
     assert_eq!(manifest(&dir)["members_completed"], 96);
 }
 
+/// A negative or NaN `--checkpoint-every` is refused before anything is written, naming the
+/// option and its range.
+#[test]
+fn a_bad_checkpoint_interval_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    for bad in ["-1", "NaN"] {
+        let dir = tmp.path().join(format!("study{bad}"));
+        let flag = format!("--checkpoint-every={bad}");
+        let out = run(&data("study_basic.toml"), &dir, &[flag.as_str()]);
+        assert_eq!(out.status.code(), Some(2), "stderr: {}", stderr_of(&out));
+        let err = stderr_of(&out);
+        assert!(
+            err.contains("--checkpoint-every") && err.contains("0 <= SECONDS"),
+            "message: {err}"
+        );
+        assert!(!dir.exists(), "{bad}: an output directory was written");
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // 5. Failed members.
 

@@ -25,10 +25,12 @@ pub const COMPANION_METHOD: &str = "global error of order 1 with fixed steps fro
 
 /// Whether a plan runs order 1 with fixed steps (the runs that need a companion for an estimate).
 pub fn needs_companion(plan: &Plan) -> bool {
-    matches!(
-        (plan.order, plan.stepping),
-        (Order::Fixed(1), Stepping::Fixed { .. })
-    )
+    needs_companion_for(plan.order, plan.stepping)
+}
+
+/// [`needs_companion`] from the order and stepping alone (a scene's, before its plan exists).
+pub fn needs_companion_for(order: Order, stepping: Stepping) -> bool {
+    matches!((order, stepping), (Order::Fixed(1), Stepping::Fixed { .. }))
 }
 
 /// The companion's plan: the run's, at `COARSENING` times its step, with the gaps and velocities

@@ -30,8 +30,15 @@ pub struct MemoryEstimate {
     pub chunk_bytes: u64,
 }
 
-/// The estimate for the study `header` describes, with chains of up to `particles` particles.
-pub fn estimate(header: &StudyHeader, spec: &EnsembleSpec, particles: usize) -> MemoryEstimate {
+/// The estimate for the study `header` describes, with chains of up to `particles` particles
+/// and `solvers` batches of a chunk in flight at once (2 with the order-1 error estimate's
+/// companion).
+pub fn estimate(
+    header: &StudyHeader,
+    spec: &EnsembleSpec,
+    particles: usize,
+    solvers: u64,
+) -> MemoryEstimate {
     let t = header.times.len() as u64;
     let g = header.x.len() as u64;
     let points = header.points.len().max(1) as u64;
@@ -55,7 +62,8 @@ pub fn estimate(header: &StudyHeader, spec: &EnsembleSpec, particles: usize) -> 
         0
     };
     // Snapshots carry rho on the grid (the peak centre), and the solver its state.
-    let chunk_bytes = chunk * (n * SOLVER_BYTES_PER_PARTICLE + recorded + kept + g * 8 + ROW_BYTES);
+    let chunk_bytes =
+        chunk * (solvers * n * SOLVER_BYTES_PER_PARTICLE + recorded + kept + g * 8 + ROW_BYTES);
     MemoryEstimate {
         bytes: detailed_bytes + responses_bytes + chunk_bytes,
         detailed_bytes,

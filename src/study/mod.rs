@@ -194,6 +194,15 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             "0 <= K < N",
         ));
     }
+    // NaN fails the comparison too; infinity is allowed (never checkpoint).
+    if !(options.checkpoint_seconds >= 0.0) {
+        return Err(Error::invalid(
+            "--checkpoint-every",
+            options.checkpoint_seconds,
+            "seconds of solving between checkpoints",
+            "0 <= SECONDS (0: after every chunk)",
+        ));
+    }
     let points = scene.sweep_points();
     if points > crate::scene::MAX_SWEEP_POINTS && !options.allow_large {
         return Err(Error::invalid(
@@ -218,7 +227,15 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         &engine.record,
     );
     header.input_files = files::input_file_hashes(scene, spec)?;
-    let memory = memory::estimate(&header, spec, members.first.chain.particles());
+    // The order-1 error estimate solves a companion batch beside each chunk's.
+    let solvers = if scene.error_estimate
+        && crate::backend::companion::needs_companion_for(scene.order, scene.stepping)
+    {
+        2
+    } else {
+        1
+    };
+    let memory = memory::estimate(&header, spec, members.first.chain.particles(), solvers);
     let memory_limit = memory::memory_limit();
     if !options.allow_large {
         memory::check(&memory, &header, spec, memory_limit)?;
