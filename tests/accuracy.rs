@@ -277,33 +277,45 @@ fn accuracy_of_a_parameter_study_is_judged_by_its_worst_point() {
     eprintln!("{compared} settings: sweep error = the largest of its points' errors");
 }
 
+/// `roughlub accuracy --target 1e-3 --backends cpu` (and `extra`) on SCENE shortened to
+/// t = 0.01 with 2 outputs, plus `sections`, written as `dir/name.toml`; asserts success and
+/// returns the output directory and stderr.
+fn short_accuracy(
+    dir: &Path,
+    name: &str,
+    sections: &str,
+    extra: &[&str],
+) -> (std::path::PathBuf, String) {
+    let scene = dir.join(format!("{name}.toml"));
+    let text = SCENE
+        .replace("end = 0.1", "end = 0.01")
+        .replace("outputs = 5", "outputs = 2")
+        + sections;
+    std::fs::write(&scene, text).unwrap();
+    let out = dir.join(format!("{name}_out"));
+    let o = Command::new(BIN)
+        .args(["accuracy", scene.to_str().unwrap(), "--target", "1e-3"])
+        .args(["--out", out.to_str().unwrap(), "--backends", "cpu"])
+        .args(extra)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{stderr}");
+    (out, stderr)
+}
+
 /// Points of a sweep that differ in N are measured each in a plan of its own, with reference
 /// arrays per point; --members beyond the points is spread as members per point (up to a
 /// point's count).
 #[test]
 fn accuracy_of_a_sweep_over_n_writes_references_per_point() {
     let tmp = tempfile::tempdir().unwrap();
-    let scene = tmp.path().join("sw.toml");
-    let text = SCENE
-        .replace("end = 0.1", "end = 0.01")
-        .replace("outputs = 5", "outputs = 2")
-        + "\n[ensemble]\nmembers = 3\nseed = 1\nroughness = { kind = \"lognormal\", spread = 0.1 }\n\n[sweep]\nparticles = [20, 30]\n";
-    std::fs::write(&scene, text).unwrap();
-    let out = tmp.path().join("sw_out");
-    let o = Command::new(BIN)
-        .args([
-            "accuracy",
-            scene.to_str().unwrap(),
-            "--target",
-            "1e-3",
-            "--members",
-            "5",
-        ])
-        .args(["--out", out.to_str().unwrap(), "--backends", "cpu"])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{stderr}");
+    let (out, stderr) = short_accuracy(
+        tmp.path(),
+        "sw",
+        "\n[ensemble]\nmembers = 3\nseed = 1\nroughness = { kind = \"lognormal\", spread = 0.1 }\n\n[sweep]\nparticles = [20, 30]\n",
+        &["--members", "5"],
+    );
     assert!(
         stderr.contains("6 member(s) at sweep points [0, 1] (N = 20, 30)"),
         "{stderr}"
@@ -319,20 +331,12 @@ fn accuracy_of_a_sweep_over_n_writes_references_per_point() {
 #[test]
 fn accuracy_of_a_batch_spreads_its_members() {
     let tmp = tempfile::tempdir().unwrap();
-    let scene = tmp.path().join("batch.toml");
-    let text = SCENE
-        .replace("end = 0.1", "end = 0.01")
-        .replace("outputs = 5", "outputs = 2")
-        + "\n[batch]\nmu = [0.001, 0.01, 0.1, 1.0, 0.3]\n";
-    std::fs::write(&scene, text).unwrap();
-    let out = tmp.path().join("batch_out");
-    let o = Command::new(BIN)
-        .args(["accuracy", scene.to_str().unwrap(), "--target", "1e-3"])
-        .args(["--out", out.to_str().unwrap(), "--backends", "cpu"])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{stderr}");
+    let (out, stderr) = short_accuracy(
+        tmp.path(),
+        "batch",
+        "\n[batch]\nmu = [0.001, 0.01, 0.1, 1.0, 0.3]\n",
+        &[],
+    );
     assert!(
         stderr.contains("4 member(s) at sweep points [0, 1, 3, 4]"),
         "{stderr}"
