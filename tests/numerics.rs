@@ -8,7 +8,8 @@ use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, Terms};
 use roughlub::backend::BatchSolver;
 use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
-use roughlub::model::observables::energy;
+use roughlub::model::chain::stored_gap;
+use roughlub::model::observables::{energy, grid_points, observe};
 use roughlub::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
 use roughlub::model::plan::{Forcing, Power};
 use roughlub::model::quadrature::GaussLegendre;
@@ -624,6 +625,91 @@ fn adaptive_runs_meet_their_tolerance_from_1e3_to_1e10() {
                 error <= TOLERANCE_FACTOR * tolerance,
                 "order {} tolerance {tolerance:e}: error {error:e}",
                 order.label()
+            );
+        }
+    }
+}
+
+/// The fields on the grid against a direct evaluation at each point: rho and rho* are the values
+/// of the cell [q_{i-1}, q_i) that holds x (the last cell for x >= q_N), u is linear between
+/// the cell's end velocities (the walls at rest). Chains from 1 to 300 particles on grids
+/// coarser and finer than their cells, so that cells holding no point, one point and many are
+/// all walked, with gaps far below the grid spacing, one stored as ln d.
+#[test]
+fn fields_on_the_grid_are_the_cell_values_at_each_point() {
+    let mut rng = Rng(11);
+    for (n, grid) in [
+        (1usize, 11usize),
+        (7, 200),
+        (60, 200),
+        (300, 101),
+        (40, 1000),
+    ] {
+        let eps = 0.2 / n as f64;
+        let chain = random_chain(&mut rng, n, eps, Some(eps));
+        let mut stored = chain.gaps.clone();
+        if n > 3 {
+            // Squeezed gaps (the others keep their widths, so points past q_N < 1 belong to the
+            // last cell).
+            stored[1] = 1e-9;
+            stored[2] = (1e-200f64).ln();
+        }
+        let plan = plan_for(
+            &chain,
+            vec![MemberParams {
+                mu: 0.1,
+                gamma: 2.0,
+            }],
+            1,
+            Stepping::Fixed {
+                dt: 1e-3,
+                dt_min: 1e-12,
+            },
+            vec![0.0],
+            None,
+        );
+        let x = grid_points(grid);
+        let dstar = chain.dstar.as_deref().unwrap();
+        let s = observe(
+            &plan,
+            &plan.members[0],
+            &stored,
+            &chain.velocities,
+            Some(dstar),
+            None,
+            &x,
+        );
+        assert_eq!(
+            (s.rho.len(), s.u.len(), s.rho_star.len()),
+            (grid, grid, grid)
+        );
+        let d: Vec<f64> = stored.iter().map(|&v| stored_gap::decode(v)).collect();
+        let mut q = vec![0.0];
+        for &di in &d {
+            q.push(q.last().unwrap() + (di + 2.0 * eps));
+        }
+        let velocity = |i: usize| {
+            if i == 0 || i == n {
+                0.0
+            } else {
+                chain.velocities[i - 1]
+            }
+        };
+        for (j, &xj) in x.iter().enumerate() {
+            let i = (1..=n).find(|&i| xj < q[i]).unwrap_or(n);
+            let what = format!("N = {n}, grid {grid}, x_{j} = {xj} in cell {i}");
+            assert_eq!(s.rho[j], 2.0 * eps / (d[i - 1] + 2.0 * eps), "rho, {what}");
+            assert_eq!(
+                s.rho_star[j],
+                2.0 * eps / (dstar[i - 1] + 2.0 * eps),
+                "rho*, {what}"
+            );
+            let frac = ((xj - q[i - 1]) / (q[i] - q[i - 1])).clamp(0.0, 1.0);
+            let u = velocity(i - 1) + (velocity(i) - velocity(i - 1)) * frac;
+            assert!(
+                (s.u[j] - u).abs() <= 1e-15,
+                "u = {} against {u}, {what}",
+                s.u[j]
             );
         }
     }

@@ -995,6 +995,33 @@ fn field_band_matches_direct_computation() {
     let bad = disk.replace(r#""len":6"#, r#""len":5"#);
     assert!(serde_json::from_str::<FieldBand>(&bad).is_err());
 
+    // Slot counts are u32: a count beyond u32::MAX is refused naming the limit, and so is a push
+    // or a merge that would take a point past it (never wrapped); up to the limit is accepted.
+    let huge = disk.replace("[5,1]", "[5,4294967296]");
+    let err = serde_json::from_str::<FieldBand>(&huge)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("4294967295"), "{err}");
+    let at = |count: u64| -> FieldBand {
+        serde_json::from_str(&disk.replace(r#""count":3"#, &format!(r#""count":{count}"#))).unwrap()
+    };
+    let mut full = at(u32::MAX as u64);
+    let err = full.merge(&at(3)).unwrap_err();
+    assert!(matches!(err, StatsError::CountOverflow { .. }), "{err}");
+    assert!(err.to_string().contains("4294967295"), "{err}");
+    assert_eq!(
+        full.stats()[0].count(),
+        u32::MAX as u64,
+        "a refused merge adds nothing"
+    );
+    assert!(matches!(
+        full.push_rows(&[&[0.5]]),
+        Err(StatsError::CountOverflow { .. })
+    ));
+    let mut almost = at(u32::MAX as u64 - 1);
+    almost.push_rows(&[&[0.5]]).unwrap();
+    assert_eq!(almost.stats()[0].count(), u32::MAX as u64);
+
     // Errors.
     let mut f = FieldBand::new(G, lo, hi, bins).unwrap();
     assert!(matches!(

@@ -248,51 +248,57 @@ pub fn observe(
         rho.reserve(cap(f.rho));
         u.reserve(cap(f.u));
         rho_star.reserve(cap(f.rho_star));
-        // Walk the grid and the cells together; a cell's values are computed once, when the
-        // walk enters it (a grid is typically several points per cell).
-        struct Cell {
-            q_left: f64,
-            width: f64,
-            rho: f64,
-            rho_star: f64,
-            u_left: f64,
-            u_right: f64,
-        }
-        let cell_at = |i: usize, q_left: f64| {
-            // Cell i (1-based) covers [q_{i-1}, q_i).
-            let d = gap(i - 1);
-            Cell {
-                q_left,
-                width: d + 2.0 * eps,
-                rho: 2.0 * eps / (d + 2.0 * eps),
-                rho_star: dstar.map_or(f64::NAN, |ds| 2.0 * eps / (ds[i - 1] + 2.0 * eps)),
-                u_left: if i >= 2 { velocities[i - 2] } else { 0.0 },
-                u_right: if i <= n - 1 { velocities[i - 1] } else { 0.0 },
-            }
+        // Cell by cell, the grid points each holds (a grid is typically several points per cell):
+        // a cell's values are computed once, and its points are filled as a slice (rho and rho*
+        // constant, u linear), which the compiler packs. Cell i (1-based) covers
+        // [q_{i-1}, q_i); points at or beyond the last q_N belong to the last cell.
+        let g = grid_x.len();
+        // The cells' widths and values first, in loops the compiler packs: a division each,
+        // which inside the walk stalled it.
+        let two_eps = 2.0 * eps;
+        let widths: Vec<f64> = (0..n).map(|i| gap(i) + two_eps).collect();
+        let cell_rho: Vec<f64> = match f.rho {
+            true => widths.iter().map(|&w| two_eps / w).collect(),
+            false => Vec::new(),
         };
-        let mut i = 1;
-        let mut c = cell_at(1, 0.0);
-        let mut q_right = c.width;
-        for &x in grid_x {
-            if x >= q_right && i < n {
-                while x >= q_right && i < n {
-                    i += 1;
-                    let q_left = q_right;
-                    q_right += gap(i - 1) + 2.0 * eps;
-                    c.q_left = q_left;
+        let cell_rho_star: Vec<f64> = match (f.rho_star, dstar) {
+            (true, Some(ds)) => ds.iter().map(|&s| two_eps / (s + two_eps)).collect(),
+            _ => Vec::new(),
+        };
+        let (mut j, mut i, mut q_left) = (0, 1, 0.0);
+        while j < g {
+            let q_right = q_left + widths[i - 1];
+            // A NaN width (never in a member that has not failed) keeps the rest in this cell.
+            // A linear scan, not a binary search: a cell holds a few points.
+            let mut end = j;
+            if i == n || q_right.is_nan() {
+                end = g;
+            } else {
+                while end < g && grid_x[end] < q_right {
+                    end += 1;
                 }
-                c = cell_at(i, c.q_left);
             }
-            if f.rho {
-                rho.push(c.rho);
+            if end > j {
+                let count = end - j;
+                if let Some(&value) = cell_rho.get(i - 1) {
+                    rho.resize(rho.len() + count, value);
+                }
+                if let Some(&value) = cell_rho_star.get(i - 1) {
+                    rho_star.resize(rho_star.len() + count, value);
+                }
+                if f.u {
+                    let u_left = if i >= 2 { velocities[i - 2] } else { 0.0 };
+                    let u_right = if i <= n - 1 { velocities[i - 1] } else { 0.0 };
+                    let width = q_right - q_left;
+                    u.extend(grid_x[j..end].iter().map(|&x| {
+                        let s = ((x - q_left) / width).clamp(0.0, 1.0);
+                        u_left + (u_right - u_left) * s
+                    }));
+                }
+                j = end;
             }
-            if f.rho_star && dstar.is_some() {
-                rho_star.push(c.rho_star);
-            }
-            if f.u {
-                let s = ((x - c.q_left) / (q_right - c.q_left)).clamp(0.0, 1.0);
-                u.push(c.u_left + (c.u_right - c.u_left) * s);
-            }
+            q_left = q_right;
+            i += 1;
         }
     }
     Snapshot {

@@ -35,8 +35,11 @@ use super::{Bins, Histogram, RunningStats, StatsError};
 pub struct FieldBand {
     bins: Bins,
     points: Vec<RunningStats>,
-    /// Per point, `bins + 2` slot counts (see [`Bins::slot`]).
-    slots: Vec<Vec<u64>>,
+    /// Per point, `bins + 2` slot counts (see [`Bins::slot`]), point after point in one block:
+    /// the fill indexes it without a pointer per point, and u32 halves what is zeroed, scanned
+    /// and read. A point holds at most `u32::MAX` values (4 billion members of one sweep
+    /// point); more is refused ([`StatsError::CountOverflow`]), never wrapped.
+    slots: Vec<u32>,
 }
 
 impl FieldBand {
@@ -46,8 +49,32 @@ impl FieldBand {
         Ok(FieldBand {
             bins,
             points: vec![RunningStats::new(); points],
-            slots: vec![vec![0; bins.len() + 2]; points],
+            slots: vec![0; points * (bins.len() + 2)],
         })
+    }
+
+    /// Slots per point: the bins, underflow and overflow.
+    fn stride(&self) -> usize {
+        self.bins.len() + 2
+    }
+
+    /// The slot counts of point `j`.
+    fn point_slots(&self, j: usize) -> &[u32] {
+        let stride = self.stride();
+        &self.slots[j * stride..(j + 1) * stride]
+    }
+
+    /// Fails unless every point can count `extra` more values (see [`slots`](Self::slots)).
+    fn check_room(&self, extra: impl Fn(usize) -> u64) -> Result<(), StatsError> {
+        for (j, p) in self.points.iter().enumerate() {
+            if p.count().saturating_add(extra(j)) > u32::MAX as u64 {
+                return Err(StatsError::CountOverflow {
+                    what: "field band point",
+                    limit: u32::MAX as u64,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// Number of grid points G.
@@ -69,14 +96,15 @@ impl FieldBand {
     pub fn histogram(&self, j: usize) -> Histogram {
         Histogram::from_slots(
             self.bins,
-            self.slots[j].clone(),
+            self.point_slots(j).iter().map(|&c| u64::from(c)).collect(),
             self.points[j].non_finite(),
         )
     }
 
     /// Adds the rows of one chunk of members (each row of length G). Moments are accumulated in
     /// bulk (shifted sums, then one Chan merge per point) because this is the hot part of a
-    /// study's statistics. Fails, adding nothing, if a row's length is not G.
+    /// study's statistics. Fails, adding nothing, if a row's length is not G or a point would
+    /// hold more than `u32::MAX` values.
     pub fn push_rows(&mut self, rows: &[&[f64]]) -> Result<(), StatsError> {
         let g = self.points.len();
         if let Some(bad) = rows.iter().find(|r| r.len() != g) {
@@ -86,6 +114,7 @@ impl FieldBand {
                 got: bad.len(),
             });
         }
+        self.check_room(|_| rows.len() as u64)?;
         #[cfg(target_arch = "x86_64")]
         if is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2 (checked on the line above).
@@ -159,7 +188,13 @@ impl FieldBand {
             let mut min = [f64::INFINITY; BLOCK];
             let mut max = [f64::NEG_INFINITY; BLOCK];
             let mut slot = [0i32; BLOCK];
-            let slots = &mut self.slots[j0..j0 + width];
+            let stride = bins.len() + 2;
+            let slots = &mut self.slots[j0 * stride..(j0 + width) * stride];
+            // SAFETY (both increments below): slot_of is in [0, bins + 1] and k < width, so the
+            // index is inside the block's `width * stride` slots.
+            let mut count = |k: usize, slot: i32| unsafe {
+                *slots.get_unchecked_mut(k * stride + slot as usize) += 1;
+            };
             for row in rows {
                 let xs = &row[j0..j0 + width];
                 // A row without NaN or infinity (nearly all) takes the loop without the
@@ -168,6 +203,9 @@ impl FieldBand {
                     for k in 0..width {
                         let x = xs[k];
                         let d = x - shift[k];
+                        // Counted here, packed, not beside the scattered increments below (a
+                        // scalar read-modify-write each, a fifth of the fill's time).
+                        n[k] += 1;
                         s1[k] += d;
                         s2[k] += d * d;
                         min[k] = min[k].min(x);
@@ -175,8 +213,7 @@ impl FieldBand {
                         slot[k] = slot_of(x);
                     }
                     for k in 0..width {
-                        n[k] += 1;
-                        slots[k][slot[k] as usize] += 1;
+                        count(k, slot[k]);
                     }
                     continue;
                 }
@@ -194,7 +231,7 @@ impl FieldBand {
                 }
                 for k in 0..width {
                     if xs[k].is_finite() {
-                        slots[k][slot[k] as usize] += 1;
+                        count(k, slot[k]);
                     }
                 }
             }
@@ -217,7 +254,8 @@ impl FieldBand {
         }
     }
 
-    /// Merges pointwise; fails, leaving `self` unchanged, if G or the bins differ.
+    /// Merges pointwise; fails, leaving `self` unchanged, if G or the bins differ or a point
+    /// would hold more than `u32::MAX` values.
     pub fn merge(&mut self, other: &FieldBand) -> Result<(), StatsError> {
         self.bins.check_compatible(&other.bins)?;
         if other.points() != self.points() {
@@ -227,13 +265,12 @@ impl FieldBand {
                 got: other.points(),
             });
         }
+        self.check_room(|j| other.points[j].count())?;
         for (a, b) in self.points.iter_mut().zip(&other.points) {
             a.merge(b);
         }
-        for (a, b) in self.slots.iter_mut().zip(&other.slots) {
-            for (x, y) in a.iter_mut().zip(b) {
-                *x += y;
-            }
+        for (x, y) in self.slots.iter_mut().zip(&other.slots) {
+            *x += y;
         }
         Ok(())
     }
@@ -274,7 +311,7 @@ impl FieldBand {
     /// order), from one pass over each point's slots.
     pub fn quantile_rows(&self, qs: &[f64]) -> Result<Vec<Vec<f64>>, StatsError> {
         let mut rows = vec![Vec::with_capacity(self.points()); qs.len()];
-        for slots in &self.slots {
+        for slots in self.slots.chunks_exact(self.stride()) {
             for (row, v) in rows.iter_mut().zip(self.bins.quantiles(slots, qs)?) {
                 row.push(v);
             }
@@ -291,7 +328,7 @@ struct FieldBandRef<'a> {
     bins: u32,
     points: &'a [RunningStats],
     #[serde(serialize_with = "sparse_counts::serialize")]
-    counts: &'a [Vec<u64>],
+    counts: Vec<&'a [u32]>,
 }
 
 #[derive(Deserialize)]
@@ -350,13 +387,17 @@ impl FieldBandColumns {
         } else {
             4
         };
-        let largest = band.slots.iter().flatten().copied().max().unwrap_or(0);
-        let count_bytes = if largest <= u32::MAX as u64 { 4 } else { 8 };
+        // Counts are u32 in memory; 8-byte counts (state written before) are read when they fit.
+        let count_bytes = 4;
         let (mut count, mut non_finite) = (Vec::with_capacity(8 * g), Vec::with_capacity(8 * g));
         let mut moments = Vec::with_capacity(40 * g);
         let mut nonzero = Vec::with_capacity(4 * g);
         let (mut steps, mut counts) = (Vec::new(), Vec::new());
-        for (stats, slots) in band.points.iter().zip(&band.slots) {
+        for (stats, slots) in band
+            .points
+            .iter()
+            .zip(band.slots.chunks_exact(band.stride()))
+        {
             let (n, nf, m) = stats.raw();
             put(&mut count, n, 8);
             put(&mut non_finite, nf, 8);
@@ -367,7 +408,7 @@ impl FieldBandColumns {
             let mut filled = 0u64;
             for (slot, &c) in slots.iter().enumerate().filter(|(_, &c)| c > 0) {
                 put(&mut steps, (slot as i64 - previous) as u64, step_bytes);
-                put(&mut counts, c, count_bytes);
+                put(&mut counts, c.into(), count_bytes);
                 previous = slot as i64;
                 filled += 1;
             }
@@ -413,7 +454,8 @@ impl FieldBandColumns {
             return Err(bad("slot columns do not add up".into()));
         }
         let mut points = Vec::with_capacity(g);
-        let mut slots = Vec::with_capacity(g);
+        let stride = bins.len() + 2;
+        let mut slots = vec![0u32; g * stride];
         let mut next = 0;
         for j in 0..g {
             let m: [f64; 5] =
@@ -423,16 +465,17 @@ impl FieldBandColumns {
                 get(&self.non_finite, j, 8),
                 m,
             ));
-            let mut row = vec![0u64; bins.len() + 2];
+            let row = &mut slots[j * stride..(j + 1) * stride];
             let mut slot = -1i64;
             for _ in 0..get(&self.nonzero, j, 4) {
                 slot += get(&self.slot_steps, next, self.step_bytes) as i64;
+                let count = get(&self.slot_counts, next, self.count_bytes);
                 *row.get_mut(slot as usize)
-                    .ok_or_else(|| bad(format!("slot {slot} beyond {}", bins.len() + 2)))? =
-                    get(&self.slot_counts, next, self.count_bytes);
+                    .ok_or_else(|| bad(format!("slot {slot} beyond {stride}")))? =
+                    u32::try_from(count)
+                        .map_err(|_| bad(format!("count {count} beyond {}", u32::MAX)))?;
                 next += 1;
             }
-            slots.push(row);
         }
         Ok(FieldBand {
             bins,
@@ -452,7 +495,7 @@ impl Serialize for FieldBand {
             hi: self.bins.hi(),
             bins: self.bins.len() as u32,
             points: &self.points,
-            counts: &self.slots,
+            counts: self.slots.chunks_exact(self.stride()).collect(),
         }
         .serialize(s)
     }
@@ -489,10 +532,17 @@ impl TryFrom<FieldBandState> for FieldBand {
                 got: row.len(),
             });
         }
+        let mut slots = Vec::with_capacity(st.counts.len() * (bins.len() + 2));
+        for &c in st.counts.iter().flatten() {
+            slots.push(u32::try_from(c).map_err(|_| StatsError::CountOverflow {
+                what: "serialized field band slot",
+                limit: u32::MAX as u64,
+            })?);
+        }
         Ok(FieldBand {
             bins,
             points: st.points,
-            slots: st.counts,
+            slots,
         })
     }
 }
@@ -507,7 +557,7 @@ mod sparse_counts {
         nonzero: Vec<(u32, u64)>,
     }
 
-    pub fn serialize<S: Serializer>(rows: &&[Vec<u64>], s: S) -> Result<S::Ok, S::Error> {
+    pub fn serialize<S: Serializer>(rows: &[&[u32]], s: S) -> Result<S::Ok, S::Error> {
         let sparse: Vec<Row> = rows
             .iter()
             .map(|r| Row {
@@ -516,7 +566,7 @@ mod sparse_counts {
                     .iter()
                     .enumerate()
                     .filter(|(_, &c)| c > 0)
-                    .map(|(b, &c)| (b as u32, c))
+                    .map(|(b, &c)| (b as u32, u64::from(c)))
                     .collect(),
             })
             .collect();

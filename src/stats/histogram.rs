@@ -142,13 +142,17 @@ impl Bins {
     /// counted values: the midpoint of the bin holding the value of rank `r`, hence within half a
     /// bin width `(hi - lo) / (2 bins)` of it. NaN when nothing is counted or that value is
     /// below `lo` or above `hi` (reported, never guessed). Fails if `q` is not in `[0, 1]`.
-    pub fn quantile(&self, slots: &[u64], q: f64) -> Result<f64, StatsError> {
+    pub fn quantile<C: Copy + Into<u64>>(&self, slots: &[C], q: f64) -> Result<f64, StatsError> {
         Ok(self.quantiles(slots, &[q])?[0])
     }
 
     /// [`quantile`](Self::quantile) at each level of `qs`, in that order, from one pass over the
     /// slots. Fails if a level is not in `[0, 1]`.
-    pub fn quantiles(&self, slots: &[u64], qs: &[f64]) -> Result<Vec<f64>, StatsError> {
+    pub fn quantiles<C: Copy + Into<u64>>(
+        &self,
+        slots: &[C],
+        qs: &[f64],
+    ) -> Result<Vec<f64>, StatsError> {
         if let Some(&q) = qs.iter().find(|q| !(0.0..=1.0).contains(*q)) {
             return Err(StatsError::InvalidQuantile(q));
         }
@@ -160,7 +164,7 @@ impl Bins {
             });
         }
         let mut out = vec![f64::NAN; qs.len()];
-        let n: u64 = slots.iter().sum();
+        let n: u64 = slots.iter().map(|&c| c.into()).sum();
         if n == 0 {
             return Ok(out);
         }
@@ -174,7 +178,7 @@ impl Bins {
         let mut pending = by_rank.into_iter().peekable();
         let mut seen = 0;
         for (s, &c) in slots.iter().enumerate() {
-            seen += c;
+            seen += c.into();
             while let Some(&(rank, i)) = pending.peek() {
                 if rank >= seen {
                     break;

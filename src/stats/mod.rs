@@ -90,4 +90,7 @@ pub enum StatsError {
 
     #[error("inconsistent serialized {what}: {message}")]
     InvalidState { what: &'static str, message: String },
+
+    #[error("{what}: more than {limit} values at one point: a sweep point of that many members is not supported")]
+    CountOverflow { what: &'static str, limit: u64 },
 }

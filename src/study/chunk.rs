@@ -18,7 +18,7 @@ use crate::model::params::MemberParams;
 use crate::model::plan::Plan;
 use crate::output::{write_npy, ProgressReporter};
 use crate::scene::{EnsembleSpec, Scene};
-use crate::stats::FieldBand;
+use crate::stats::{FieldBand, ScalarSummary};
 use rayon::prelude::*;
 
 /// The plan of a chunk: the scene's, with these members, and the fields the statistics need
@@ -196,35 +196,45 @@ pub(super) fn solve_chunk(
             let t = header.times[k];
             let ok_now = |g: usize| reports_now[g].status == MemberStatus::Ok;
             let recorded_here = |g: usize| ok_now(g) && header.is_detailed(inputs[a + g].point);
-            // The per-member work of this output, in parallel: the rows copied into the buffer
-            // that lives across chunks (the snapshot's vectors are freed now and reused by the
-            // next output's, instead of a chunk's worth of small allocations being held, freed
-            // and faulted in again for every chunk), and the peak's centre.
-            if any_detailed {
-                for (f, name) in header.band_fields.iter().enumerate() {
-                    let rows = row_offset(f, k, a, shape)..row_offset(f, k, b, shape);
-                    field_rows[rows]
-                        .par_chunks_mut(grid)
-                        .zip(snaps.par_iter())
-                        .enumerate()
-                        .filter(|&(g, _)| recorded_here(g))
-                        .for_each(|(_, (into, s))| {
-                            let row = band_row(s, name);
-                            if row.len() == grid {
-                                into.copy_from_slice(row);
-                            }
-                        });
+            // The per-member work of this output, in one parallel pass: the rows copied into
+            // the buffer that lives across chunks (the snapshot's vectors are freed now and
+            // reused by the next output's, instead of a chunk's worth of small allocations
+            // being held, freed and faulted in again for every chunk), and the peak's centre.
+            let fields = header.band_fields.len();
+            // The buffer's rows of this output, member after member (`fields` rows each, at
+            // least one slot so that every member has its chunk; None where not recorded).
+            let per_member = fields.max(1);
+            let mut member_rows: Vec<Option<&mut [f64]>> = Vec::new();
+            member_rows.resize_with((b - a) * per_member, || None);
+            if any_detailed && fields > 0 {
+                let mut rest = &mut field_rows[row_offset(0, k, a, shape)..];
+                let mut at = row_offset(0, k, a, shape);
+                for f in 0..fields {
+                    // Fields lie apart in the buffer, in field order.
+                    let (_, from) = rest.split_at_mut(row_offset(f, k, a, shape) - at);
+                    let (these, after) = from.split_at_mut((b - a) * grid);
+                    for (g, row) in these.chunks_mut(grid).enumerate() {
+                        member_rows[g * per_member + f] = Some(row);
+                    }
+                    rest = after;
+                    at = row_offset(f, k, b, shape);
                 }
             }
             let centres: Vec<f64> = snaps
                 .par_iter()
+                .zip(member_rows.par_chunks_mut(per_member))
                 .enumerate()
-                .map(|(g, s)| {
-                    if recorded_here(g) {
-                        peak_centre(&header.x, &s.rho)
-                    } else {
-                        f64::NAN
+                .map(|(g, (s, rows))| {
+                    if !recorded_here(g) {
+                        return f64::NAN;
                     }
+                    for (row, name) in rows.iter_mut().zip(&header.band_fields) {
+                        let from = band_row(s, name);
+                        if let (Some(into), true) = (row, from.len() == grid) {
+                            into.copy_from_slice(from);
+                        }
+                    }
+                    peak_centre(&header.x, &s.rho)
                 })
                 .collect();
             for (g, s) in snaps.iter_mut().enumerate() {
@@ -305,19 +315,29 @@ pub(super) fn solve_chunk(
     }
     for &(i, j) in &groups {
         let stats = state.point_mut(inputs[i].point, header);
-        let detailed_times = if stats.is_detailed() { t_count } else { 0 };
-        for k in 0..detailed_times {
-            for (m, observed) in recorded[i..j].iter().enumerate() {
-                if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(k)) {
-                    for (name, &v) in SCALARS.iter().zip(&o.scalars) {
-                        if *name == ERROR_ESTIMATE && v.is_nan() {
+        if stats.is_detailed() {
+            // Each (scalar, time) summary is its own accumulator: they are filled in parallel,
+            // each from its members in order (the same pushes as one after the other).
+            let mut summaries: Vec<(usize, usize, &mut ScalarSummary)> = Vec::new();
+            for (name, per_time) in stats.scalars.iter_mut() {
+                let s = SCALARS
+                    .iter()
+                    .position(|n| n == name)
+                    .expect("known observable");
+                summaries.extend(per_time.iter_mut().enumerate().map(|(k, sum)| (s, k, sum)));
+            }
+            summaries.par_iter_mut().for_each(|(s, k, summary)| {
+                for (m, observed) in recorded[i..j].iter().enumerate() {
+                    if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(*k)) {
+                        let v = o.scalars[*s];
+                        if SCALARS[*s] == ERROR_ESTIMATE && v.is_nan() {
                             // No estimate (order 1, fixed steps): the statistic stays empty.
                             continue;
                         }
-                        stats.scalars.get_mut(*name).expect("known observable")[k].push(v);
+                        summary.push(v);
                     }
                 }
-            }
+            });
         }
         for m in i..j {
             if !ok_member[m] {
@@ -379,10 +399,13 @@ pub(super) fn solve_chunk(
                 })
                 .collect()
         };
-        bands.par_iter_mut().for_each(|(f, k, band)| {
-            band.push_rows(&rows_of(*f, *k))
-                .expect("rows have the grid's length")
-        });
+        bands
+            .par_iter_mut()
+            .try_for_each(|(f, k, band)| band.push_rows(&rows_of(*f, *k)))
+            .map_err(|e| Error::Output {
+                path: dir.to_path_buf(),
+                message: e.to_string(),
+            })?;
     }
     costs.statistics_seconds += started.elapsed().as_secs_f64();
     if keep {
