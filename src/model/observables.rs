@@ -288,7 +288,7 @@ pub fn observe(
                 }
                 if f.u {
                     let u_left = if i >= 2 { velocities[i - 2] } else { 0.0 };
-                    let u_right = if i <= n - 1 { velocities[i - 1] } else { 0.0 };
+                    let u_right = if i < n { velocities[i - 1] } else { 0.0 };
                     let width = q_right - q_left;
                     u.extend(grid_x[j..end].iter().map(|&x| {
                         let s = ((x - q_left) / width).clamp(0.0, 1.0);

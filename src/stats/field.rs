@@ -212,8 +212,8 @@ impl FieldBand {
                         max[k] = max[k].max(x);
                         slot[k] = slot_of(x);
                     }
-                    for k in 0..width {
-                        count(k, slot[k]);
+                    for (k, &s) in slot[..width].iter().enumerate() {
+                        count(k, s);
                     }
                     continue;
                 }

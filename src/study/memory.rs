@@ -45,8 +45,8 @@ pub fn estimate(
     let detailed = header.detailed_count();
     let per_point = header.members_per_point.max(1);
     let chunk = spec.chunk as u64;
-    // A field band: per grid point its moments and bins + 2 dense slot counts.
-    let band = g * (64 + (header.bins as u64 + 2) * 8);
+    // A field band: per grid point its moments and bins + 2 dense slot counts (u32).
+    let band = g * (64 + (header.bins as u64 + 2) * 4);
     let scalars = SCALARS.len() as u64 * t * SUMMARY_BYTES;
     let per_detailed = header.band_fields.len() as u64 * t * band + scalars;
     // The run's total, and the chunk's own scalar statistics of the detailed points it touches
