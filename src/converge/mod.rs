@@ -32,10 +32,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use serde::Serialize;
-
 use crate::backend::select::RunsOn;
-use crate::backend::{select, Backend, BackendRecord, MemberReport, MemberStatus, Precision};
+use crate::backend::{select, Backend, BackendRecord, MemberStatus, Precision};
 use crate::error::{Error, Result};
 use crate::model::observables::{cell_centres, cubic_interpolated};
 use crate::model::params::OutputFields;
@@ -47,21 +45,22 @@ use crate::plot::{
 };
 use crate::scene::{InitialSpec, Scene, MAX_PARTICLES};
 
-/// Two successive observed rates further apart than this are "drifting": not yet asymptotic.
-pub const DRIFT_TOLERANCE: f64 = 0.15;
+mod rates;
+mod records;
+
+use rates::fit_rate;
+pub use rates::{
+    difference_norms, observed_rate, richardson, verdict, Norms, Verdict, DRIFT_TOLERANCE,
+    ROUNDING_FACTOR, ROUNDING_LIMITED,
+};
+use records::{ConvergeManifest, RunRecord, TimeRecord};
+pub use records::{ConvergeSummary, FieldSummary};
+
+/// The fields of all N: `[field][k][t]` → G values.
+type FieldStack = Vec<Vec<Vec<Vec<f64>>>>;
 
 /// The fields compared, in the order of every output.
 pub const FIELDS: [&str; 3] = ["rho", "u", "rho_star"];
-
-/// A difference below ROUNDING_FACTOR · max(N_K ε₆₄, ε) · max(1, max|f_K|) is rounding (N_K the
-/// largest N, ε₆₄ that of f64, ε that of the run's precision; the 1 is the scale of a field that
-/// is zero, such as u at rest: rho and rho* are at most 1, and times and lengths are O(1)).
-pub const ROUNDING_FACTOR: f64 = 16.0;
-
-/// A difference at the largest pair below this many times the rounding level makes the verdict
-/// [`Verdict::RoundingLimited`] (a relative error of 1 % in each difference moves a rate by
-/// about 0.03).
-pub const ROUNDING_LIMITED: f64 = 100.0;
 
 /// Profile figures show at most this many output times.
 const PLOTTED_TIMES: usize = 4;
@@ -76,125 +75,6 @@ pub struct ConvergeOptions {
     pub quiet: bool,
     /// Replace an `out_dir` that holds files that are not a roughlub run.
     pub force: bool,
-}
-
-/// What the L1 rates at one field and output time say.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Verdict {
-    /// Every difference is at rounding level (the field does not depend on N): nothing to
-    /// converge, the limit is the field itself.
-    Exact,
-    /// The difference at the largest pair is within [`ROUNDING_LIMITED`] times the rounding
-    /// level (but not every difference is rounding): the field has converged as far as the
-    /// precision resolves, and its last rates are set by rounding, not by N.
-    RoundingLimited,
-    /// The last two observed rates are finite, positive and within [`DRIFT_TOLERANCE`].
-    Asymptotic,
-    /// The last two observed rates differ by more than [`DRIFT_TOLERANCE`].
-    Drifting,
-    /// A difference grew, or a rate is not finite (NaN from a failed member, or a difference
-    /// that is zero at one pair only): the differences do not decrease like a power of N.
-    NotMonotone,
-    /// Fewer than two observed rates (fewer than 4 values of N): drift cannot be judged.
-    TooFewRates,
-}
-
-impl Verdict {
-    /// Whether the rates may be read as converged.
-    pub fn is_asymptotic(self) -> bool {
-        matches!(
-            self,
-            Verdict::Exact | Verdict::RoundingLimited | Verdict::Asymptotic
-        )
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Verdict::Exact => "exact",
-            Verdict::RoundingLimited => "rounding_limited",
-            Verdict::Asymptotic => "asymptotic",
-            Verdict::Drifting => "drifting",
-            Verdict::NotMonotone => "not_monotone",
-            Verdict::TooFewRates => "too_few_rates",
-        }
-    }
-}
-
-/// L1, L2 (means over the grid points) and L∞ norms of a difference.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Norms {
-    pub l1: f64,
-    pub l2: f64,
-    pub linf: f64,
-}
-
-/// Norms of `a − b` over the grid (NaN where either holds a NaN).
-pub fn difference_norms(a: &[f64], b: &[f64]) -> Norms {
-    let g = a.len().max(1) as f64;
-    let (mut l1, mut l2, mut linf) = (0.0, 0.0, 0.0f64);
-    for (x, y) in a.iter().zip(b) {
-        let d = (x - y).abs();
-        l1 += d;
-        l2 += d * d;
-        linf = if d.is_nan() { f64::NAN } else { linf.max(d) };
-    }
-    Norms {
-        l1: l1 / g,
-        l2: (l2 / g).sqrt(),
-        linf,
-    }
-}
-
-/// Observed rate between two successive differences: ln(e_prev/e_next)/ln(r) (NaN when either
-/// is NaN or both are zero; +inf when only the later one is zero).
-pub fn observed_rate(e_prev: f64, e_next: f64, ratio: f64) -> f64 {
-    if !(e_prev.is_finite() && e_next.is_finite()) || (e_prev == 0.0 && e_next == 0.0) {
-        return f64::NAN;
-    }
-    (e_prev / e_next).ln() / ratio.ln()
-}
-
-/// The verdict on a sequence of L1 differences and their rates (`rates[k]` between
-/// `diffs[k]` and `diffs[k + 1]`); `rounding` is the level below which a difference is rounding.
-pub fn verdict(diffs: &[f64], rates: &[f64], rounding: f64) -> Verdict {
-    if diffs.iter().all(|&e| e <= rounding) {
-        return Verdict::Exact;
-    }
-    if diffs
-        .last()
-        .is_some_and(|&e| e <= ROUNDING_LIMITED * rounding)
-    {
-        return Verdict::RoundingLimited;
-    }
-    let tail: Vec<f64> = rates.iter().rev().take(2).copied().collect();
-    if tail.iter().any(|&p| !(p.is_finite() && p > 0.0)) {
-        return Verdict::NotMonotone;
-    }
-    if tail.len() < 2 {
-        return Verdict::TooFewRates;
-    }
-    if (tail[0] - tail[1]).abs() > DRIFT_TOLERANCE {
-        Verdict::Drifting
-    } else {
-        Verdict::Asymptotic
-    }
-}
-
-/// Richardson extrapolation f_K + (f_K − f_{K−1})/(r^p − 1) (NaN everywhere when p is not a
-/// finite positive rate).
-pub fn richardson(fine: &[f64], coarse: &[f64], ratio: f64, rate: f64) -> Vec<f64> {
-    let denom = ratio.powf(rate) - 1.0;
-    fine.iter()
-        .zip(coarse)
-        .map(|(&f, &c)| {
-            if rate.is_finite() && rate > 0.0 && denom > 0.0 {
-                f + (f - c) / denom
-            } else {
-                f64::NAN
-            }
-        })
-        .collect()
 }
 
 /// The `--particles` list: at least 2 values, strictly increasing, each in 2 ..= 1e8.
@@ -237,115 +117,6 @@ pub fn check_particles(list: &[usize]) -> Result<()> {
     }
     Ok(())
 }
-
-/// Per field, what the study found at the last output time (also in the manifest).
-#[derive(Debug, Clone, Serialize)]
-pub struct FieldSummary {
-    pub field: &'static str,
-    /// L1 differences between successive N at the last output time.
-    #[serde(serialize_with = "vec_f64")]
-    pub diff_l1: Vec<f64>,
-    /// Observed L1 rates at the last output time (K − 2 of them).
-    #[serde(serialize_with = "vec_f64")]
-    pub rates_l1: Vec<f64>,
-    /// The rate at the largest pair (NaN without one).
-    #[serde(with = "crate::output::serde_f64")]
-    pub rate: f64,
-    /// Least-squares slope of ln e against ln N over all pairs, negated (the plots' fitted line).
-    #[serde(with = "crate::output::serde_f64")]
-    pub fitted_rate: f64,
-    pub verdict: Verdict,
-    /// |f_∞ − f_K| (L1) at the last output time (NaN when there is no limit).
-    #[serde(with = "crate::output::serde_f64")]
-    pub limit_error_l1: f64,
-    /// Whether every output time of this field is asymptotic (or exact).
-    pub asymptotic_all_times: bool,
-}
-
-#[derive(Debug, Clone)]
-pub struct ConvergeSummary {
-    pub out_dir: PathBuf,
-    pub particles: Vec<usize>,
-    /// What ran the largest N, e.g. "cpu (rayon, 2 threads)".
-    pub adapter: String,
-    pub backend: String,
-    pub fields: Vec<FieldSummary>,
-    /// Every field at every output time asymptotic (or exact).
-    pub asymptotic: bool,
-    /// The warning lines printed (also with `quiet`).
-    pub warnings: Vec<String>,
-    pub wall_seconds: f64,
-}
-
-fn vec_f64<S: serde::Serializer>(v: &[f64], s: S) -> std::result::Result<S::Ok, S::Error> {
-    use serde::ser::SerializeSeq;
-    let mut seq = s.serialize_seq(Some(v.len()))?;
-    for x in v {
-        seq.serialize_element(&Num(*x))?;
-    }
-    seq.end()
-}
-
-/// An f64 serialised as `serde_f64` does (non-finite values as strings).
-struct Num(f64);
-impl Serialize for Num {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
-        crate::output::serde_f64::serialize(&self.0, s)
-    }
-}
-
-/// One N's run, as recorded in the manifest.
-#[derive(Debug, Serialize)]
-struct RunRecord {
-    particles: usize,
-    eps: f64,
-    adapter: String,
-    wall_seconds: f64,
-    member: MemberReport,
-}
-
-/// Per field and output time: the rate at the largest pair, the verdict and the limit error.
-#[derive(Debug, Serialize)]
-struct TimeRecord {
-    #[serde(with = "crate::output::serde_f64")]
-    time: f64,
-    #[serde(serialize_with = "vec_f64")]
-    diff_l1: Vec<f64>,
-    #[serde(serialize_with = "vec_f64")]
-    rates_l1: Vec<f64>,
-    verdict: Verdict,
-    asymptotic: bool,
-    #[serde(with = "crate::output::serde_f64")]
-    limit_error_l1: f64,
-}
-
-#[derive(Debug, Serialize)]
-struct ConvergeManifest {
-    roughlub_version: &'static str,
-    kind: &'static str,
-    scene: SceneRecord,
-    #[serde(flatten)]
-    backend: BackendRecord,
-    wall_seconds: f64,
-    particles: Vec<usize>,
-    ratios_equal: bool,
-    mu: f64,
-    gamma: f64,
-    batch_note: Option<String>,
-    output_times: Vec<f64>,
-    grid: usize,
-    asymptotic: bool,
-    drift_tolerance: f64,
-    fields: Vec<FieldSummary>,
-    per_time: BTreeMap<&'static str, Vec<TimeRecord>>,
-    runs: Vec<RunRecord>,
-    warnings: Vec<String>,
-    files: Vec<String>,
-    conventions: BTreeMap<&'static str, &'static str>,
-}
-
-/// The fields of all N: `[field][k][t]` → G values.
-type FieldStack = Vec<Vec<Vec<Vec<f64>>>>;
 
 /// Refuses scenes whose macroscopic data are not rebuilt at each N.
 fn check_scene(scene: &Scene) -> Result<()> {
@@ -390,32 +161,6 @@ fn scene_at(scene: &Scene, n: usize) -> Scene {
 /// last one included.
 fn shown_times(count: usize) -> Vec<usize> {
     crate::plot::thinned_indices(count, PLOTTED_TIMES)
-}
-
-/// Least-squares slope of ln e against ln n over the pairs with e > 0 (negated: the rate), and
-/// log10 of the constant C in e = C n^-p; `None` with fewer than 2 such pairs.
-fn fit_rate(n: &[f64], e: &[f64]) -> Option<(f64, f64)> {
-    let pts: Vec<(f64, f64)> = n
-        .iter()
-        .zip(e)
-        .filter(|(_, &e)| e.is_finite() && e > 0.0)
-        .map(|(&n, &e)| (n.log10(), e.log10()))
-        .collect();
-    if pts.len() < 2 {
-        return None;
-    }
-    let m = pts.len() as f64;
-    let (sx, sy) = pts
-        .iter()
-        .fold((0.0, 0.0), |(a, b), &(x, y)| (a + x, b + y));
-    let (mx, my) = (sx / m, sy / m);
-    let sxx: f64 = pts.iter().map(|&(x, _)| (x - mx) * (x - mx)).sum();
-    let sxy: f64 = pts.iter().map(|&(x, y)| (x - mx) * (y - my)).sum();
-    if sxx <= 0.0 {
-        return None;
-    }
-    let slope = sxy / sxx;
-    Some((-slope, my - slope * mx))
 }
 
 /// An output time in a message, to 7 significant digits (0.15, not 0.15000000000000002).
@@ -898,94 +643,4 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn rates_of_a_power_law_are_its_exponent() {
-        let ns = [100.0f64, 200.0, 400.0, 800.0];
-        let e: Vec<f64> = ns.iter().map(|n| 3.0 * n.powf(-1.5)).collect();
-        for k in 1..e.len() {
-            assert!((observed_rate(e[k - 1], e[k], 2.0) - 1.5).abs() < 1e-12);
-        }
-        let (p, _) = fit_rate(&ns, &e).unwrap();
-        assert!((p - 1.5).abs() < 1e-12);
-        assert!(observed_rate(0.0, 0.0, 2.0).is_nan());
-        assert!(observed_rate(f64::NAN, 1.0, 2.0).is_nan());
-    }
-
-    #[test]
-    fn verdicts() {
-        let r = 1e-13;
-        assert_eq!(verdict(&[0.0, 1e-16], &[f64::NAN], r), Verdict::Exact);
-        assert_eq!(
-            verdict(&[1e-9, 1e-12, 1e-12], &[3.0, 0.0], r),
-            Verdict::RoundingLimited
-        );
-        assert_eq!(
-            verdict(&[4.0, 2.0, 1.0], &[1.0, 1.0], r),
-            Verdict::Asymptotic
-        );
-        assert_eq!(verdict(&[4.0, 2.0, 0.5], &[1.0, 2.0], r), Verdict::Drifting);
-        assert_eq!(
-            verdict(&[4.0, 2.0, 3.0], &[1.0, -0.58], r),
-            Verdict::NotMonotone
-        );
-        assert_eq!(
-            verdict(&[4.0, f64::NAN, 1.0], &[f64::NAN, f64::NAN], r),
-            Verdict::NotMonotone
-        );
-        assert_eq!(verdict(&[4.0, 2.0], &[1.0], r), Verdict::TooFewRates);
-        assert_eq!(verdict(&[4.0], &[], r), Verdict::TooFewRates);
-    }
-
-    #[test]
-    fn richardson_recovers_the_limit_of_an_exact_expansion() {
-        // f_N = 1 + 2/N^2 at two points: the extrapolation with p = 2 is exact.
-        let f = |n: f64| vec![1.0 + 2.0 / (n * n), 3.0 - 1.0 / (n * n)];
-        let lim = richardson(&f(800.0), &f(400.0), 2.0, 2.0);
-        assert!((lim[0] - 1.0).abs() < 1e-14 && (lim[1] - 3.0).abs() < 1e-14);
-        assert!(richardson(&f(800.0), &f(400.0), 2.0, -1.0)[0].is_nan());
-    }
-
-    #[test]
-    fn particle_lists_are_checked() {
-        assert!(check_particles(&[100, 200, 400]).is_ok());
-        assert!(check_particles(&[100, 200]).is_ok());
-        for bad in [
-            &[100][..],
-            &[],
-            &[200, 100, 400],
-            &[100, 100, 200],
-            &[1, 2, 4],
-            &[100, 200_000_000],
-        ] {
-            let e = check_particles(bad).unwrap_err().to_string();
-            assert!(e.starts_with("--particles"), "{e}");
-            assert!(e.contains("2 ..= 100000000"), "{e}");
-        }
-    }
-
-    #[test]
-    fn cubic_sampling_is_exact_for_cubics() {
-        let nodes = [0.0, 0.1, 0.25, 0.3, 0.55, 0.7, 1.0];
-        let p = |x: f64| 1.0 - 2.0 * x + 3.0 * x * x - 0.5 * x * x * x;
-        let values: Vec<f64> = nodes.iter().map(|&x| p(x)).collect();
-        let grid = crate::model::observables::grid_points(23);
-        for (x, v) in grid.iter().zip(cubic_interpolated(&nodes, &values, &grid)) {
-            assert!((v - p(*x)).abs() < 1e-13, "{x}: {v}");
-        }
-        // Two or three nodes: the line or parabola through them.
-        let v = cubic_interpolated(&[0.25, 0.75], &[1.0, 2.0], &[0.0, 0.5, 1.0]);
-        assert!(
-            (v[0] - 0.5).abs() < 1e-15 && (v[1] - 1.5).abs() < 1e-15 && (v[2] - 2.5).abs() < 1e-15
-        );
-        assert_eq!(cell_centres(&[0.2, 0.3, 0.5]), vec![0.1, 0.35, 0.75]);
-    }
-
-    #[test]
-    fn shown_times_include_first_and_last() {
-        assert_eq!(shown_times(3), vec![0, 1, 2]);
-        assert_eq!(shown_times(9), vec![0, 2, 5, 8]);
-    }
-}
+mod tests;
