@@ -385,8 +385,8 @@ fn repulsion_failure<T: Real, const L: usize>(
 }
 
 /// Calls `$f` (a function made by `simd_versions!`) for the element type `$t` with `$law` bound
-/// to the specialised [`Law`] for the block's gamma and the const generics REP (repulsion), FRC
-/// (forcing) and CLU (clusters) set from `$terms`.
+/// to the specialised [`Law`] for the block's gamma and the const generics REP (repulsion) and
+/// CLU (clusters) set from `$terms`.
 macro_rules! specialised {
     ($t:ty, $terms:expr, $f:ident, $args:tt) => {
         specialised!(@go $t, [$t,], $terms, $f, $args)
@@ -395,11 +395,12 @@ macro_rules! specialised {
         let terms = $terms;
         macro_rules! with_flags {
             ($rep:literal, $law:expr) => {
-                match (terms.forcing.is_some(), terms.bonded.is_some()) {
-                    (false, false) => $f::<$($pre)* L, $rep, false, false, _, _>($($arg,)* $law),
-                    (true, false) => $f::<$($pre)* L, $rep, true, false, _, _>($($arg,)* $law),
-                    (false, true) => $f::<$($pre)* L, $rep, false, true, _, _>($($arg,)* $law),
-                    (true, true) => $f::<$($pre)* L, $rep, true, true, _, _>($($arg,)* $law),
+                // Forcing is a run-time branch (a loop of its own per row, skipped without it): as
+                // a const flag it doubled the kernels' instances and build time for no measured
+                // speed.
+                match terms.bonded.is_some() {
+                    false => $f::<$($pre)* L, $rep, false, _, _>($($arg,)* $law),
+                    true => $f::<$($pre)* L, $rep, true, _, _>($($arg,)* $law),
                 }
             };
         }
@@ -452,17 +453,17 @@ macro_rules! specialised {
 /// the AVX-512 one.
 macro_rules! simd_versions {
     // Generic over an element type with more than `Real` (the partitioned solve's
-    // `PartitionedReal`: its tiles' transposes per type).
+    // `PartitionedReal`: its tiles' transposes per type), clusters tested at run time.
     (T: $bound:ident; $($rest:tt)*) => {
-        simd_versions!(@go [T: $bound,] [T,] T; $($rest)*);
+        simd_versions!(@go [T: $bound,] [T,] T {const REP: bool,} {REP,}; $($rest)*);
     };
     // Generic over the element type T: Real.
     ($name:ident, $($rest:tt)*) => {
-        simd_versions!(@go [T: Real,] [T,] T; $name, $($rest)*);
+        simd_versions!(@go [T: Real,] [T,] T {const REP: bool, const CLU: bool,} {REP, CLU,}; $name, $($rest)*);
     };
-    (@go [$($tp:tt)*] [$($ta:tt)*] $elem:ty; $name:ident, $avx:ident, $avx512:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
+    (@go [$($tp:tt)*] [$($ta:tt)*] $elem:ty {$($cp:tt)*} {$($ca:tt)*}; $name:ident, $avx:ident, $avx512:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
         #[allow(clippy::too_many_arguments)]
-        fn $name<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+        fn $name<$($tp)* const L: usize, $($cp)* P, Q>(
             simd: SimdLevel,
             $($arg: $ty,)*
             law: Law<P, Q>,
@@ -476,26 +477,26 @@ macro_rules! simd_versions {
             #[cfg(target_arch = "x86_64")]
             match simd {
                 SimdLevel::Avx512 => {
-                    return unsafe { $avx512::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law) };
+                    return unsafe { $avx512::<$($ta)* L, $($ca)* P, Q>($($arg,)* law) };
                 }
                 SimdLevel::Avx2Fma => {
-                    return unsafe { $avx::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law) };
+                    return unsafe { $avx::<$($ta)* L, $($ca)* P, Q>($($arg,)* law) };
                 }
                 SimdLevel::Portable => {}
             }
             let _ = simd;
-            $body::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law)
+            $body::<$($ta)* L, $($ca)* P, Q>($($arg,)* law)
         }
 
-        simd_versions!(@instance "avx2,fma", [$($tp)*] [$($ta)*] $elem; $avx, $body, ($($arg: $ty),*) -> $ret);
-        simd_versions!(@instance "avx2,fma,avx512f,avx512vl,avx512dq", [$($tp)*] [$($ta)*] $elem; $avx512, $body, ($($arg: $ty),*) -> $ret);
+        simd_versions!(@instance "avx2,fma", [$($tp)*] [$($ta)*] $elem {$($cp)*} {$($ca)*}; $avx, $body, ($($arg: $ty),*) -> $ret);
+        simd_versions!(@instance "avx2,fma,avx512f,avx512vl,avx512dq", [$($tp)*] [$($ta)*] $elem {$($cp)*} {$($ca)*}; $avx512, $body, ($($arg: $ty),*) -> $ret);
     };
     // `$body` compiled with the target features `$features` enabled, as the unsafe fn `$name`.
-    (@instance $features:literal, [$($tp:tt)*] [$($ta:tt)*] $elem:ty; $name:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
+    (@instance $features:literal, [$($tp:tt)*] [$($ta:tt)*] $elem:ty {$($cp:tt)*} {$($ca:tt)*}; $name:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = $features)]
         #[allow(clippy::too_many_arguments)]
-        unsafe fn $name<$($tp)* const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+        unsafe fn $name<$($tp)* const L: usize, $($cp)* P, Q>(
             $($arg: $ty,)*
             law: Law<P, Q>,
         ) -> $ret
@@ -503,7 +504,7 @@ macro_rules! simd_versions {
             P: Fn(usize, $elem) -> $elem + Copy,
             Q: Fn(usize) -> $elem + Copy,
         {
-            $body::<$($ta)* L, REP, FRC, CLU, P, Q>($($arg,)* law)
+            $body::<$($ta)* L, $($ca)* P, Q>($($arg,)* law)
         }
     };
 }
@@ -519,15 +520,7 @@ pub fn state_energy<T: Real, const L: usize>(
     specialised!(T, terms, state_energy_impl, (terms, n, gaps, vel))
 }
 
-fn state_energy_impl<
-    T: Real,
-    const L: usize,
-    const REP: bool,
-    const FRC: bool,
-    const CLU: bool,
-    P,
-    Q,
->(
+fn state_energy_impl<T: Real, const L: usize, const REP: bool, const CLU: bool, P, Q>(
     terms: &Terms<L, T>,
     n: usize,
     gaps: &[T],
@@ -730,7 +723,7 @@ simd_versions!(euler_simd, euler_avx2, euler_avx512, euler_impl, (
 
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn euler_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+fn euler_impl<T: Real, const L: usize, const REP: bool, const CLU: bool, P, Q>(
     terms: &Terms<L, T>,
     n: usize,
     t: &[f64; L],
@@ -786,59 +779,69 @@ where
             nonfinite[l] |= flag(!g.is_finite());
         }
     }
-    for i in 1..n {
-        let row = (i - 1) * L;
-        let next_gap = i * L;
-        if FRC {
-            if let Some(forcing) = terms.forcing {
-                // Not vectorisable (the expression is interpreted): a loop of its own.
-                let prev = lanes::<L, T>(gaps_in, row);
-                let force = lanes_mut::<L, T>(&mut scratch.force, row);
-                for l in 0..L {
-                    q[l] += prev[l].decode_stored() + mass;
-                    f[l] = T::c(particle_force(
-                        forcing,
-                        terms.forcing_params[l],
-                        eps.to_f64(),
-                        t[l],
-                        q[l].to_f64(),
-                    ));
-                    force[l] = f[l];
+    // The row loop twice, with and without forcing: a run-time test inside it kept the forces'
+    // lanes live across rows (register spills: 6-12 % slower on 256 and 4096 members without
+    // forcing), while the whole step specialised on forcing doubled the kernels' build.
+    macro_rules! forward_rows {
+        ($forced:literal) => {
+            for i in 1..n {
+                let row = (i - 1) * L;
+                let next_gap = i * L;
+                if let (true, Some(forcing)) = ($forced, terms.forcing) {
+                    // Not vectorisable (the expression is interpreted): a loop of its own.
+                    let prev = lanes::<L, T>(gaps_in, row);
+                    let force = lanes_mut::<L, T>(&mut scratch.force, row);
+                    for l in 0..L {
+                        q[l] += prev[l].decode_stored() + mass;
+                        f[l] = T::c(particle_force(
+                            forcing,
+                            terms.forcing_params[l],
+                            eps.to_f64(),
+                            t[l],
+                            q[l].to_f64(),
+                        ));
+                        force[l] = f[l];
+                    }
                 }
+                // The lane loop works on local copies of the rows (no aliasing for the vectoriser to
+                // rule out) and stores whole rows after it.
+                let stored = *lanes::<L, T>(gaps_in, next_gap);
+                let (dstar, bonded) = inputs.row::<L, CLU>(next_gap);
+                let dstar = *dstar;
+                let vel = *lanes::<L, T>(vel_in, row);
+                let mut w = [zero; L];
+                for l in 0..L {
+                    let (a_next, g_next, d_next) = gap_terms::<T, REP, CLU, P, Q>(
+                        law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
+                    );
+                    nonfinite[l] |= flag(!(g_next + f[l]).is_finite());
+                    let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
+                    // The pivot excess·d + a, grouped as (m/h·d + a) + (a_prev·d)·ls_prev so that only
+                    // one multiplication and one addition wait for the previous row (a single member's
+                    // sweep is this chain's latency; batches hide it).
+                    let excess = m_over_h[l] + a_prev[l] * ls_prev[l];
+                    let delta = rhs + a_prev[l] * ys_prev[l];
+                    let pivot_base = m_over_h[l] * d_next + a_next;
+                    let coupling = a_prev[l] * d_next;
+                    let inv = T::ONE / (pivot_base + coupling * ls_prev[l]);
+                    let ls = excess * inv;
+                    let ys = delta * inv;
+                    w[l] = a_next * inv;
+                    ls_prev[l] = ls;
+                    ys_prev[l] = ys;
+                    a_prev[l] = a_next;
+                    g_prev[l] = g_next;
+                }
+                *lanes_mut::<L, T>(&mut scratch.w, row) = w;
+                *lanes_mut::<L, T>(&mut scratch.ls, row) = ls_prev;
+                *lanes_mut::<L, T>(&mut scratch.ys, row) = ys_prev;
             }
-        }
-        // The lane loop works on local copies of the rows (no aliasing for the vectoriser to
-        // rule out) and stores whole rows after it.
-        let stored = *lanes::<L, T>(gaps_in, next_gap);
-        let (dstar, bonded) = inputs.row::<L, CLU>(next_gap);
-        let dstar = *dstar;
-        let vel = *lanes::<L, T>(vel_in, row);
-        let mut w = [zero; L];
-        for l in 0..L {
-            let (a_next, g_next, d_next) = gap_terms::<T, REP, CLU, P, Q>(
-                law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
-            );
-            nonfinite[l] |= flag(!(g_next + f[l]).is_finite());
-            let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
-            // The pivot excess·d + a, grouped as (m/h·d + a) + (a_prev·d)·ls_prev so that only
-            // one multiplication and one addition wait for the previous row (a single member's
-            // sweep is this chain's latency; batches hide it).
-            let excess = m_over_h[l] + a_prev[l] * ls_prev[l];
-            let delta = rhs + a_prev[l] * ys_prev[l];
-            let pivot_base = m_over_h[l] * d_next + a_next;
-            let coupling = a_prev[l] * d_next;
-            let inv = T::ONE / (pivot_base + coupling * ls_prev[l]);
-            let ls = excess * inv;
-            let ys = delta * inv;
-            w[l] = a_next * inv;
-            ls_prev[l] = ls;
-            ys_prev[l] = ys;
-            a_prev[l] = a_next;
-            g_prev[l] = g_next;
-        }
-        *lanes_mut::<L, T>(&mut scratch.w, row) = w;
-        *lanes_mut::<L, T>(&mut scratch.ls, row) = ls_prev;
-        *lanes_mut::<L, T>(&mut scratch.ys, row) = ys_prev;
+        };
+    }
+    if terms.forcing.is_some() {
+        forward_rows!(true);
+    } else {
+        forward_rows!(false);
     }
     for l in 0..L {
         if nonfinite[l] != T::Flag::default() {
@@ -1040,8 +1043,8 @@ where
                 (terms.mu[l] / h[l]).to_f64(),
             );
     }
-    let force = FRC.then_some(scratch.force.as_slice());
-    conclude_impl::<T, L, REP, FRC, CLU, P, Q>(
+    let force = terms.forcing.is_some().then_some(scratch.force.as_slice());
+    conclude_impl::<T, L, REP, CLU, P, Q>(
         terms,
         n,
         h,
@@ -1258,7 +1261,7 @@ simd_versions!(conclude_simd, conclude_avx2, conclude_avx512, conclude_impl, (
 
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, const CLU: bool, P, Q>(
+fn conclude_impl<T: Real, const L: usize, const REP: bool, const CLU: bool, P, Q>(
     terms: &Terms<L, T>,
     n: usize,
     h: &[T; L],
@@ -1287,7 +1290,6 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const FRC: bool, cons
         scale[l] = terms.total_gap[l] / sum[l];
         delta[l] = T::c(scale[l] - 1.0);
     }
-    let force = if FRC { force } else { None };
     // 0/1 flags in lanes as wide as T, as in the sweep.
     let flag = T::Flag::from;
     let mut logged = [T::Flag::default(); L];
@@ -1492,7 +1494,7 @@ mod tests {
         )
     }
 
-    /// Every combination of the terms the step specialises on.
+    /// Every combination of the terms the step specialises on or tests at run time.
     fn variants() -> Vec<(String, Option<Gamma<L>>, bool, Option<Forcing>)> {
         let gammas: [(&str, Option<Gamma<L>>); 5] = [
             ("none", None),

@@ -619,8 +619,9 @@ where
     let tiny = T::SPIKE_TINY;
     let mut w = [T::ZERO; S];
     for l in 0..S {
-        let (a_next, g_next, d_next) =
-            gap_terms::<T, REP, CLU, P, Q>(law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h);
+        let (a_next, g_next, d_next) = gap_terms::<T, REP, true, P, Q>(
+            law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
+        );
         st.nonfinite[l] |= T::Flag::from(!(g_next + f[l]).is_finite());
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
         // As in the sequential sweep (step.rs), operation for operation.
@@ -700,16 +701,7 @@ struct Rows<'a, T> {
 /// second (tau known) reads F from `force` and stores the rows.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn forward_group<
-    T: PartitionedReal,
-    const L: usize,
-    const REP: bool,
-    const FRC: bool,
-    const CLU: bool,
-    const SPIKE: bool,
-    P,
-    Q,
->(
+fn forward_group<T: PartitionedReal, const L: usize, const REP: bool, const SPIKE: bool, P, Q>(
     terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
@@ -727,6 +719,9 @@ where
     const S: usize = SEGMENT_LANES;
     let zero = T::ZERO;
     let (gaps_in, dstar_all, bonded_all, vel_in) = *inputs;
+    // Clusters are a run-time test here (the helpers' CLU = true reads the flags, all false
+    // without clusters): as a const flag they doubled the partitioned solve's build.
+    let clu = !bonded_all.is_empty();
     let m = layout.seg;
     let chunk_at = layout.chunk(g).start;
     let main = layout.main_start(g);
@@ -740,13 +735,13 @@ where
         } else {
             [zero; S]
         };
-        let bonded = if CLU {
+        let bonded = if clu {
             gather::<S, bool>(bonded_all, main, m)
         } else {
             [false; S]
         };
         for l in 0..S {
-            let (a, gg, _) = gap_terms::<T, REP, CLU, P, Q>(
+            let (a, gg, _) = gap_terms::<T, REP, true, P, Q>(
                 law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
             );
             st.a_prev[l] = a;
@@ -757,14 +752,14 @@ where
         // Segment 0 starts from the left wall (lambda_0 = 1: ls_0 = 1/d_1, ys_0 = 0, no spike),
         // as the sequential sweep does, and sweeps the prologue's rows alone.
         let mut s0 = Sweep::<T, 1>::new([zero], zero);
-        let (a, gg, d) = gap_terms::<T, REP, CLU, P, Q>(
+        let (a, gg, d) = gap_terms::<T, REP, true, P, Q>(
             law,
             0,
             c.mu,
             eps2,
             gaps_in[0],
             if REP { dstar_all[0] } else { zero },
-            CLU && bonded_all[0],
+            clu && bonded_all[0],
             c.h,
         );
         s0.a_prev[0] = a;
@@ -772,16 +767,16 @@ where
         s0.ls_prev[0] = T::ONE / d;
         s0.nonfinite[0] |= T::Flag::from(!gg.is_finite());
         for row in 1..=layout.rem {
-            let f = match (FRC, SPIKE) {
+            let f = match (terms.forcing.is_some(), SPIKE) {
                 (false, _) => [zero],
                 (true, true) => forces::<T, 1, L>(terms, c, &mut s0, gaps_in, row, 0, force, 0),
                 (true, false) => [force[row - 1]],
             };
             let stored = [gaps_in[row]];
             let dstar = [if REP { dstar_all[row] } else { zero }];
-            let bonded = [CLU && bonded_all[row]];
+            let bonded = [clu && bonded_all[row]];
             let vel = [vel_in[row - 1]];
-            let w = forward_row::<T, 1, REP, CLU, false, P, Q>(
+            let w = forward_row::<T, 1, REP, true, false, P, Q>(
                 law, c, &mut s0, &stored, &dstar, &bonded, &vel, &f,
             );
             if let Some(r) = rows.as_mut() {
@@ -814,18 +809,18 @@ where
         if REP {
             T::tile_in(c.simd, dstar_all, row0, m, kn, &mut t_dstar);
         }
-        if CLU {
+        if clu {
             tile_in(bonded_all, row0, m, kn, &mut t_bond);
         }
-        if FRC && !SPIKE {
+        if !SPIKE && terms.forcing.is_some() {
             T::tile_in(c.simd, force, row0 - 1 - chunk_at, m, kn, &mut t_f);
         }
         for kk in 0..kn {
-            if FRC && SPIKE {
+            if SPIKE && terms.forcing.is_some() {
                 t_f[kk] =
                     forces::<T, S, L>(terms, c, &mut st, gaps_in, row0 + kk, m, force, chunk_at);
             }
-            let w = forward_row::<T, S, REP, CLU, SPIKE, P, Q>(
+            let w = forward_row::<T, S, REP, true, SPIKE, P, Q>(
                 law,
                 c,
                 &mut st,
@@ -862,15 +857,7 @@ simd_versions!(T: PartitionedReal; ends_group_simd, ends_group_avx2, ends_group_
 /// segment's particle b - 1 (forcing only).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn ends_group_impl<
-    T: PartitionedReal,
-    const L: usize,
-    const REP: bool,
-    const FRC: bool,
-    const CLU: bool,
-    P,
-    Q,
->(
+fn ends_group_impl<T: PartitionedReal, const L: usize, const REP: bool, P, Q>(
     terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
@@ -886,10 +873,10 @@ where
 {
     const S: usize = SEGMENT_LANES;
     let mut start = Sweep::<T, S>::new([T::ZERO; S], -T::ONE);
-    if FRC {
+    if terms.forcing.is_some() {
         start.q.copy_from_slice(&q_start[g * S..(g + 1) * S]);
     }
-    let st = forward_group::<T, L, REP, FRC, CLU, true, P, Q>(
+    let st = forward_group::<T, L, REP, true, P, Q>(
         terms, layout, g, c, start, inputs, force, None, law,
     );
     let ends = std::array::from_fn(|l| SegmentEnd {
@@ -1022,15 +1009,7 @@ simd_versions!(T: PartitionedReal; solve_group_simd, solve_group_avx2, solve_gro
 /// (`iface[s]` = (tau, that velocity)), writing velocities and gaps.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn solve_group_impl<
-    T: PartitionedReal,
-    const L: usize,
-    const REP: bool,
-    const FRC: bool,
-    const CLU: bool,
-    P,
-    Q,
->(
+fn solve_group_impl<T: PartitionedReal, const L: usize, const REP: bool, P, Q>(
     terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
@@ -1055,7 +1034,7 @@ where
         let (ls, rest) = rest.split_at_mut(len);
         let ys = &mut rest[..len];
         let tau: [T; S] = std::array::from_fn(|l| iface[g * S + l].0);
-        forward_group::<T, L, REP, FRC, CLU, false, P, Q>(
+        forward_group::<T, L, REP, false, P, Q>(
             terms,
             layout,
             g,
@@ -1066,14 +1045,14 @@ where
             Some(Rows { w, ls, ys }),
             law,
         );
-        back_group::<T, L, CLU, P, Q>(terms, layout, g, c, iface, inputs.0, w, ls, ys, out, law)
+        back_group::<T, L, P, Q>(terms, layout, g, c, iface, inputs.0, w, ls, ys, out, law)
     }
 }
 
 /// The back sweep of [`solve_group_impl`].
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn back_group<T: PartitionedReal, const L: usize, const CLU: bool, P, Q>(
+fn back_group<T: PartitionedReal, const L: usize, P, Q>(
     terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
@@ -1098,6 +1077,7 @@ where
     let main = layout.main_start(g);
     let off = main - chunk_at;
     let bonded_all = terms.bonded.unwrap_or(&[]);
+    let clu = !bonded_all.is_empty();
     let gamma2 = -((law.gamma)(0) + T::c(2.0));
     let mut st = Back::<T, S> {
         u_next: std::array::from_fn(|l| iface[g * S + l].1),
@@ -1117,12 +1097,12 @@ where
         let k0 = k_hi - kn;
         let row0 = main + 1 + k0;
         T::tile_in(c.simd, gaps_in, row0, m, kn, &mut t_old);
-        if CLU {
+        if clu {
             tile_in(bonded_all, row0, m, kn, &mut t_bond);
         }
         for kk in (0..kn).rev() {
             let at = off + (k0 + kk) * S;
-            let (u, grown) = back_row::<T, S, CLU>(
+            let (u, grown) = back_row::<T, S, true>(
                 h,
                 gamma2,
                 &mut st,
@@ -1151,12 +1131,12 @@ where
         };
         for row in (1..=layout.rem).rev() {
             let i = row - 1;
-            let (u, grown) = back_row::<T, 1, CLU>(
+            let (u, grown) = back_row::<T, 1, true>(
                 h,
                 gamma2,
                 &mut s0,
                 &[gaps_in[row]],
-                &[CLU && bonded_all[row]],
+                &[clu && bonded_all[row]],
                 &[w[i]],
                 &[ys[i]],
                 &[ls[i]],
@@ -1217,7 +1197,6 @@ pub(super) fn euler_partitioned<
     T: PartitionedReal,
     const L: usize,
     const REP: bool,
-    const FRC: bool,
     const CLU: bool,
     P,
     Q,
@@ -1261,7 +1240,7 @@ where
     // Positions of each segment's particle b - 1, summed in the sequential sweep's order (and
     // type).
     let mut q_start = Vec::new();
-    if FRC {
+    if terms.forcing.is_some() {
         q_start = vec![zero; p];
         let mut q = zero;
         let mut s = 1;
@@ -1283,7 +1262,7 @@ where
             .into_par_iter()
             .enumerate()
             .map(|(g, force)| {
-                ends_group_simd::<T, L, REP, FRC, CLU, P, Q>(
+                ends_group_simd::<T, L, REP, P, Q>(
                     simd, terms, &layout, g, c, &q_start, &inputs, force, law,
                 )
             })
@@ -1314,7 +1293,7 @@ where
             // The thread's buffer is taken here: a closure inside the AVX2 instance would be
             // compiled without AVX2.
             T::with_rows(|buf| {
-                solve_group_simd::<T, L, REP, FRC, CLU, P, Q>(
+                solve_group_simd::<T, L, REP, P, Q>(
                     simd, terms, &layout, g, c, &iface, &inputs, out, buf, law,
                 )
             })
@@ -1375,8 +1354,8 @@ where
             terms.contact_repulsion[0],
             (terms.mu[0] / h0).to_f64(),
         );
-    let force = FRC.then_some(scratch.force.as_slice());
-    super::conclude_simd::<T, L, REP, FRC, CLU, P, Q>(
+    let force = terms.forcing.is_some().then_some(scratch.force.as_slice());
+    super::conclude_simd::<T, L, REP, CLU, P, Q>(
         simd,
         terms,
         n,
