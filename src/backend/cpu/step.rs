@@ -394,15 +394,18 @@ macro_rules! specialised {
     (@go $t:ty, [$($pre:tt)*], $terms:expr, $f:ident, ($($arg:expr),*)) => {{
         let terms = $terms;
         macro_rules! with_flags {
-            ($rep:literal, $law:expr) => {
+            ($rep:literal, $law:expr) => {{
                 // Forcing is a run-time branch (a loop of its own per row, skipped without it): as
                 // a const flag it doubled the kernels' instances and build time for no measured
-                // speed.
+                // speed. The law is bound once: a closure written in each arm would be a type of
+                // its own per arm, and every function generic over it (the partitioned solve, which
+                // tests clusters at run time) would be compiled once per arm.
+                let law = $law;
                 match terms.bonded.is_some() {
-                    false => $f::<$($pre)* L, $rep, false, _, _>($($arg,)* $law),
-                    true => $f::<$($pre)* L, $rep, true, _, _>($($arg,)* $law),
+                    false => $f::<$($pre)* L, $rep, false, _, _>($($arg,)* law),
+                    true => $f::<$($pre)* L, $rep, true, _, _>($($arg,)* law),
                 }
-            };
+            }};
         }
         match terms.repulsion.map(|r| r.1) {
             None => with_flags!(false, Law { power: |_l: usize, _r: $t| <$t as Real>::ZERO, gamma: |_l: usize| <$t as Real>::ONE }),
