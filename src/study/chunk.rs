@@ -402,10 +402,7 @@ pub(super) fn solve_chunk(
         bands
             .par_iter_mut()
             .try_for_each(|(f, k, band)| band.push_rows(&rows_of(*f, *k)))
-            .map_err(|e| Error::Output {
-                path: dir.to_path_buf(),
-                message: e.to_string(),
-            })?;
+            .map_err(|e| super::report::stats_error(dir, e))?;
     }
     costs.statistics_seconds += started.elapsed().as_secs_f64();
     if keep {

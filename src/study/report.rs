@@ -402,7 +402,8 @@ fn write_points_csv(path: &Path, header: &StudyHeader, state: &StudyState) -> Re
     w.flush().map_err(|e| Error::io(path, e))
 }
 
-fn stats_error(path: &Path, e: StatsError) -> Error {
+/// A statistics error while writing or merging the study at `path`, as the study's error.
+pub(super) fn stats_error(path: &Path, e: StatsError) -> Error {
     Error::Output {
         path: path.to_path_buf(),
         message: e.to_string(),
