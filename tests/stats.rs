@@ -1137,3 +1137,80 @@ fn field_band_binary_round_trip_is_bit_exact_and_compact() {
         assert!((a - b).abs() <= 1e-15 * b.abs().max(1.0), "{a} vs {b}");
     }
 }
+
+/// Pushes taken back with `undo_pushes` (the moments from before them, the rows they added) and
+/// the good rows pushed again leave the band bit for bit as if only the good rows had been
+/// pushed: what a study does when a member fails after its rows went in. A row that was never
+/// pushed cannot be taken out.
+#[test]
+fn field_band_undo_takes_back_pushes_exactly() {
+    const G: usize = 150; // several blocks of the fill; 200 rows of it fill them in parallel
+    let mut r = rng(77);
+    let normal = Normal::new(1.0, 0.4).unwrap();
+    let mut row = |nan_at: Option<usize>| -> Vec<f64> {
+        (0..G)
+            .map(|j| match nan_at {
+                Some(k) if k == j => f64::NAN,
+                _ => normal.sample(&mut r) + j as f64 / G as f64,
+            })
+            .collect()
+    };
+    let earlier: Vec<Vec<f64>> = (0..100).map(|_| row(None)).collect();
+    let chunk: Vec<Vec<f64>> = (0..200)
+        .map(|i| row(if i % 17 == 0 { Some(i % G) } else { None }))
+        .collect();
+    // Every fifth member of the chunk "fails later": its rows must not count.
+    let good: Vec<&[f64]> = chunk
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| i % 5 != 0)
+        .map(|(_, r)| &r[..])
+        .collect();
+    let all: Vec<&[f64]> = chunk.iter().map(|r| &r[..]).collect();
+    let earlier: Vec<&[f64]> = earlier.iter().map(|r| &r[..]).collect();
+    let (lo, hi, bins) = (0.0, 2.5, 400);
+
+    let mut want = FieldBand::new(G, lo, hi, bins).unwrap();
+    want.push_rows(&earlier).unwrap();
+    want.push_rows(&good).unwrap();
+
+    let mut got = FieldBand::new(G, lo, hi, bins).unwrap();
+    got.push_rows(&earlier).unwrap();
+    let before = got.stats().to_vec();
+    got.push_rows(&all).unwrap();
+    assert_ne!(
+        serde_json::to_string(&got).unwrap(),
+        serde_json::to_string(&want).unwrap()
+    );
+    got.undo_pushes(&before, &all).unwrap();
+    got.push_rows(&good).unwrap();
+    assert_eq!(
+        serde_json::to_string(&got).unwrap(),
+        serde_json::to_string(&want).unwrap(),
+        "moments and slot counts after the undo"
+    );
+    for (a, b) in got.stats().iter().zip(want.stats()) {
+        assert_eq!(a.mean().to_bits(), b.mean().to_bits());
+        assert_eq!(a.variance().to_bits(), b.variance().to_bits());
+        assert_eq!((a.count(), a.non_finite()), (b.count(), b.non_finite()));
+    }
+    let q = [0.05, 0.5, 0.95];
+    let bits = |rows: Vec<Vec<f64>>| -> Vec<Vec<u64>> {
+        rows.iter()
+            .map(|r| r.iter().map(|x| x.to_bits()).collect())
+            .collect()
+    };
+    assert_eq!(
+        bits(got.quantile_rows(&q).unwrap()),
+        bits(want.quantile_rows(&q).unwrap())
+    );
+
+    // A row that was never pushed: refused, nothing changed.
+    let stranger = vec![2.0; G];
+    let unchanged = serde_json::to_string(&got).unwrap();
+    assert!(matches!(
+        got.undo_pushes(&before, &[&stranger]),
+        Err(StatsError::NotCounted { .. })
+    ));
+    assert_eq!(serde_json::to_string(&got).unwrap(), unchanged);
+}

@@ -124,6 +124,9 @@ pub struct StudyManifest {
     pub error_estimate: ErrorEstimateRecord,
     pub chunks: usize,
     pub chunks_reused: usize,
+    /// Chunks solved a second time because a member failed after its point's rows had been
+    /// pushed as they were observed (the statistics are the same bits either way).
+    pub chunks_solved_twice: usize,
     pub wall_seconds: f64,
     pub statistics_seconds: f64,
     pub statistics_share: f64,

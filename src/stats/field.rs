@@ -1,6 +1,7 @@
 //! Fields over members: [`FieldBand`], pointwise moments and a fixed-bin histogram per grid point
 //! (quantile bands), in one bulk pass over the rows of a chunk.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use super::{Bins, Histogram, RunningStats, StatsError};
@@ -115,143 +116,74 @@ impl FieldBand {
             });
         }
         self.check_room(|_| rows.len() as u64)?;
-        #[cfg(target_arch = "x86_64")]
-        if is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked on the line above).
-            unsafe { self.push_rows_avx2(rows) };
+        if rows.is_empty() {
             return Ok(());
         }
-        self.push_rows_unchecked(rows);
+        let (bins, stride) = (self.bins, self.stride());
+        let blocks = self
+            .points
+            .chunks_mut(BLOCK)
+            .zip(self.slots.chunks_mut(BLOCK * stride));
+        let fill = |(b, (points, slots)): (usize, (&mut [RunningStats], &mut [u32]))| {
+            #[cfg(target_arch = "x86_64")]
+            if is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU has AVX2 (checked on the line above).
+                unsafe { fill_block_avx2(bins, rows, b * BLOCK, points, slots) };
+                return;
+            }
+            fill_block(bins, rows, b * BLOCK, points, slots)
+        };
+        // The blocks are independent (each point's sums run over the rows in order whichever
+        // thread takes its block), so a large push is spread over the threads.
+        if rows.len() * g >= PARALLEL_VALUES {
+            blocks
+                .collect::<Vec<_>>()
+                .into_par_iter()
+                .enumerate()
+                .for_each(fill);
+        } else {
+            blocks.enumerate().for_each(fill);
+        }
         Ok(())
     }
-
-    /// [`push_rows`](Self::push_rows) compiled for AVX2: the same operations in the same order
-    /// (no FMA contraction in Rust), so the same bits, on 4 lanes instead of 2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn push_rows_avx2(&mut self, rows: &[&[f64]]) {
-        self.push_rows_unchecked(rows)
-    }
-
-    /// The body of [`push_rows`](Self::push_rows), rows of length G already checked.
-    #[inline(always)]
-    fn push_rows_unchecked(&mut self, rows: &[&[f64]]) {
+    /// Undoes earlier pushes exactly: the moments are set back to `moments_before` (what
+    /// [`stats`](Self::stats) held before them; floating-point sums cannot be subtracted back
+    /// bit for bit) and the slot counts of `rows`, the rows those pushes added, are taken out
+    /// (integers, so exactly). Fails, changing nothing, if the lengths do not match or a slot
+    /// would go below zero (rows that were never pushed).
+    pub fn undo_pushes(
+        &mut self,
+        moments_before: &[RunningStats],
+        rows: &[&[f64]],
+    ) -> Result<(), StatsError> {
         let g = self.points.len();
-        let Some(first_row) = rows.first() else {
-            return;
-        };
-        let bins = self.bins;
-        let (lo, hi, scale) = (bins.lo(), bins.hi(), bins.scale());
-        let last_bin = (bins.len() - 1) as f64;
-        // Slots as i32: `Bins::new` allows at most MAX_BINS bins.
-        let above = (bins.len() + 1) as i32;
-        // Bins::slot, branch-free. For lo <= x <= hi the bin is (x - lo) scale truncated (>= 0,
-        // so truncation is floor). Clamped to [-1, last bin] first (NaN becomes -1), the
-        // truncation fits an i32 for every x, so it converts packed without Rust's saturating
-        // `as` (a scalar conversion per value); values clamped up are below lo, slot 0 anyway.
-        let slot_of = |x: f64| -> i32 {
-            let t = ((x - lo) * scale).max(-1.0).min(last_bin);
-            // SAFETY: t is finite and in [-1, MAX_BINS - 1], which i32 holds.
-            let bin = 1 + unsafe { t.to_int_unchecked::<i32>() };
-            if x < lo {
-                0
-            } else if x > hi {
-                above
-            } else {
-                bin
-            }
-        };
-        // Blocks of points, members inner, the points of a row innermost: each point's sums run
-        // over the rows in order (the result does not depend on the blocking), the moment
-        // updates are straight-line over a block (packed SIMD), and a block's slot counts stay
-        // in cache while the rows stream through.
-        const BLOCK: usize = 64;
-        for j0 in (0..g).step_by(BLOCK) {
-            let width = BLOCK.min(g - j0);
-            // Shift each point by its first finite value (keeps the shifted sums well
-            // conditioned); NaN for a point without one, which then adds nothing.
-            let mut shift = [f64::NAN; BLOCK];
-            for (k, s) in shift[..width].iter_mut().enumerate() {
-                let first = first_row[j0 + k];
-                *s = if first.is_finite() {
-                    first
-                } else {
-                    rows.iter()
-                        .map(|r| r[j0 + k])
-                        .find(|x| x.is_finite())
-                        .unwrap_or(f64::NAN)
-                };
-            }
-            let mut n = [0u64; BLOCK];
-            let mut s1 = [0.0f64; BLOCK];
-            let mut s2 = [0.0f64; BLOCK];
-            let mut min = [f64::INFINITY; BLOCK];
-            let mut max = [f64::NEG_INFINITY; BLOCK];
-            let mut slot = [0i32; BLOCK];
-            let stride = bins.len() + 2;
-            let slots = &mut self.slots[j0 * stride..(j0 + width) * stride];
-            // SAFETY (both increments below): slot_of is in [0, bins + 1] and k < width, so the
-            // index is inside the block's `width * stride` slots.
-            let mut count = |k: usize, slot: i32| unsafe {
-                *slots.get_unchecked_mut(k * stride + slot as usize) += 1;
-            };
-            for row in rows {
-                let xs = &row[j0..j0 + width];
-                // A row without NaN or infinity (nearly all) takes the loop without the
-                // non-finite selects; both loops do the same arithmetic on finite values.
-                if xs.iter().fold(true, |all, x| all & x.is_finite()) {
-                    for k in 0..width {
-                        let x = xs[k];
-                        let d = x - shift[k];
-                        // Counted here, packed, not beside the scattered increments below (a
-                        // scalar read-modify-write each, a fifth of the fill's time).
-                        n[k] += 1;
-                        s1[k] += d;
-                        s2[k] += d * d;
-                        min[k] = min[k].min(x);
-                        max[k] = max[k].max(x);
-                        slot[k] = slot_of(x);
-                    }
-                    for (k, &s) in slot[..width].iter().enumerate() {
-                        count(k, s);
-                    }
-                    continue;
-                }
-                for k in 0..width {
-                    let x = xs[k];
-                    let finite = x.is_finite();
-                    // Adding 0.0 to a sum that started at +0.0 leaves it bit for bit as it was.
-                    let d = if finite { x - shift[k] } else { 0.0 };
-                    n[k] += finite as u64;
-                    s1[k] += d;
-                    s2[k] += d * d;
-                    min[k] = min[k].min(if finite { x } else { f64::INFINITY });
-                    max[k] = max[k].max(if finite { x } else { f64::NEG_INFINITY });
-                    slot[k] = slot_of(x);
-                }
-                for k in 0..width {
-                    if xs[k].is_finite() {
-                        count(k, slot[k]);
-                    }
-                }
-            }
-            let points = &mut self.points[j0..j0 + width];
-            for (k, point) in points.iter_mut().enumerate() {
-                let non_finite = rows.len() as u64 - n[k];
-                if n[k] > 0 {
-                    let mean_d = s1[k] / n[k] as f64;
-                    let m2 = (s2[k] - s1[k] * mean_d).max(0.0);
-                    point.merge(&RunningStats::from_moments(
-                        n[k],
-                        shift[k] + mean_d,
-                        m2,
-                        min[k],
-                        max[k],
-                    ));
-                }
-                point.add_non_finite(non_finite);
+        if moments_before.len() != g {
+            return Err(StatsError::LengthMismatch {
+                what: "field band points",
+                expected: g,
+                got: moments_before.len(),
+            });
+        }
+        if let Some(bad) = rows.iter().find(|r| r.len() != g) {
+            return Err(StatsError::LengthMismatch {
+                what: "field row",
+                expected: g,
+                got: bad.len(),
+            });
+        }
+        let stride = self.stride();
+        let mut slots = self.slots.clone();
+        for row in rows {
+            for (j, &x) in row.iter().enumerate().filter(|(_, x)| x.is_finite()) {
+                let count = &mut slots[j * stride + self.bins.slot(x)];
+                *count = count.checked_sub(1).ok_or(StatsError::NotCounted {
+                    what: "field band row taken out",
+                })?;
             }
         }
+        self.slots = slots;
+        self.points.clone_from_slice(moments_before);
+        Ok(())
     }
 
     /// Merges pointwise; fails, leaving `self` unchanged, if G or the bins differ or a point
@@ -317,6 +249,146 @@ impl FieldBand {
             }
         }
         Ok(rows)
+    }
+}
+
+/// Points per block of the fill: a block's slot counts stay in cache while the rows stream
+/// through it.
+const BLOCK: usize = 64;
+
+/// Values in a push above which its blocks are filled in parallel (a block is then at least a
+/// few tens of microseconds of work, well above what handing it to a thread costs).
+const PARALLEL_VALUES: usize = 1 << 14;
+
+/// [`fill_block`] compiled for AVX2: the same operations in the same order (no FMA contraction
+/// in Rust), so the same bits, on 4 lanes instead of 2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn fill_block_avx2(
+    bins: Bins,
+    rows: &[&[f64]],
+    j0: usize,
+    points: &mut [RunningStats],
+    slots: &mut [u32],
+) {
+    fill_block(bins, rows, j0, points, slots)
+}
+
+/// The body of [`FieldBand::push_rows`] for the block of points `j0..j0 + points.len()` (rows of
+/// length G already checked, at least one row): its moments and its `bins + 2` slots a point.
+#[inline(always)]
+fn fill_block(
+    bins: Bins,
+    rows: &[&[f64]],
+    j0: usize,
+    points: &mut [RunningStats],
+    slots: &mut [u32],
+) {
+    let first_row = rows[0];
+    let width = points.len();
+    let (lo, hi, scale) = (bins.lo(), bins.hi(), bins.scale());
+    let last_bin = (bins.len() - 1) as f64;
+    // Slots as i32: `Bins::new` allows at most MAX_BINS bins.
+    let above = (bins.len() + 1) as i32;
+    // Bins::slot, branch-free. For lo <= x <= hi the bin is (x - lo) scale truncated (>= 0,
+    // so truncation is floor). Clamped to [-1, last bin] first (NaN becomes -1), the
+    // truncation fits an i32 for every x, so it converts packed without Rust's saturating
+    // `as` (a scalar conversion per value); values clamped up are below lo, slot 0 anyway.
+    let slot_of = |x: f64| -> i32 {
+        let t = ((x - lo) * scale).max(-1.0).min(last_bin);
+        // SAFETY: t is finite and in [-1, MAX_BINS - 1], which i32 holds.
+        let bin = 1 + unsafe { t.to_int_unchecked::<i32>() };
+        if x < lo {
+            0
+        } else if x > hi {
+            above
+        } else {
+            bin
+        }
+    };
+    // Shift each point by its first finite value (keeps the shifted sums well
+    // conditioned); NaN for a point without one, which then adds nothing.
+    let mut shift = [f64::NAN; BLOCK];
+    for (k, s) in shift[..width].iter_mut().enumerate() {
+        let first = first_row[j0 + k];
+        *s = if first.is_finite() {
+            first
+        } else {
+            rows.iter()
+                .map(|r| r[j0 + k])
+                .find(|x| x.is_finite())
+                .unwrap_or(f64::NAN)
+        };
+    }
+    let mut n = [0u64; BLOCK];
+    let mut s1 = [0.0f64; BLOCK];
+    let mut s2 = [0.0f64; BLOCK];
+    let mut min = [f64::INFINITY; BLOCK];
+    let mut max = [f64::NEG_INFINITY; BLOCK];
+    let mut slot = [0i32; BLOCK];
+    let stride = bins.len() + 2;
+    // SAFETY (both increments below): slot_of is in [0, bins + 1] and k < width, so the
+    // index is inside the block's `width * stride` slots.
+    let mut count = |k: usize, slot: i32| unsafe {
+        *slots.get_unchecked_mut(k * stride + slot as usize) += 1;
+    };
+    // Members outer, the points of a row inner: each point's sums run over the rows in order
+    // (the result does not depend on the blocking), and the moment updates are straight-line
+    // over the block (packed SIMD).
+    for row in rows {
+        let xs = &row[j0..j0 + width];
+        // A row without NaN or infinity (nearly all) takes the loop without the
+        // non-finite selects; both loops do the same arithmetic on finite values.
+        if xs.iter().fold(true, |all, x| all & x.is_finite()) {
+            for k in 0..width {
+                let x = xs[k];
+                let d = x - shift[k];
+                // Counted here, packed, not beside the scattered increments below (a
+                // scalar read-modify-write each, a fifth of the fill's time).
+                n[k] += 1;
+                s1[k] += d;
+                s2[k] += d * d;
+                min[k] = min[k].min(x);
+                max[k] = max[k].max(x);
+                slot[k] = slot_of(x);
+            }
+            for (k, &s) in slot[..width].iter().enumerate() {
+                count(k, s);
+            }
+            continue;
+        }
+        for k in 0..width {
+            let x = xs[k];
+            let finite = x.is_finite();
+            // Adding 0.0 to a sum that started at +0.0 leaves it bit for bit as it was.
+            let d = if finite { x - shift[k] } else { 0.0 };
+            n[k] += finite as u64;
+            s1[k] += d;
+            s2[k] += d * d;
+            min[k] = min[k].min(if finite { x } else { f64::INFINITY });
+            max[k] = max[k].max(if finite { x } else { f64::NEG_INFINITY });
+            slot[k] = slot_of(x);
+        }
+        for k in 0..width {
+            if xs[k].is_finite() {
+                count(k, slot[k]);
+            }
+        }
+    }
+    for (k, point) in points.iter_mut().enumerate() {
+        let non_finite = rows.len() as u64 - n[k];
+        if n[k] > 0 {
+            let mean_d = s1[k] / n[k] as f64;
+            let m2 = (s2[k] - s1[k] * mean_d).max(0.0);
+            point.merge(&RunningStats::from_moments(
+                n[k],
+                shift[k] + mean_d,
+                m2,
+                min[k],
+                max[k],
+            ));
+        }
+        point.add_non_finite(non_finite);
     }
 }
 

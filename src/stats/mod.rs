@@ -93,4 +93,7 @@ pub enum StatsError {
 
     #[error("{what}: more than {limit} values at one point: a sweep point of that many members is not supported")]
     CountOverflow { what: &'static str, limit: u64 },
+
+    #[error("{what}: a value taken out that was never counted")]
+    NotCounted { what: &'static str },
 }

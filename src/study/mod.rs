@@ -52,7 +52,7 @@ use crate::output::{
 };
 use crate::scene::{EnsembleSpec, Scene};
 
-use chunk::{chunk_plan, solve_chunk, StudyCosts};
+use chunk::{chunk_plan, solve_chunk, RowBuffer, StudyCosts};
 use files::{
     check_resume, header_for, shard_range, CheckpointFile, CheckpointFileRef, CsvOut, PartialFile,
     PartialFileRef,
@@ -354,49 +354,55 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     };
     let mut reused = 0;
     let mut last_checkpoint = Instant::now();
-    let mut field_rows: Vec<f64> = Vec::new();
-    for &(a, b) in &bounds {
-        if total.ranges.contains(&(a, b)) {
-            reused += 1;
-            progress.inc(b - a);
-            continue;
-        }
-        let rows = solve_chunk(
-            dir,
-            spec,
-            &members,
-            &header,
-            &engine,
-            (a, b),
-            &mut total,
-            &mut field_rows,
-            &mut costs,
-            &progress,
-        )?;
-        for row in &rows {
-            csv_out.push(row)?;
-            if !row.error_estimate.is_nan() {
-                largest_error_estimate = Some(
-                    largest_error_estimate
-                        .map_or(row.error_estimate, |e: f64| e.max(row.error_estimate)),
-                );
+    let mut row_buffer = RowBuffer::default();
+    // The chunks are solved on a thread of the pool that solves them: each parallel step then
+    // has that thread as one of its workers, instead of handing the step to the pool and
+    // sleeping until it is done (a wake-up of this thread for every step of every output).
+    rayon::scope(|_| -> Result<()> {
+        for &(a, b) in &bounds {
+            if total.ranges.contains(&(a, b)) {
+                reused += 1;
+                progress.inc(b - a);
+                continue;
+            }
+            let rows = solve_chunk(
+                dir,
+                spec,
+                &members,
+                &header,
+                &engine,
+                (a, b),
+                &mut total,
+                &mut row_buffer,
+                &mut costs,
+                &progress,
+            )?;
+            for row in &rows {
+                csv_out.push(row)?;
+                if !row.error_estimate.is_nan() {
+                    largest_error_estimate = Some(
+                        largest_error_estimate
+                            .map_or(row.error_estimate, |e: f64| e.max(row.error_estimate)),
+                    );
+                }
+            }
+            if b < end && last_checkpoint.elapsed().as_secs_f64() >= options.checkpoint_seconds {
+                let t0 = Instant::now();
+                let csv_bytes = csv_out.flushed_len()?;
+                write_state_atomic(
+                    &checkpoint_path,
+                    &CheckpointFileRef {
+                        state: &total,
+                        csv_bytes,
+                        largest_error_estimate,
+                    },
+                )?;
+                costs.statistics_seconds += t0.elapsed().as_secs_f64();
+                last_checkpoint = Instant::now();
             }
         }
-        if b < end && last_checkpoint.elapsed().as_secs_f64() >= options.checkpoint_seconds {
-            let t0 = Instant::now();
-            let csv_bytes = csv_out.flushed_len()?;
-            write_state_atomic(
-                &checkpoint_path,
-                &CheckpointFileRef {
-                    state: &total,
-                    csv_bytes,
-                    largest_error_estimate,
-                },
-            )?;
-            costs.statistics_seconds += t0.elapsed().as_secs_f64();
-            last_checkpoint = Instant::now();
-        }
-    }
+        Ok(())
+    })?;
     progress.finish();
     csv_out.finish()?;
     let state = total;
@@ -440,6 +446,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             ),
             chunks: bounds.len(),
             chunks_reused: reused,
+            chunks_solved_twice: costs.chunks_solved_twice,
             wall_seconds: wall,
             statistics_seconds: costs.statistics_seconds,
             statistics_share: costs.statistics_seconds / wall.max(1e-12),
