@@ -64,7 +64,7 @@ impl Precision {
 pub type Progress<'a> = &'a (dyn Fn(u64) + Sync);
 
 /// A batch of members advanced from output time to output time.
-pub trait BatchSolver {
+pub trait BatchSolver: Send {
     /// Advances every member to the next output time and returns their snapshots in member
     /// order (the first call returns the initial state); `None` after the last output time.
     /// `progress` is told of each member-interval as it completes.

@@ -1,7 +1,6 @@
 //! Fields over members: [`FieldBand`], pointwise moments and a fixed-bin histogram per grid point
 //! (quantile bands), in one bulk pass over the rows of a chunk.
 
-use rayon::prelude::*;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use super::{Bins, Histogram, RunningStats, StatsError};
@@ -133,19 +132,10 @@ impl FieldBand {
             }
             fill_block(bins, rows, b * BLOCK, points, slots)
         };
-        // The blocks are independent (each point's sums run over the rows in order whichever
-        // thread takes its block), so a large push is spread over the threads.
-        if rows.len() * g >= PARALLEL_VALUES {
-            blocks
-                .collect::<Vec<_>>()
-                .into_par_iter()
-                .enumerate()
-                .for_each(fill);
-        } else {
-            blocks.enumerate().for_each(fill);
-        }
+        blocks.enumerate().for_each(fill);
         Ok(())
     }
+
     /// Undoes earlier pushes exactly: the moments are set back to `moments_before` (what
     /// [`stats`](Self::stats) held before them; floating-point sums cannot be subtracted back
     /// bit for bit) and the slot counts of `rows`, the rows those pushes added, are taken out
@@ -255,10 +245,6 @@ impl FieldBand {
 /// Points per block of the fill: a block's slot counts stay in cache while the rows stream
 /// through it.
 const BLOCK: usize = 64;
-
-/// Values in a push above which its blocks are filled in parallel (a block is then at least a
-/// few tens of microseconds of work, well above what handing it to a thread costs).
-const PARALLEL_VALUES: usize = 1 << 14;
 
 /// [`fill_block`] compiled for AVX2: the same operations in the same order (no FMA contraction
 /// in Rust), so the same bits, on 4 lanes instead of 2.

@@ -52,6 +52,9 @@ struct RecordedObservables {
     rows_present: u8,
 }
 
+/// Where the peak centre is in [`RecordedObservables::scalars`].
+const PEAK_CENTRE: usize = 4;
+
 /// Where the row of band field `f` at output time `k` of the chunk's member `i` starts in the
 /// chunk's `field_rows`: laid out [field][time][member][grid point], so that the rows one band
 /// reads are consecutive in memory (streamed, not gathered from rows a whole member apart).
@@ -239,6 +242,61 @@ pub(super) fn solve_chunk(
     Ok(rows)
 }
 
+/// The rows of output `k` of the groups that push as they go (`eager`), straight from the
+/// snapshots of batch members [a, b) (`recorded[g]`: member a + g is recorded at this output):
+/// each (point, field) band of this output time is its own accumulator, so they are filled in
+/// parallel, each from its rows in member order. Returns the threads' time in the pushes
+/// (seconds, summed over threads).
+#[allow(clippy::too_many_arguments)]
+fn push_as_observed(
+    total: &mut StudyState,
+    groups: &[(usize, usize)],
+    eager: &MomentsBefore,
+    inputs: &[MemberInputs],
+    (a, b): (usize, usize),
+    snaps: &[Snapshot],
+    k: usize,
+    recorded: &[bool],
+) -> std::result::Result<f64, crate::stats::StatsError> {
+    let eager_here: Vec<(u64, (usize, usize))> = groups
+        .iter()
+        .enumerate()
+        .filter(|&(gi, &(i, _))| eager[gi].is_some() && (a..b).contains(&i))
+        .map(|(_, &(i, j))| (inputs[i].point, (i, j)))
+        .collect();
+    let (Some(lowest), Some(highest)) = (
+        eager_here.iter().map(|e| e.0).min(),
+        eager_here.iter().map(|e| e.0).max(),
+    ) else {
+        return Ok(0.0);
+    };
+    let mut pushes: Vec<(&mut FieldBand, Vec<&[f64]>)> = Vec::new();
+    for (p, stats) in total.points.range_mut(lowest..=highest) {
+        let Some(&(_, (i, j))) = eager_here.iter().find(|(q, _)| q == p) else {
+            continue;
+        };
+        for (name, per_time) in stats.fields.iter_mut() {
+            let grid = per_time[k].points();
+            let rows: Vec<&[f64]> = (i..j)
+                .filter(|&m| recorded[m - a])
+                .map(|m| band_row(&snaps[m - a], name))
+                .filter(|row| row.len() == grid)
+                .collect();
+            pushes.push((&mut per_time[k], rows));
+        }
+    }
+    // Summed over the pushes, each on one thread start to end.
+    let busy_nanos = std::sync::atomic::AtomicU64::new(0);
+    pushes.par_iter_mut().try_for_each(|(band, rows)| {
+        let started = Instant::now();
+        band.push_rows(rows)?;
+        let nanos = started.elapsed().as_nanos() as u64;
+        busy_nanos.fetch_add(nanos, std::sync::atomic::Ordering::Relaxed);
+        Ok(())
+    })?;
+    Ok(busy_nanos.into_inner() as f64 * 1e-9)
+}
+
 /// Consecutive members of one sweep point, [i, j).
 fn point_groups(inputs: &[MemberInputs]) -> Vec<(usize, usize)> {
     let mut groups: Vec<(usize, usize)> = Vec::new();
@@ -334,19 +392,23 @@ fn solve_pass(
         let mut group_estimates: Vec<Vec<f64>> = (a..b).map(|_| Vec::new()).collect();
         let mut solver = engine.solver(plan, chains)?;
         let mut k = 0;
-        while let Some(mut snaps) = solver.next_output(&|_| {})? {
-            let started = Instant::now();
-            let reports_now = solver.reports();
-            let t = header.times[k];
-            let ok_now = |g: usize| reports_now[g].status == MemberStatus::Ok;
-            let recorded_here = |g: usize| ok_now(g) && header.is_detailed(inputs[a + g].point);
-            // The per-member work of this output, in one parallel pass: the rows copied into
-            // the buffer that lives across chunks (the snapshot's vectors are freed now and
-            // reused by the next output's, instead of a chunk's worth of small allocations
-            // being held, freed and faulted in again for every chunk), and the peak's centre.
+        // Each output's pushes (rows of the groups that push as they go) run beside the solve
+        // to the next output time, which has the threads to itself otherwise only in parts.
+        // An output's statistics beside the solve to the next output time, which has the
+        // threads to itself otherwise only in parts: the rows of groups that push as they go
+        // into their bands, the others' rows copied for after the chunk, and the peak centres.
+        // `recorded[g]`: batch member a + g is recorded at output k.
+        let output_statistics = |snaps: &[Snapshot],
+                                 k: usize,
+                                 recorded: &[bool],
+                                 total: &mut StudyState,
+                                 field_rows: &mut [f64],
+                                 group_recorded: &mut [Vec<Option<RecordedObservables>>]|
+         -> Result<f64> {
+            let busy = std::sync::atomic::AtomicU64::new(0);
             let fields = header.band_fields.len();
             // The buffer's rows of this output, member after member (`fields` rows each, at
-            // least one slot so that every member has its chunk; None where not recorded).
+            // least one slot so that every member has its chunk; None where not copied).
             let per_member = fields.max(1);
             let mut member_rows: Vec<Option<&mut [f64]>> = Vec::new();
             member_rows.resize_with((b - a) * per_member, || None);
@@ -370,12 +432,13 @@ fn solve_pass(
                 .zip(member_rows.par_chunks_mut(CENTRES_TOGETHER * per_member))
                 .enumerate()
                 .flat_map_iter(|(c, (together, rows))| {
+                    let started = Instant::now();
                     let g0 = c * CENTRES_TOGETHER;
                     for (o, (s, rows)) in
                         together.iter().zip(rows.chunks_mut(per_member)).enumerate()
                     {
                         // Rows pushed as they are observed are read from the snapshot instead.
-                        if !recorded_here(g0 + o) || is_eager(a + g0 + o) {
+                        if !recorded[g0 + o] || is_eager(a + g0 + o) {
                             continue;
                         }
                         for (row, name) in rows.iter_mut().zip(&header.band_fields) {
@@ -390,16 +453,59 @@ fn solve_pass(
                         .iter()
                         .enumerate()
                         .map(|(o, s)| {
-                            if recorded_here(g0 + o) {
+                            if recorded[g0 + o] {
                                 &s.rho[..]
                             } else {
                                 &[][..]
                             }
                         })
                         .collect();
-                    peak_centres(&header.x, &rho)
+                    let centres = peak_centres(&header.x, &rho);
+                    let nanos = started.elapsed().as_nanos() as u64;
+                    busy.fetch_add(nanos, std::sync::atomic::Ordering::Relaxed);
+                    centres
                 })
                 .collect();
+            for (g, per_time) in group_recorded.iter_mut().enumerate() {
+                if let Some(Some(o)) = per_time.get_mut(k) {
+                    o.scalars[PEAK_CENTRE] = centres[g];
+                }
+            }
+            let pushing =
+                push_as_observed(total, groups, eager, inputs, (a, b), snaps, k, recorded)
+                    .map_err(|e| super::report::stats_error(dir, e))?;
+            Ok(busy.into_inner() as f64 * 1e-9 + pushing)
+        };
+        let mut pending: Option<(Vec<Snapshot>, usize, Vec<bool>)> = None;
+        loop {
+            let (next, statistics) = rayon::join(
+                || solver.next_output(&|_| {}),
+                || -> Result<f64> {
+                    let Some((snaps, k, recorded)) = pending.take() else {
+                        return Ok(0.0);
+                    };
+                    let busy = output_statistics(
+                        &snaps,
+                        k,
+                        &recorded,
+                        total,
+                        field_rows,
+                        &mut group_recorded,
+                    )?;
+                    // Beside the solve, so its cost to the study's wall time is its threads'
+                    // time spread over the threads, not how long it was under way.
+                    Ok(busy / rayon::current_num_threads() as f64)
+                },
+            );
+            costs.statistics_seconds += statistics?;
+            let Some(mut snaps) = next? else {
+                break;
+            };
+            let started = Instant::now();
+            let reports_now = solver.reports();
+            let t = header.times[k];
+            let ok_now = |g: usize| reports_now[g].status == MemberStatus::Ok;
+            let recorded_here = |g: usize| ok_now(g) && header.is_detailed(inputs[a + g].point);
             for (g, s) in snaps.iter_mut().enumerate() {
                 let i = a + g;
                 // The estimate of the state at this output time (the last one recorded).
@@ -439,43 +545,15 @@ fn solve_pass(
                         s.min_gap,
                         s.energy,
                         s.dissipation,
-                        centres[g],
+                        // Set beside the next solve (`output_statistics`).
+                        f64::NAN,
                         estimate,
                     ],
                     rows_present,
                 }));
             }
-            // The rows of groups that push as they go, straight from the snapshots: each
-            // (point, field) band of this output time is its own accumulator, so they are
-            // filled in parallel, each from its rows in member order.
-            let mut pushes: Vec<(&mut FieldBand, Vec<&[f64]>)> = Vec::new();
-            let eager_here: Vec<(u64, (usize, usize))> = groups
-                .iter()
-                .enumerate()
-                .filter(|&(gi, &(i, _))| eager[gi].is_some() && (a..b).contains(&i))
-                .map(|(_, &(i, j))| (inputs[i].point, (i, j)))
-                .collect();
-            let lowest = eager_here.iter().map(|e| e.0).min();
-            let highest = eager_here.iter().map(|e| e.0).max();
-            if let (Some(lo), Some(hi)) = (lowest, highest) {
-                for (p, stats) in total.points.range_mut(lo..=hi) {
-                    let Some(&(_, (i, j))) = eager_here.iter().find(|(q, _)| q == p) else {
-                        continue;
-                    };
-                    for (name, per_time) in stats.fields.iter_mut() {
-                        let rows: Vec<&[f64]> = (i..j)
-                            .filter(|&m| recorded_here(m - a))
-                            .map(|m| band_row(&snaps[m - a], name))
-                            .filter(|row| row.len() == grid)
-                            .collect();
-                        pushes.push((&mut per_time[k], rows));
-                    }
-                }
-            }
-            pushes
-                .par_iter_mut()
-                .try_for_each(|(band, rows)| band.push_rows(rows))
-                .map_err(|e| super::report::stats_error(dir, e))?;
+            let recorded: Vec<bool> = (0..b - a).map(recorded_here).collect();
+            pending = Some((snaps, k, recorded));
             costs.statistics_seconds += started.elapsed().as_secs_f64();
             k += 1;
         }
@@ -747,6 +825,11 @@ fn peak_centre_of_four(x: &[f64], rows: [&[f64]; 4]) -> [f64; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_peak_centre_is_where_the_scalars_say() {
+        assert_eq!(SCALARS[PEAK_CENTRE], "peak_centre");
+    }
 
     /// Four rows side by side give each row's own centre, bit for bit, whatever their mix of
     /// flat, peaked, empty and NaN rows.

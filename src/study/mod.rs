@@ -407,14 +407,21 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     csv_out.finish()?;
     let state = total;
     let t0 = Instant::now();
-    write_state_atomic(
-        &dir.join(PARTIAL),
-        &PartialFileRef {
-            header: &header,
-            state: &state,
+    // The state for merges and the statistics' files read the same state: written side by side.
+    let (partial, stats_files) = rayon::join(
+        || {
+            write_state_atomic(
+                &dir.join(PARTIAL),
+                &PartialFileRef {
+                    header: &header,
+                    state: &state,
+                },
+            )
         },
-    )?;
-    finalize(dir, &[header.clone()], &state, scene.plots)?;
+        || finalize(dir, &[header.clone()], &state, scene.plots),
+    );
+    partial?;
+    stats_files?;
     // partial.state and members.csv hold everything the checkpoint did.
     if checkpoint_path.exists() {
         std::fs::remove_file(&checkpoint_path).map_err(|e| Error::io(&checkpoint_path, e))?;
