@@ -114,6 +114,8 @@ fn rows() -> Vec<(String, String)> {
 /// Runs the scene once; returns (wall seconds, peak memory in bytes).
 fn run_once(scene: &Path, out: &Path) -> (f64, u64) {
     let started = Instant::now();
+    // Waited for with wait4 below, which also gives its peak memory.
+    #[allow(clippy::zombie_processes)]
     let child = Command::new(BIN)
         .args([
             "run",

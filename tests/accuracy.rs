@@ -227,7 +227,7 @@ fn accuracy_of_a_parameter_study_is_judged_by_its_worst_point() {
             let r = r.unwrap();
             let key = format!(
                 "{} {} {}",
-                r[col("order")].to_string(),
+                &r[col("order")],
                 &r[col("stepping")],
                 &r[col("dt_or_tolerance")]
             );

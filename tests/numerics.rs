@@ -522,7 +522,7 @@ fn integer_and_real_power_agree() {
     for n in 0..=20u32 {
         for &r in &[0.3, 0.97, 1.0, 1.03, 2.5] {
             let a = Power::Integer(n).apply(r);
-            let b = (r as f64).powf(n as f64);
+            let b = r.powf(n as f64);
             assert!(
                 (a - b).abs() <= 1e-14 * b.abs().max(1e-300) * n.max(1) as f64,
                 "{r}^{n}: {a} vs {b}"

@@ -647,7 +647,7 @@ fn members_csv_does_not_depend_on_chunks_or_threads() {
         assert_success(&run(&scene, &dir, &[]), "chunk variant");
         assert_eq!(
             manifest(&dir)["chunks"],
-            96u64.div_ceil(chunk) as u64,
+            96u64.div_ceil(chunk),
             "chunk {chunk}"
         );
         assert_eq!(csv(&dir), want, "members.csv with chunk = {chunk}");

@@ -342,9 +342,12 @@ pub(super) fn check_profile(
     }
 }
 
+/// A profile's value v at x, as (x, v).
+type Sample = (f64, f64);
+
 /// The first sample (x, v) where a velocity profile is not finite, and the first where it is
 /// finite but beyond `max`, in one pass over the samples of [`first_violation`].
-pub(super) fn velocity_violations(e: &Expr, max: f64) -> (Option<(f64, f64)>, Option<(f64, f64)>) {
+pub(super) fn velocity_violations(e: &Expr, max: f64) -> (Option<Sample>, Option<Sample>) {
     const M: usize = 20_000;
     let (mut non_finite, mut too_large) = (None, None);
     for k in 0..=M {

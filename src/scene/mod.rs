@@ -34,6 +34,8 @@ use file::{
     BatchSection, InitialSection, ModelSection, OrderValue, OutputSection, SceneFile, SolverSection,
 };
 
+// One per scene: the size of its largest variant costs nothing worth a box.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 pub enum InitialSpec {
     /// Macroscopic profiles, discretised by the construction of Prop. 3.1.

@@ -374,7 +374,7 @@ fn solve_pass(
     // Each kept member's error estimate at each output time (NaN once failed, or without one).
     let mut kept_estimates: Vec<Vec<f64>> = Vec::new();
     let mut reports: Vec<MemberReport> = Vec::with_capacity(count);
-    for (a, b) in batch_groups(&inputs, members)? {
+    for (a, b) in batch_groups(inputs, members)? {
         let setup = inputs[a].setup.clone();
         let params: Vec<MemberParams> = inputs[a..b].iter().map(|i| i.params).collect();
         let chains: Vec<Chain> = inputs[a..b].iter().map(|i| i.chain.clone()).collect();

@@ -145,7 +145,8 @@ pub(super) fn finalize(
     }
     write_npy(stats.join("first_hit.npy"), &[p_count, 6], &first_hit)?;
     // Each member's responses, summarised per point (every point).
-    let responses: [(&str, fn(&PointStats) -> &ScalarSummary); 3] = [
+    type Response = (&'static str, fn(&PointStats) -> &ScalarSummary);
+    let responses: [Response; 3] = [
         ("peak_density", |s| &s.peak_density),
         ("smallest_gap", |s| &s.min_gap),
         ("final_energy", |s| &s.final_energy),

@@ -135,7 +135,7 @@ impl PartitionedReal for f64 {
         tile: &mut [[f64; S]; TILE],
     ) {
         #[cfg(target_arch = "x86_64")]
-        if simd.has_avx2() && S % 4 == 0 {
+        if simd.has_avx2() && S.is_multiple_of(4) {
             assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
             // SAFETY: AVX2 is there (`has_avx2`); every read is within the lanes' ranges
             // checked above, every write within the tile.
@@ -164,7 +164,7 @@ impl PartitionedReal for f64 {
         tile: &[[f64; S]; TILE],
     ) {
         #[cfg(target_arch = "x86_64")]
-        if simd.has_avx2() && S % 4 == 0 {
+        if simd.has_avx2() && S.is_multiple_of(4) {
             assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
             // SAFETY: as in `tile_in`; `dst` is borrowed mutably, the tile is only read.
             unsafe {
@@ -202,7 +202,7 @@ impl PartitionedReal for f32 {
         tile: &mut [[f32; S]; TILE],
     ) {
         #[cfg(target_arch = "x86_64")]
-        if simd.has_avx2() && S % 8 == 0 {
+        if simd.has_avx2() && S.is_multiple_of(8) {
             assert!(kn <= TILE && base + (S - 1) * stride + kn <= src.len());
             // SAFETY: as for f64.
             unsafe {
@@ -230,7 +230,7 @@ impl PartitionedReal for f32 {
         tile: &[[f32; S]; TILE],
     ) {
         #[cfg(target_arch = "x86_64")]
-        if simd.has_avx2() && S % 8 == 0 {
+        if simd.has_avx2() && S.is_multiple_of(8) {
             assert!(kn <= TILE && base + (S - 1) * stride + kn <= dst.len());
             // SAFETY: as for f64.
             unsafe {
