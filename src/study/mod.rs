@@ -30,6 +30,7 @@
 //! `stats/*.npy` and the plots; `merge.rs` is `roughlub merge` over shards. This file
 //! orchestrates a run ([`run_study`]).
 
+mod centre;
 mod chunk;
 mod files;
 mod memory;
@@ -59,7 +60,7 @@ use files::{
 };
 use report::{finalize, quantile_method};
 
-pub use chunk::peak_centre;
+pub use centre::peak_centre;
 pub use files::{
     MemberRow, StudyHeader, MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS,
     POINT_INDEX_COLUMN,

@@ -1,0 +1,240 @@
+use super::*;
+use crate::expr::Expr;
+use crate::model::chain::stored_gap;
+use crate::model::quadrature::GaussLegendre;
+
+const N: usize = 37;
+const L: usize = 8;
+
+/// One block's inputs: gaps of very different sizes (unless `mild`: one below GAP_FLOOR,
+/// stored as ln d; with clusters some bonded), velocities, d* and the per-lane mu and h
+/// (unless `mild`, one h large enough for the exp branch and the fix-up). A mild step is
+/// certified, the other is not.
+struct Case {
+    gaps: Vec<f64>,
+    vel: Vec<f64>,
+    dstar: Vec<f64>,
+    bonded: Vec<bool>,
+    mu: [f64; L],
+    h: [f64; L],
+}
+
+fn case(clusters: bool, mild: bool) -> Case {
+    let wave = |k: usize, a: f64| (a * (k as f64 + 1.0)).sin();
+    let mut gaps: Vec<f64> = (0..N * L).map(|k| 0.02 * (1.2 + wave(k, 0.37))).collect();
+    let mut bonded = vec![false; N * L];
+    if !mild {
+        gaps[5 * L + 3] = stored_gap::encode(1e-300, GAP_FLOOR);
+        gaps[9 * L + 6] = 1e-12;
+    }
+    if clusters {
+        for k in [L + 2, 2 * L + 2, 20 * L + 5, 4] {
+            gaps[k] = 0.0;
+            bonded[k] = true;
+        }
+    }
+    Case {
+        gaps,
+        vel: (0..(N - 1) * L).map(|k| 0.5 * wave(k, 0.11)).collect(),
+        dstar: (0..N * L).map(|k| 0.02 * (1.1 + wave(k, 0.53))).collect(),
+        bonded,
+        mu: std::array::from_fn(|l| 0.01 * (1.0 + l as f64)),
+        h: std::array::from_fn(|l| match (mild, l) {
+            (true, _) => 1e-4 * (1.0 + l as f64),
+            (false, 7) => 0.5,
+            _ => 1e-3 * (1.0 + l as f64),
+        }),
+    }
+}
+
+type Outcome = (Vec<u64>, Vec<u64>, Vec<StepReport>);
+
+/// One step of lanes `lanes` of the case as a block of M lanes at the given level, in T (the
+/// case's values rounded to T; results as the bits of their exact f64 values).
+fn step<T: Real, const M: usize>(
+    simd: SimdLevel,
+    c: &Case,
+    lanes: [usize; M],
+    gamma: Option<Gamma<M>>,
+    clusters: bool,
+    forcing: Option<&Forcing>,
+) -> Outcome {
+    let pick = |v: &[f64], rows: usize| -> Vec<T> {
+        (0..rows * M)
+            .map(|k| T::c(v[(k / M) * L + lanes[k % M]]))
+            .collect()
+    };
+    let gaps = pick(&c.gaps, N);
+    let vel = pick(&c.vel, N - 1);
+    let dstar = pick(&c.dstar, N);
+    let bonded: Vec<bool> = (0..N * M)
+        .map(|k| c.bonded[(k / M) * L + lanes[k % M]])
+        .collect();
+    let eps = 0.5 / N as f64;
+    let terms = Terms::<M, T> {
+        eps: T::c(eps),
+        mu: lanes.map(|l| T::c(c.mu[l])),
+        total_gap: std::array::from_fn(|m| {
+            (0..N)
+                .map(|i| stored_gap::decode(gaps[i * M + m].to_f64()))
+                .sum()
+        }),
+        contact_repulsion: [5.0; M],
+        repulsion: gamma.map(|g| (dstar.as_slice(), g)),
+        bonded: clusters.then_some(bonded.as_slice()),
+        forcing,
+        forcing_params: [&[]; M],
+    };
+    let h = lanes.map(|l| T::c(c.h[l]));
+    let t = [0.25; M];
+    let mut gaps_out = vec![T::ZERO; N * M];
+    let mut vel_out = vec![T::ZERO; (N - 1) * M];
+    let mut scratch = Scratch::new(N, M);
+    let report = euler_step_as(
+        simd,
+        default_layout::<M>(N),
+        &terms,
+        N,
+        &t,
+        &h,
+        &gaps,
+        &vel,
+        &mut gaps_out,
+        &mut vel_out,
+        &mut scratch,
+    );
+    (
+        gaps_out.iter().map(|x| x.to_f64().to_bits()).collect(),
+        vel_out.iter().map(|x| x.to_f64().to_bits()).collect(),
+        report.to_vec(),
+    )
+}
+
+/// Every combination of the terms the step specialises on or tests at run time.
+fn variants() -> Vec<(String, Option<Gamma<L>>, bool, Option<Forcing>)> {
+    let gammas: [(&str, Option<Gamma<L>>); 5] = [
+        ("none", None),
+        ("2", Some(Gamma::Uniform(Power::Integer(2)))),
+        ("5", Some(Gamma::Uniform(Power::Integer(5)))),
+        ("1.5", Some(Gamma::Uniform(Power::Real(1.5)))),
+        (
+            "per lane",
+            Some(Gamma::PerLane(std::array::from_fn(|l| {
+                1.0 + 0.5 * l as f64
+            }))),
+        ),
+    ];
+    let mut out = Vec::new();
+    for (name, gamma) in gammas {
+        for clusters in [false, true] {
+            for forced in [false, true] {
+                let forcing = forced.then(|| Forcing {
+                    expr: Expr::parse("0.3*sin(2*pi*(x - t))").unwrap(),
+                    rule: GaussLegendre::new(3),
+                    params: Vec::new(),
+                });
+                let label = format!("gamma {name}, clusters {clusters}, forcing {forced}");
+                out.push((label, gamma, clusters, forcing));
+            }
+        }
+    }
+    out
+}
+
+/// The run-time SIMD level changes the speed only: AVX2 + FMA and AVX-512 give the portable
+/// path's results bit for bit (no contraction into fma, the same operations in the same
+/// order).
+#[test]
+fn wide_simd_paths_equal_portable_path_bitwise() {
+    let levels: Vec<SimdLevel> = [SimdLevel::Avx2Fma, SimdLevel::Avx512]
+        .into_iter()
+        .filter(|&s| s <= SimdLevel::widest_here())
+        .collect();
+    if levels.is_empty() {
+        eprintln!("no AVX2 + FMA here: nothing to compare");
+        return;
+    }
+    for level in levels {
+        wide_equals_portable::<f64>(level);
+        wide_equals_portable::<f32>(level);
+    }
+}
+
+fn wide_equals_portable<T: Real>(level: SimdLevel) {
+    let all = std::array::from_fn(|l| l);
+    for (label, gamma, clusters, forcing) in variants() {
+        for mild in [false, true] {
+            let c = case(clusters, mild);
+            let f = forcing.as_ref();
+            let portable = step::<T, L>(SimdLevel::Portable, &c, all, gamma, clusters, f);
+            let wide = step::<T, L>(level, &c, all, gamma, clusters, f);
+            let (p, name) = (T::PRECISION.name(), level.name());
+            assert!(
+                portable == wide,
+                "{p}: {label}, mild {mild}: {name} and portable differ"
+            );
+            // Both ends of the step ran: the certified projection, the energy (a bonded
+            // gap goes through the fix-up, which the certificate leaves out).
+            assert_eq!(
+                portable.2.iter().all(|r| r.certified),
+                mild && !clusters,
+                "{p}: {label}, mild {mild}"
+            );
+        }
+    }
+}
+
+/// A lane's result does not depend on the block it sits in or its place there: each lane of
+/// a block of 8 equals the same member stepped alone (L = 1), bit for bit.
+#[test]
+fn lanes_are_independent_of_their_block() {
+    lanes_independent::<f64>();
+    lanes_independent::<f32>();
+}
+
+fn lanes_independent<T: Real>() {
+    for (label, gamma, clusters, forcing) in variants() {
+        let label = format!("{}: {label}", T::PRECISION.name());
+        let c = case(clusters, false);
+        let all = std::array::from_fn(|l| l);
+        let block = step::<T, L>(
+            SimdLevel::detect(),
+            &c,
+            all,
+            gamma,
+            clusters,
+            forcing.as_ref(),
+        );
+        for l in 0..L {
+            let alone_gamma = gamma.map(|g| {
+                Gamma::Uniform(match g {
+                    Gamma::PerLane(gs) => Power::of(gs[l]),
+                    Gamma::Uniform(p) => p,
+                })
+            });
+            let alone = step::<T, 1>(
+                SimdLevel::Portable,
+                &c,
+                [l],
+                alone_gamma,
+                clusters,
+                forcing.as_ref(),
+            );
+            let gaps: Vec<u64> = block.0.iter().skip(l).step_by(L).copied().collect();
+            let vel: Vec<u64> = block.1.iter().skip(l).step_by(L).copied().collect();
+            assert_eq!(gaps, alone.0, "{label}: gaps of lane {l}");
+            assert_eq!(vel, alone.1, "{label}: velocities of lane {l}");
+            // A block computes every lane's energy when one lane needs it, so only the
+            // energy's value (where both have it) must agree, not whether it was computed.
+            let (b, a) = (block.2[l], alone.2[0]);
+            assert_eq!(
+                (b.admissible, b.hard, b.work),
+                (a.admissible, a.hard, a.work),
+                "{label}: report of lane {l}"
+            );
+            if b.energy >= 0.0 && a.energy >= 0.0 {
+                assert_eq!(b.energy.to_bits(), a.energy.to_bits(), "{label}: lane {l}");
+            }
+        }
+    }
+}
