@@ -1,6 +1,11 @@
 //! Solving one chunk of members through the [`BatchSolver`](crate::backend::BatchSolver) seam
 //! ([`solve_chunk`]) and turning its snapshots into the chunk's statistics and `members.csv`
 //! rows.
+//!
+//! Over 700 lines on purpose: one chunk's pass is one sequence (the solve, each output's
+//! statistics beside the solve to the next, the undo when a member fails after its rows went
+//! in, the chunk's merge), and why its statistics are the same bits either way reads only as a
+//! whole.
 
 use std::path::Path;
 use std::time::Instant;
