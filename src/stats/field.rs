@@ -123,16 +123,17 @@ impl FieldBand {
             .points
             .chunks_mut(BLOCK)
             .zip(self.slots.chunks_mut(BLOCK * stride));
-        let fill = |(b, (points, slots)): (usize, (&mut [RunningStats], &mut [u32]))| {
+        #[cfg(target_arch = "x86_64")]
+        let avx2 = is_x86_feature_detected!("avx2");
+        for (b, (points, slots)) in blocks.enumerate() {
             #[cfg(target_arch = "x86_64")]
-            if is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU has AVX2 (checked on the line above).
+            if avx2 {
+                // SAFETY: the CPU has AVX2 (checked before the loop).
                 unsafe { fill_block_avx2(bins, rows, b * BLOCK, points, slots) };
-                return;
+                continue;
             }
             fill_block(bins, rows, b * BLOCK, points, slots)
-        };
-        blocks.enumerate().for_each(fill);
+        }
         Ok(())
     }
 

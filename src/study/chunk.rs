@@ -186,7 +186,7 @@ pub(super) fn solve_chunk(
             .add_bands(header, u_range)?;
     }
     let eager_allowed = !buffer.failures_last_chunk;
-    let mut moments_before: MomentsBefore = groups
+    let moments_before: MomentsBefore = groups
         .iter()
         .map(|&(i, j)| {
             let eager =
@@ -200,42 +200,34 @@ pub(super) fn solve_chunk(
             })
         })
         .collect();
-    let pass = solve_pass(
-        dir,
-        spec,
-        members,
-        header,
-        engine,
-        (first, end),
-        (&inputs, &groups),
-        total,
-        buffer,
-        &moments_before,
-        None,
-        costs,
-    )?;
-    let rows = match pass {
+    let pass = |eager: &MomentsBefore,
+                undo: Option<&MomentsBefore>,
+                total: &mut StudyState,
+                buffer: &mut RowBuffer,
+                costs: &mut StudyCosts| {
+        solve_pass(
+            dir,
+            spec,
+            members,
+            header,
+            engine,
+            (first, end),
+            (&inputs, &groups),
+            total,
+            buffer,
+            eager,
+            undo,
+            costs,
+        )
+    };
+    let rows = match pass(&moments_before, None, total, buffer, costs)? {
         Pass::Done(rows) => rows,
         Pass::Undo => {
             // The second pass pushes every row after the solve, and first takes back what the
             // first pass pushed.
-            let undo = std::mem::take(&mut moments_before);
             costs.chunks_solved_twice += 1;
             let deferred: MomentsBefore = vec![None; groups.len()];
-            match solve_pass(
-                dir,
-                spec,
-                members,
-                header,
-                engine,
-                (first, end),
-                (&inputs, &groups),
-                total,
-                buffer,
-                &deferred,
-                Some(&undo),
-                costs,
-            )? {
+            match pass(&deferred, Some(&moments_before), total, buffer, costs)? {
                 Pass::Done(rows) => rows,
                 Pass::Undo => {
                     unreachable!("a pass that pushes after the solve has nothing to undo")
