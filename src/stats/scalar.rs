@@ -31,6 +31,22 @@ impl ScalarSummary {
         ok
     }
 
+    /// Adds one observation to the moments only (see [`push_quantile`](Self::push_quantile));
+    /// `false` if it was rejected as non-finite.
+    #[inline]
+    pub fn push_moments(&mut self, x: f64) -> bool {
+        self.stats.push(x)
+    }
+
+    /// Adds one observation to the sketch only. With [`push_moments`](Self::push_moments) on
+    /// another summary, it lets the sketch's counts go straight into a larger total (exact
+    /// either way) while the moments are merged from a chunk's own (which keeps their rounding
+    /// independent of how the total was built).
+    #[inline]
+    pub fn push_quantile(&mut self, x: f64) {
+        self.sketch.push(x);
+    }
+
     /// Merges every part; fails, leaving `self` unchanged, if the sketches' `alpha` differ.
     pub fn merge(&mut self, other: &ScalarSummary) -> Result<(), StatsError> {
         self.sketch.check_compatible(&other.sketch)?;

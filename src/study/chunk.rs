@@ -588,28 +588,46 @@ fn solve_pass(
     for &(i, j) in groups {
         let stats = state.point_mut(inputs[i].point, header);
         if stats.is_detailed() {
+            // The moments go into the chunk's summaries (merged into the total below, so their
+            // rounding does not depend on the chunking of earlier runs), the sketches' counts
+            // straight into the total's (exact either way; a chunk's own sketch cost a map
+            // insertion per value and a merge per bucket).
+            let into = total.point_mut(inputs[i].point, header);
             // Each (scalar, time) summary is its own accumulator: they are filled in parallel,
             // each from its members in order (the same pushes as one after the other).
-            let mut summaries: Vec<(usize, usize, &mut ScalarSummary)> = Vec::new();
-            for (name, per_time) in stats.scalars.iter_mut() {
+            type Pair<'a> = (usize, usize, &'a mut ScalarSummary, &'a mut ScalarSummary);
+            let mut summaries: Vec<Pair> = Vec::new();
+            for ((name, per_time), (total_name, total_per_time)) in
+                stats.scalars.iter_mut().zip(into.scalars.iter_mut())
+            {
+                debug_assert_eq!(name, total_name);
                 let s = SCALARS
                     .iter()
                     .position(|n| n == name)
                     .expect("known observable");
-                summaries.extend(per_time.iter_mut().enumerate().map(|(k, sum)| (s, k, sum)));
+                summaries.extend(
+                    per_time
+                        .iter_mut()
+                        .zip(total_per_time.iter_mut())
+                        .enumerate()
+                        .map(|(k, (sum, total_sum))| (s, k, sum, total_sum)),
+                );
             }
-            summaries.par_iter_mut().for_each(|(s, k, summary)| {
-                for (m, observed) in recorded[i..j].iter().enumerate() {
-                    if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(*k)) {
-                        let v = o.scalars[*s];
-                        if SCALARS[*s] == ERROR_ESTIMATE && v.is_nan() {
-                            // No estimate (order 1, fixed steps): the statistic stays empty.
-                            continue;
+            summaries
+                .par_iter_mut()
+                .for_each(|(s, k, summary, total_summary)| {
+                    for (m, observed) in recorded[i..j].iter().enumerate() {
+                        if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(*k)) {
+                            let v = o.scalars[*s];
+                            if SCALARS[*s] == ERROR_ESTIMATE && v.is_nan() {
+                                // No estimate (order 1, fixed steps): the statistic stays empty.
+                                continue;
+                            }
+                            summary.push_moments(v);
+                            total_summary.push_quantile(v);
                         }
-                        summary.push(v);
                     }
-                }
-            });
+                });
         }
         for m in i..j {
             if !ok_member[m] {
