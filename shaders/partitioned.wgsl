@@ -32,6 +32,9 @@
 //
 // Bindings 12 (parts, uniform), 13 (pstate), 14 (segs), 15 (glued, clusters only) are this
 // file's; the rest are step.wgsl's.
+//
+// Over 700 lines on purpose: WGSL has no modules (one source string per pipeline), and this
+// file mirrors src/backend/cpu/step/partitioned.rs pass for pass.
 
 // Keep in sync with `PartsUniform` in src/backend/gpu/partitioned.rs.
 struct Parts {

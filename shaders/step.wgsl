@@ -3,7 +3,7 @@
 // src/backend/cpu/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas
 // solve, the gap update exact in ln d, the projection onto sum d and the energy; read its header
 // for the equations), of the attempts and `extrapolate` in src/backend/cpu/block.rs and of
-// `StepControl`, `step_factor` and `select_order` in src/backend/cpu/control.rs. Keep them in
+// `StepControl`, `step_factor` and `select_order` in src/backend/shared/control.rs. Keep them in
 // sync, loop for loop.
 // Gaps are stored as in `crate::model::chain::stored_gap`: d, or ln d (< 0) below GAP_FLOOR, or 0
 // when bonded.
@@ -41,6 +41,10 @@
 // keep their signatures in step with it.
 // The host uploads and reads back Config, Param and Control (src/backend/gpu/wgsl_types.rs and
 // src/backend/gpu/buffers.rs): keep their layouts in sync.
+//
+// Over 700 lines on purpose: WGSL has no modules (one source string per pipeline), and this
+// file mirrors src/backend/cpu/step.rs, block.rs and shared/control.rs function for function;
+// the f64 math it shares with partitioned.wgsl is in f64_math.wgsl, prepended at generation.
 
 alias real = f64;
 
@@ -69,7 +73,7 @@ struct Param {
     total_gap: real,
 }
 
-// StepControl of src/backend/cpu/control.rs (counters in u32, flags as u32). Keep in sync with
+// StepControl of src/backend/shared/control.rs (counters in u32, flags as u32). Keep in sync with
 // `ControlF64` / `ControlF32` in src/backend/gpu/wgsl_types.rs.
 struct Control {
     t: real,
@@ -145,7 +149,7 @@ const ROW_SET: u32 = 4u;
 // `MAX_ORDER` of src/model/params.rs: the tableau's largest column.
 const MAX_ORDER: u32 = 6u;
 
-// Step control constants of src/backend/cpu/control.rs.
+// Step control constants of src/backend/shared/control.rs.
 const REJECT_SHRINK: real = 0.25;
 const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
@@ -158,7 +162,7 @@ const EXP_FAST_MAX: real = 700.0;
 // MAX_OPENING of src/backend/cpu/step.rs.
 const MAX_OPENING: real = 5.0;
 
-// WORK_SLACK of src/backend/cpu/control.rs.
+// WORK_SLACK of src/backend/shared/control.rs.
 const WORK_SLACK: real = 0.1;
 
 //@GENERATED
@@ -620,14 +624,14 @@ fn extrapolate_velocity(idx: u32, cand: u32, k: u32, err: ptr<function, array<re
     }
 }
 
-// `energy_acceptable` of src/backend/cpu/control.rs, with the rounding of G (about gamma ulps)
+// `energy_acceptable` of src/backend/shared/control.rs, with the rounding of G (about gamma ulps)
 // added to the slack (ENERGY_RTOL_PER_GAMMA: 0 in f64, where ENERGY_RTOL covers it).
 fn energy_acceptable(before: real, after: real, work: real, gamma: real) -> bool {
     let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma;
     return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
 }
 
-// `step_factor` of src/backend/cpu/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].
+// `step_factor` of src/backend/shared/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].
 fn step_factor(err_in: real, q: u32) -> real {
     let err = max(err_in, 1e-10);
     var root: real;
@@ -646,7 +650,7 @@ fn tableau_work(k: u32) -> real {
     return real(k * (k + 1u) / 2u);
 }
 
-// `select_order` of src/backend/cpu/control.rs: (next column, step factor) from the scaled
+// `select_order` of src/backend/shared/control.rs: (next column, step factor) from the scaled
 // estimates of columns 2..=k.
 fn select_order(k: u32, errs: array<real, 7>, accepted: bool) -> vec2<real> {
     var e = errs;

@@ -227,6 +227,8 @@ fn report_study(summary: &StudySummary, quiet: bool) {
 fn main() -> ExitCode {
     // SAFETY: no other thread exists yet.
     unsafe { roughlub::backend::gpu::context::quiet_mesa_device_select() };
+    // Every variable roughlub reads, read once, here.
+    roughlub::backend::overrides::Overrides::get();
     let cli = Cli::parse();
     let result: roughlub::Result<()> = match cli.command {
         Command::Run {

@@ -158,7 +158,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
 
     // Everything a user supplies is validated before the directory is touched.
     let chain = scene.initial_chain()?;
-    let plan = Plan::new(scene, &chain);
+    let plan = scene.plan(&chain);
     let engine = select(requested, precision, &plan)?;
     if !options.quiet {
         eprintln!("{}", engine.record.line());

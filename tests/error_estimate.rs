@@ -67,7 +67,7 @@ plots = false
 fn estimate_and_error(text: &str) -> (f64, f64) {
     let scene = Scene::from_toml(text, Path::new("estimate.toml")).expect("valid scene");
     let chain = scene.initial_chain().expect("initial chain");
-    let plan = Plan::new(&scene, &chain);
+    let plan = scene.plan(&chain);
     let members = plan.members.len();
     let engine = select(Backend::Cpu, Precision::F64, &plan).unwrap();
     let last = |plan: Plan| {

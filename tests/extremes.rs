@@ -164,7 +164,7 @@ fn gaps_below_the_float_range_match_a_log_gap_reference() {
 /// (measured: 3.8e-2 at gamma 1000).
 #[test]
 fn energy_never_rises_at_gamma_1000_in_f32() {
-    use roughlub::backend::cpu::control::{ENERGY_RTOL_F32, ENERGY_RTOL_PER_GAMMA_F32};
+    use roughlub::backend::shared::control::{ENERGY_RTOL_F32, ENERGY_RTOL_PER_GAMMA_F32};
     use roughlub::backend::Precision;
     let c = chain(200, "0.7", "0.5*sin(2*pi*x)", "0.7");
     let params = vec![
@@ -238,7 +238,6 @@ fn energy_never_rises_at_gamma_1000_in_f32() {
 fn extremes_matrix_completes_conserves_and_never_gains_energy() {
     use roughlub::backend::gpu::solver::GpuSolver;
     use roughlub::backend::Precision;
-    use roughlub::model::plan::Plan;
     use roughlub::scene::Scene;
     let ctx = common::gpu::acquire_for_tests(true);
     let mut files: Vec<_> =
@@ -254,7 +253,7 @@ fn extremes_matrix_completes_conserves_and_never_gains_energy() {
         let text = std::fs::read_to_string(&path).unwrap();
         let scene = Scene::from_toml(&text, &path).unwrap();
         let chain = scene.initial_chain().unwrap();
-        let plan = Plan::new(&scene, &chain);
+        let plan = scene.plan(&chain);
         let members = plan.members.len();
         assert_eq!(members, 16);
         let total: f64 = chain.gaps.iter().sum();
@@ -284,7 +283,7 @@ fn extremes_matrix_completes_conserves_and_never_gains_energy() {
             }
         }
         {
-            use roughlub::backend::cpu::control::{ENERGY_RTOL_F32, ENERGY_RTOL_PER_GAMMA_F32};
+            use roughlub::backend::shared::control::{ENERGY_RTOL_F32, ENERGY_RTOL_PER_GAMMA_F32};
             let (out, reports32) = run_cpu_in(plan.clone(), chains.clone(), Precision::F32);
             for (m, (r, c)) in reports32.iter().zip(&reports).enumerate() {
                 let label = format!("{} cpu f32 mu {} gamma {}", path.display(), c.mu, c.gamma);
@@ -337,7 +336,7 @@ fn extremes_matrix_completes_conserves_and_never_gains_energy() {
                 for k in 0..out.len() {
                     let (a, b) = (&out[k][m], &snaps[k][m]);
                     if precision == Precision::F64 {
-                        // The CPU step uses the kernel's exp and ln (`cpu::twin_math`): with libm's
+                        // The CPU step uses the kernel's exp and ln (`backend::shared::f64_math`): with libm's
                         // an ulp now and then grew to 1e-6 in the hard-collision corner.
                         for (x, y) in a.velocities.iter().zip(&b.velocities) {
                             assert!(

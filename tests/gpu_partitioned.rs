@@ -9,11 +9,11 @@ mod common;
 
 use common::gpu::acquire_for_tests;
 use common::{plan_for, random_chain, Rng};
-use roughlub::backend::cpu::step::GAP_FLOOR;
 use roughlub::backend::cpu::CpuSolver;
 use roughlub::backend::gpu::partitioned::Segments;
 use roughlub::backend::gpu::solver::{GpuPartition, GpuSolver};
 use roughlub::backend::gpu::GpuContext;
+use roughlub::backend::shared::gaps::GAP_FLOOR;
 use roughlub::backend::{BatchSolver, MemberReport, MemberStatus, Precision};
 use roughlub::model::chain::Chain;
 use roughlub::model::observables::Snapshot;

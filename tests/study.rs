@@ -21,7 +21,6 @@ use std::time::{Duration, Instant};
 
 use roughlub::backend::BatchSolver;
 use roughlub::ensemble::members::EnsembleMembers;
-use roughlub::model::plan::Plan;
 use roughlub::scene::Scene;
 use serde_json::Value;
 use {roughlub::backend::cpu::CpuSolver, roughlub::backend::MemberStatus};
@@ -250,7 +249,7 @@ fn reference(scene_path: &Path) -> Reference {
         params.push(inputs.params);
         factor.push(inputs.velocity_factor);
     }
-    let mut plan = Plan::new(&scene, &chains[0]);
+    let mut plan = scene.plan(&chains[0]);
     plan.members = params;
     plan.repulsion = chains[0].dstar.is_some();
     plan.fields.rho_star = plan.repulsion;
@@ -1050,7 +1049,7 @@ fn error_estimates_per_member_and_output_time() {
         chains.push(inputs.chain);
         params.push(inputs.params);
     }
-    let mut plan = Plan::new(&parsed, &chains[0]);
+    let mut plan = parsed.plan(&chains[0]);
     plan.members = params;
     plan.repulsion = true;
     plan.fields.rho_star = true;

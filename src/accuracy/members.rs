@@ -68,7 +68,7 @@ pub(super) fn measured_members(
                 params.push(inputs.params);
             }
             let setup = members.setup(p)?;
-            let mut plan = Plan::new(&setup.scene, &chains[0]);
+            let mut plan = setup.scene.plan(&chains[0]);
             plan.members = params;
             groups.push(MeasuredGroup {
                 plan,
@@ -89,7 +89,7 @@ pub(super) fn measured_members(
     } else {
         vec![0]
     };
-    let mut plan = Plan::new(scene, &chain);
+    let mut plan = scene.plan(&chain);
     plan.members = chosen.iter().map(|&m| all[m as usize]).collect();
     let chains = vec![chain; plan.members.len()];
     // With several listed members, each is a group of its own, so the worst can be named.

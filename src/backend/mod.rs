@@ -9,8 +9,10 @@ pub mod cpu;
 pub mod error;
 pub mod gpu;
 pub mod layout;
+pub mod overrides;
 pub mod report;
 pub mod select;
+pub mod shared;
 
 pub use error::GpuError;
 pub use report::{Failure, MemberReport, MemberStatus};
@@ -54,8 +56,8 @@ impl Precision {
     /// (`control::step_floor`).
     pub fn time_resolution(self) -> f64 {
         match self {
-            Precision::F64 => cpu::control::TIME_RESOLUTION_F64,
-            Precision::F32 => cpu::control::TIME_RESOLUTION_F32,
+            Precision::F64 => shared::control::TIME_RESOLUTION_F64,
+            Precision::F32 => shared::control::TIME_RESOLUTION_F32,
         }
     }
 }

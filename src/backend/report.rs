@@ -1,6 +1,6 @@
 //! What every backend reports about its members: status, failure reason, step counts.
 
-use crate::backend::cpu::control::step_floor;
+use crate::backend::shared::control::step_floor;
 
 /// Why a member stopped.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]

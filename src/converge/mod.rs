@@ -37,7 +37,6 @@ use crate::backend::{select, Backend, BackendRecord, MemberStatus, Precision};
 use crate::error::{Error, Result};
 use crate::model::observables::{cell_centres, cubic_interpolated};
 use crate::model::params::OutputFields;
-use crate::model::plan::Plan;
 use crate::output::manifest::{SceneRecord, VERSION};
 use crate::output::{write_json_atomic, write_npy, ProgressReporter, StagedDir, MANIFEST};
 use crate::plot::{
@@ -203,7 +202,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
     {
         let s = scene_at(scene, ns[0]);
         let chain = s.initial_chain()?;
-        select(requested, precision, &Plan::new(&s, &chain))?;
+        select(requested, precision, &s.plan(&chain))?;
     }
 
     // Every field of every N is held in memory (and written): refuse what would not fit.
@@ -252,7 +251,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         let run_started = Instant::now();
         let s = scene_at(scene, n);
         let chain = s.initial_chain()?;
-        let plan = Plan::new(&s, &chain);
+        let plan = s.plan(&chain);
         let engine = select(requested, precision, &plan)?;
         let eps = plan.eps;
         let dstar = chain.dstar.clone();

@@ -3,10 +3,8 @@
 //! no clusters → no contact bookkeeping) and which outputs are asked for.
 
 use crate::expr::Expr;
-use crate::model::chain::Chain;
 use crate::model::params::{MemberParams, Order, OutputFields, Stepping};
 use crate::model::quadrature::GaussLegendre;
-use crate::scene::Scene;
 
 /// The largest integer gamma evaluated by multiplications ([`Power::Integer`]); larger or
 /// non-integer gamma is [`Power::Real`]. 1000 (the largest gamma a scene accepts) takes 10 bits:
@@ -106,30 +104,6 @@ pub struct PlanSummary {
 }
 
 impl Plan {
-    pub fn new(scene: &Scene, chain: &Chain) -> Plan {
-        let mut fields = scene.fields;
-        // Without roughness there is no rho* to output.
-        fields.rho_star &= chain.dstar.is_some();
-        Plan {
-            particles: chain.particles(),
-            eps: chain.eps,
-            repulsion: chain.dstar.is_some(),
-            clusters: chain.bonded.is_some(),
-            forcing: scene.forcing.as_ref().map(|e| Forcing {
-                expr: e.clone(),
-                rule: GaussLegendre::new(scene.quadrature_points),
-                params: Vec::new(),
-            }),
-            order: scene.order,
-            stepping: scene.stepping,
-            members: scene.member_parameters(),
-            output_times: scene.output_times.clone(),
-            fields,
-            grid: scene.grid,
-            companion_estimate: scene.error_estimate,
-        }
-    }
-
     pub fn summary(&self) -> PlanSummary {
         let mut gamma_evaluation: Vec<Power> = Vec::new();
         if self.repulsion {

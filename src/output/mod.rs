@@ -1,8 +1,9 @@
 //! The output directory: .npy arrays ([`npy`]), typed manifests ([`manifest`]) and JSON state
 //! written through one atomic writer ([`files`]), the exact f64 serde helper ([`serde_f64`]) and
-//! the progress bar ([`progress`]). `manifest.json` is written last, so a directory without it
+//! the progress bar ([`progress`]), the study tables' column names ([`columns`]). `manifest.json` is written last, so a directory without it
 //! is visibly incomplete.
 
+pub mod columns;
 pub mod files;
 pub mod manifest;
 pub mod npy;

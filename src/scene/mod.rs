@@ -11,6 +11,7 @@ mod ensemble;
 mod file;
 pub mod initial;
 mod particle_file;
+mod plan;
 pub mod sweep;
 #[cfg(test)]
 mod tests;

@@ -36,7 +36,7 @@ pub(super) fn chunk_plan(
     members: Vec<MemberParams>,
     store_members: bool,
 ) -> Plan {
-    let mut plan = Plan::new(scene, first_chain);
+    let mut plan = scene.plan(first_chain);
     plan.members = members;
     plan.repulsion = first_chain.dstar.is_some();
     plan.fields.rho_star = plan.repulsion && scene.fields.rho_star;

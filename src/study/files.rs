@@ -183,31 +183,9 @@ pub(super) struct CsvOut {
     writer: csv::Writer<std::fs::File>,
 }
 
-/// The first columns of members.csv, before the swept keys'.
-pub const MEMBER_KEY_COLUMNS: [&str; 2] = ["member", "sweep_point"];
-/// The columns of members.csv after the swept keys'.
-pub const MEMBER_COLUMNS: [&str; 17] = [
-    "mu",
-    "gamma",
-    "particles",
-    "status",
-    "failure_time",
-    "velocity_factor",
-    "velocity_phase",
-    "mean_dstar",
-    "min_rho_star",
-    "peak_density",
-    "peak_time",
-    "min_gap",
-    "final_energy",
-    "first_hit_time",
-    "steps_accepted",
-    "steps_rejected",
-    "error_estimate",
-];
-/// points.csv: this column, the swept keys', then [`POINT_COUNT_COLUMNS`].
-pub const POINT_INDEX_COLUMN: &str = "point";
-pub const POINT_COUNT_COLUMNS: [&str; 2] = ["completed", "failed"];
+pub use crate::output::columns::{
+    MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS, POINT_INDEX_COLUMN,
+};
 
 /// A number as members.csv writes it: the shortest text that reads back to the same f64; NaN
 /// and infinities as "NaN", "inf", "-inf".

@@ -6,9 +6,6 @@
 
 mod tableau;
 
-use super::control::{
-    energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl, TIME_RESOLUTION_F64,
-};
 use super::real::{energy_rtol, Real};
 use super::step::{
     conclude, euler_step, state_energy, stored_ln, Gamma, HardFailure, Scratch, StepReport, Terms,
@@ -16,6 +13,9 @@ use super::step::{
 use crate::backend::layout::interleave;
 use crate::backend::report::{
     error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
+};
+use crate::backend::shared::control::{
+    energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl, TIME_RESOLUTION_F64,
 };
 use crate::model::chain::{stored_gap, Chain};
 use crate::model::observables::{observe, Snapshot};

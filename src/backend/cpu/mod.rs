@@ -4,10 +4,8 @@
 //! ([`real::Real`]; the f32 path is the twin of the GPU's f32 kernel).
 
 mod block;
-pub mod control;
 pub mod real;
 pub mod step;
-pub mod twin_math;
 
 use rayon::prelude::*;
 
@@ -41,11 +39,9 @@ impl SimdLevel {
     pub fn detect() -> SimdLevel {
         static LEVEL: std::sync::OnceLock<SimdLevel> = std::sync::OnceLock::new();
         *LEVEL.get_or_init(|| {
-            let cap = match std::env::var("ROUGHLUB_CPU_SIMD").as_deref() {
-                Ok("portable") => SimdLevel::Portable,
-                Ok("avx2") => SimdLevel::Avx2Fma,
-                _ => SimdLevel::Avx512,
-            };
+            let cap = crate::backend::overrides::Overrides::get()
+                .cpu_simd_cap
+                .unwrap_or(SimdLevel::Avx512);
             SimdLevel::widest_here().min(cap)
         })
     }

@@ -16,12 +16,15 @@
 use std::fmt::Debug;
 use std::ops::{Add, AddAssign, BitAndAssign, BitOrAssign, Div, Mul, MulAssign, Neg, Sub};
 
-use super::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32};
 use super::step::{
     partitioned_real, Layout, Scratch, StepReport, Terms, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR,
     LN_GAP_FLOOR_F32,
 };
-use super::{twin_math, SimdLevel};
+use super::SimdLevel;
+use crate::backend::shared::control::{
+    ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32,
+};
+use crate::backend::shared::f64_math;
 use crate::backend::Precision;
 use crate::model::chain::stored_gap;
 use crate::model::plan::Power;
@@ -58,7 +61,7 @@ pub trait Real:
     const GAP_FLOOR_F64: f64;
     /// ln(GAP_FLOOR).
     const LN_GAP_FLOOR: Self;
-    /// Relative slack of the energy check ([`super::control::energy_acceptable`]) ...
+    /// Relative slack of the energy check ([`crate::backend::shared::control::energy_acceptable`]) ...
     const ENERGY_RTOL: f64;
     /// ... plus this much per unit of gamma (G carries about gamma ulps of rounding; 0 in f64,
     /// where ENERGY_RTOL covers it).
@@ -72,11 +75,11 @@ pub trait Real:
     fn is_nan(self) -> bool;
     /// `f64::max` (the other value when one is NaN).
     fn max_real(self, other: Self) -> Self;
-    /// The kernel's exp (`twin_math::exp`).
+    /// The kernel's exp (`f64_math::exp`).
     fn exp_real(self) -> Self;
-    /// The kernel's exp for x in [-700, 700], branch-free (`twin_math::exp_in_range`).
+    /// The kernel's exp for x in [-700, 700], branch-free (`f64_math::exp_in_range`).
     fn exp_in_range(self) -> Self;
-    /// The kernel's ln (`twin_math::ln`).
+    /// The kernel's ln (`f64_math::ln`).
     fn ln_real(self) -> Self;
     /// G = ratio^gamma as `Power::apply` (integer gamma: the same square-and-multiply chain in
     /// this type).
@@ -144,15 +147,15 @@ impl Real for f64 {
     }
     #[inline(always)]
     fn exp_real(self) -> f64 {
-        twin_math::exp(self)
+        f64_math::exp(self)
     }
     #[inline(always)]
     fn exp_in_range(self) -> f64 {
-        twin_math::exp_in_range(self)
+        f64_math::exp_in_range(self)
     }
     #[inline(always)]
     fn ln_real(self) -> f64 {
-        twin_math::ln(self)
+        f64_math::ln(self)
     }
     #[inline(always)]
     fn power(p: Power, ratio: f64) -> f64 {
@@ -225,15 +228,15 @@ impl Real for f32 {
     }
     #[inline(always)]
     fn exp_real(self) -> f32 {
-        twin_math::exp(self as f64) as f32
+        f64_math::exp(self as f64) as f32
     }
     #[inline(always)]
     fn exp_in_range(self) -> f32 {
-        twin_math::exp_in_range(self as f64) as f32
+        f64_math::exp_in_range(self as f64) as f32
     }
     #[inline(always)]
     fn ln_real(self) -> f32 {
-        twin_math::ln(self as f64) as f32
+        f64_math::ln(self as f64) as f32
     }
     #[inline(always)]
     fn power(p: Power, ratio: f32) -> f32 {

@@ -37,38 +37,25 @@
 //! G = 0 and a = mu: the sweep merges its two particles (to ~1e-250); the back sweep then copies
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
+//!
+//! Over 700 lines on purpose: this file and `shaders/step.wgsl` are one kernel written twice,
+//! function for function and loop for loop (the GPU must take the same steps to the bit), and a
+//! change to one is a change to the other; split further, the side-by-side reading that keeps
+//! them in sync would span files that the WGSL side cannot mirror. Its unit tests are in
+//! `step/tests.rs`; what both backends share (constants, step control, f64 math) is in
+//! `crate::backend::shared`.
 
 use self::partitioned::euler_partitioned;
 pub use self::partitioned::Layout;
 pub(crate) use self::partitioned::PartitionedReal;
-/// The spike's flush threshold of the partitioned solve in f64 and in f32 (the GPU twin's too).
-pub(crate) use self::partitioned::{TINY as SPIKE_TINY, TINY_F32 as SPIKE_TINY_F32};
 use super::real::Real;
-use super::{twin_math, SimdLevel};
+use super::SimdLevel;
+use crate::backend::shared::f64_math;
+pub use crate::backend::shared::gaps::{
+    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32,
+    LN_RATIO_SERIES, MAX_OPENING,
+};
 use crate::model::plan::{Forcing, Power};
-
-/// Gaps smaller than this are stored as ln d, and enter the linear solve as this value (the
-/// velocities it yields differ from the limit d → 0 by ~GAP_FLOOR·r, far below rounding).
-pub const GAP_FLOOR: f64 = 1e-250;
-/// ln(GAP_FLOOR).
-pub const LN_GAP_FLOOR: f64 = -575.646_273_248_511_4;
-/// GAP_FLOOR of the f32 kernels (GPU and CPU): far enough above f32's smallest normal (1.2e-38) that
-/// mu/GAP_FLOOR and the sweep's products stay finite for mu up to 1e12.
-pub const GAP_FLOOR_F32: f64 = 1e-24;
-/// ln(GAP_FLOOR_F32).
-pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
-
-/// Largest h r a step may give an opening gap stored as d (it grows by at most e^MAX_OPENING).
-/// The solve linearises the lubrication impulse mu (ln d' − ln d) as mu h r, which e^{h r}
-/// honours exactly; but a pair flying apart separates linearly, and for large h r that update
-/// overshoots (measured: a gap of 1e-4 grown by e^20 took the whole length, and the projection
-/// then crushed every other gap). Such a step is rejected and retried smaller. h r = F h/mu for
-/// a pair pulled apart by a force F, so the limit does not depend on the gap; closing gaps have
-/// none (e^{h r} is the lubrication brake), nor do gaps stored as ln d (their growth is
-/// negligible against the total, and their rate comes from the force balance). 5 was the
-/// cheapest value that completed the extremes matrix at N = 24 and 200 (2 did too, with twice
-/// the rejections).
-pub const MAX_OPENING: f64 = 5.0;
 
 /// gap_exp of a row of W values: the polynomial for the whole row when every |x| is small
 /// (`small` != 0; the loop then stays branch-free), else value by value. Either way each value
@@ -134,16 +121,6 @@ pub fn ln_ratio<T: Real>(r: T) -> T {
         r.ln_real()
     }
 }
-
-/// Below this |r - 1| [`ln_ratio`] uses its series.
-pub const LN_RATIO_SERIES: f64 = 1.0 / 16.0;
-
-/// Below this |h r| the gap update uses the Taylor polynomial ([`gap_exp`]).
-pub const GAP_EXP_TAYLOR: f64 = 1.0 / 16.0;
-
-/// Range in which the back sweep's branch-free exp is used (`twin_math::exp_in_range`); a step
-/// whose h r leaves it is redone in log form (below) or is far beyond MAX_OPENING (above).
-const EXP_FAST_MAX: f64 = 700.0;
 
 /// The stored value of a gap given its logarithm.
 #[inline(always)]
@@ -1087,7 +1064,7 @@ pub fn energy_certified(
         // Phi = 0: the kinetic balance alone, E' - E - W <= -mu/h sum d x^2.
         return true;
     }
-    closing <= eps2 && 0.5 * twin_math::exp(opening.max(0.0)) * contact_repulsion <= mu_over_h
+    closing <= eps2 && 0.5 * f64_math::exp(opening.max(0.0)) * contact_repulsion <= mu_over_h
 }
 
 /// The hard failure of a lane whose forward sweep met a non-finite G or F (outside the hot loop).
@@ -1206,7 +1183,7 @@ fn shift_logged<T: Real, const L: usize>(
 ) {
     for l in 0..L {
         if logged[l] != T::Flag::default() {
-            let shift = T::c(twin_math::ln(scale[l]));
+            let shift = T::c(f64_math::ln(scale[l]));
             for i in 0..n {
                 let k = i * L + l;
                 if gaps[k] < T::ZERO {

@@ -50,11 +50,7 @@ fn loops_per_attempt(scheme: SchemeSpec) -> u64 {
 /// the state is wrong; within it the GPU matches the CPU bit for bit).
 /// `ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH` (1..=4096) overrides it.
 pub fn attempts_per_dispatch(ctx: &GpuContext, n: usize, scheme: SchemeSpec) -> u32 {
-    if let Some(k) = std::env::var("ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH")
-        .ok()
-        .and_then(|v| v.parse::<u32>().ok())
-        .filter(|&k| (1..=4096).contains(&k))
-    {
+    if let Some(k) = crate::backend::overrides::Overrides::get().gpu_attempts_per_dispatch {
         return k;
     }
     if is_lavapipe(ctx) {

@@ -165,7 +165,7 @@ impl GpuContext {
     pub async fn acquire_async(want_f64: bool) -> Result<GpuContext, GpuError> {
         let instance = new_instance();
         let mut adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
-        if let Ok(wanted) = std::env::var("WGPU_ADAPTER_NAME") {
+        if let Some(wanted) = &crate::backend::overrides::Overrides::get().adapter_name {
             let wanted = wanted.to_lowercase();
             adapters.retain(|a| a.get_info().name.to_lowercase().contains(&wanted));
         }

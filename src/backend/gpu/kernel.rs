@@ -7,8 +7,10 @@
 
 use std::fmt::Write as _;
 
-use crate::backend::cpu::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32};
-use crate::backend::cpu::step::{
+use crate::backend::shared::control::{
+    ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32,
+};
+use crate::backend::shared::gaps::{
     GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32, LN_RATIO_SERIES,
 };
 use crate::backend::Precision;
@@ -414,7 +416,7 @@ pub const PARTITIONED_TEMPLATE_WGSL: &str = include_str!("../../../shaders/parti
 /// flush threshold of the spike: the CPU's in f64, one far above f32's smallest normal in f32).
 pub fn generate_partitioned_wgsl(spec: &KernelSpec) -> String {
     let tiny = match spec.precision {
-        Precision::F64 => crate::backend::cpu::step::SPIKE_TINY,
+        Precision::F64 => crate::backend::shared::gaps::SPIKE_TINY,
         Precision::F32 => super::partitioned::SPIKE_TINY_F32,
     };
     format!(

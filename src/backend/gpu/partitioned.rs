@@ -42,7 +42,7 @@ pub const PARTITION_MIN_PARTICLES: usize = 1 << 14;
 /// The spike's flush threshold in f32 (the CPU's 1e-140 is below f32's range): far above
 /// f32's smallest normal, far below anything that matters. The CPU's f32 partitioned solve's
 /// too (defined there, as the f64 one).
-pub const SPIKE_TINY_F32: f64 = crate::backend::cpu::step::SPIKE_TINY_F32;
+pub const SPIKE_TINY_F32: f64 = crate::backend::shared::gaps::SPIKE_TINY_F32;
 
 /// Which kernel a solver uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -127,7 +127,7 @@ pub fn choose(
         GpuPartition::Off => None,
         GpuPartition::SegmentRows(r) => Some(Segments::new(n, r)),
         GpuPartition::Auto => {
-            let off = std::env::var("ROUGHLUB_GPU_PARTITION").is_ok_and(|v| v == "off");
+            let off = crate::backend::overrides::Overrides::get().gpu_partition_off;
             let wanted = members < PARTITION_MAX_MEMBERS && n >= PARTITION_MIN_PARTICLES;
             (!sequential_fits || (wanted && !off)).then(|| Segments::default_for(n))
         }

@@ -1,6 +1,6 @@
 //! The GPU backend: the batch advanced by the generated WGSL kernel (`shaders/step.wgsl`, the
 //! twin of `crate::backend::cpu::step`, `Block::{error_norm, extrapolate}` in
-//! `crate::backend::cpu` and `crate::backend::cpu::control`), state kept on the GPU between
+//! `crate::backend::cpu` and `crate::backend::shared::control`), state kept on the GPU between
 //! output times.
 //!
 //! Every scheme of the CPU backend runs here: orders 1 and 2, fixed and adaptive steps (each
@@ -23,6 +23,11 @@
 //! read-backs, but each trial step is a fixed sequence of dispatches over (segment, member) pairs
 //! and over members, `attempts_per_submit` trial steps per submit, then a count of the members
 //! still running.
+//!
+//! Over 700 lines on purpose: one `GpuSolver` holds the buffers, pipelines and per-interval
+//! dispatch sequence of one batch, and the order of its dispatches and readbacks is what the
+//! tests against the CPU pin; the kernel's generation (`kernel.rs`), the buffers (`buffers.rs`),
+//! the dispatch budget (`attempts.rs`) and the partitioned kernel (`partitioned.rs`) are apart.
 
 use super::attempts::{attempts_per_dispatch, check_loop_budget, dispatches_per_submit};
 pub use super::attempts::{ATTEMPTS_PER_SUBMIT, LAVAPIPE_LOOP_LIMIT, MAX_ATTEMPTS_PER_DISPATCH};
@@ -42,11 +47,11 @@ use super::partitioned::{
 use super::wgsl_types::{
     config_bytes, control_size, controls_from_bytes, reals_from_bytes, ConfigF64, ControlF64,
 };
-use crate::backend::cpu::control::Rules;
 use crate::backend::error::GpuError;
 use crate::backend::report::{
     error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
 };
+use crate::backend::shared::control::Rules;
 use crate::backend::{BatchSolver, Precision, Progress};
 use crate::model::chain::Chain;
 use crate::model::observables::{grid_points, observe, Snapshot};

@@ -85,7 +85,7 @@ impl SweepTarget {
 /// Whether `name` is a column of members.csv or points.csv other than the swept keys' (where a
 /// parameter gets a column of its own name).
 fn is_table_column(name: &str) -> bool {
-    use crate::study::{
+    use crate::output::columns::{
         MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS, POINT_INDEX_COLUMN,
     };
     MEMBER_KEY_COLUMNS

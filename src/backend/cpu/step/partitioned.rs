@@ -63,6 +63,11 @@
 //! `p_interface` is [`interfaces`], `p_solve`'s back sweep is `back_row`). It runs one pass per
 //! dispatch (no cache to keep rows in: it stores them) and cuts the rows into equal segments
 //! rather than giving segment 0 the leftover rows. Keep the sweeps' operations in sync.
+//!
+//! Over 700 lines on purpose: the CPU twin of `shaders/partitioned.wgsl`, pass for pass (the
+//! segments' forward and back sweeps, the interfaces' reduced system, the per-segment parts of
+//! the projection and energy); it reads only beside its twin. Its unit tests are in
+//! `partitioned/tests.rs`.
 
 use rayon::prelude::*;
 
@@ -81,15 +86,7 @@ pub(crate) const PARTITION_MIN_PARTICLES: usize = 1 << 18;
 /// Rows per segment the default layout aims at (at least): 2^14 particles would make 4 groups to
 /// share out over cores, and a group's rows and inputs (16·m·48 bytes) stay well inside L2.
 const SEGMENT_ROWS: usize = 256;
-/// Spike coefficients and the running product of w are set to 0 below this: their terms are
-/// then far below rounding, and letting them decay through the subnormals would cost a
-/// microcode assist per operation.
-/// (Also the GPU twin's, `shaders/partitioned.wgsl`.)
-pub(crate) const TINY: f64 = 1e-140;
-/// [`TINY`] in f32 (1e-140 is below f32's range): far above f32's smallest normal (1.2e-38),
-/// far below anything that matters against the O(1) terms it is added to (2^-24).
-/// (Also the GPU's f32 twin's, `SPIKE_TINY_F32` in src/backend/gpu/partitioned.rs.)
-pub(crate) const TINY_F32: f64 = 1e-30;
+pub(crate) use crate::backend::shared::gaps::{SPIKE_TINY as TINY, SPIKE_TINY_F32 as TINY_F32};
 const _: () = assert!(TINY_F32 > 1e6 * f32::MIN_POSITIVE as f64);
 
 /// What the partitioned solve needs of its element type beyond [`Real`]: the spike's flush
@@ -283,9 +280,7 @@ impl Layout {
     /// sweep: below PARTITION_MIN_PARTICLES, or with `ROUGHLUB_CPU_PARTITION=off`. Depends on n
     /// only (never on the thread count).
     pub(crate) fn for_chain(n: usize) -> Option<Layout> {
-        static OFF: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        let off =
-            *OFF.get_or_init(|| std::env::var("ROUGHLUB_CPU_PARTITION").is_ok_and(|v| v == "off"));
+        let off = crate::backend::overrides::Overrides::get().cpu_partition_off;
         if off || n < PARTITION_MIN_PARTICLES {
             return None;
         }

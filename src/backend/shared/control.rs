@@ -4,9 +4,9 @@
 //! CPU twin of the control functions in `shaders/step.wgsl` (`trial_step`, `conclude_attempt`);
 //! keep the two in sync. (err^-1/2 is written 1/sqrt(err): sqrt is exact on every backend, pow
 //! is not, and the GPU must take the same accepted steps; other roots go through the twin exp
-//! and ln of `twin_math`, which the f64 kernel computes operation for operation.)
+//! and ln of `f64_math`, which the f64 kernel computes operation for operation.)
 
-use super::twin_math;
+use super::f64_math;
 use crate::backend::report::Failure;
 use crate::model::params::MAX_ORDER;
 
@@ -234,7 +234,7 @@ pub fn step_factor(err: f64, q: u8) -> f64 {
     let root = match q {
         1 => err,
         2 => err.sqrt(),
-        _ => twin_math::exp(twin_math::ln(err) / q as f64),
+        _ => f64_math::exp(f64_math::ln(err) / q as f64),
     };
     (SAFETY / root).clamp(MAX_SHRINK, MAX_GROWTH)
 }

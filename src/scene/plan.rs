@@ -1,0 +1,35 @@
+//! The plan of a scene's chain: which terms of the model it needs and which outputs it asks
+//! for (built here, so that `model/` knows nothing of scenes).
+
+use super::Scene;
+use crate::model::chain::Chain;
+use crate::model::plan::{Forcing, Plan};
+use crate::model::quadrature::GaussLegendre;
+
+impl Scene {
+    /// The plan a solver runs for `chain` under this scene.
+    pub fn plan(&self, chain: &Chain) -> Plan {
+        let scene = self;
+        let mut fields = scene.fields;
+        // Without roughness there is no rho* to output.
+        fields.rho_star &= chain.dstar.is_some();
+        Plan {
+            particles: chain.particles(),
+            eps: chain.eps,
+            repulsion: chain.dstar.is_some(),
+            clusters: chain.bonded.is_some(),
+            forcing: scene.forcing.as_ref().map(|e| Forcing {
+                expr: e.clone(),
+                rule: GaussLegendre::new(scene.quadrature_points),
+                params: Vec::new(),
+            }),
+            order: scene.order,
+            stepping: scene.stepping,
+            members: scene.member_parameters(),
+            output_times: scene.output_times.clone(),
+            fields,
+            grid: scene.grid,
+            companion_estimate: scene.error_estimate,
+        }
+    }
+}
