@@ -155,11 +155,11 @@ const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
-// GAP_EXP_TAYLOR, EXP_FAST_MAX of src/backend/cpu/step.rs.
+// GAP_EXP_TAYLOR, EXP_FAST_MAX of src/backend/shared/gaps.rs.
 const GAP_EXP_TAYLOR: real = 0.0625;
 const EXP_FAST_MAX: real = 700.0;
 
-// MAX_OPENING of src/backend/cpu/step.rs.
+// MAX_OPENING of src/backend/shared/gaps.rs.
 const MAX_OPENING: real = 5.0;
 
 // WORK_SLACK of src/backend/shared/control.rs.

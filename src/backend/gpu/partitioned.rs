@@ -41,7 +41,7 @@ pub const PARTITION_MIN_PARTICLES: usize = 1 << 14;
 
 /// The spike's flush threshold in f32 (the CPU's 1e-140 is below f32's range): far above
 /// f32's smallest normal, far below anything that matters. The CPU's f32 partitioned solve's
-/// too (defined there, as the f64 one).
+/// too (defined in `crate::backend::shared::gaps`, with the f64 one).
 pub const SPIKE_TINY_F32: f64 = crate::backend::shared::gaps::SPIKE_TINY_F32;
 
 /// Which kernel a solver uses.

@@ -1,6 +1,7 @@
-//! The gap floors and the limits of the gap update: values both backends' step kernels use
-//! (`shaders/step.wgsl` and `shaders/partitioned.wgsl` receive them from
-//! `crate::backend::gpu::kernel`).
+//! The gap floors and the limits of the gap update: values both backends' step kernels use.
+//! The WGSL kernels get the gap floors, `LN_RATIO_SERIES` and the spike's threshold from
+//! `crate::backend::gpu::kernel`; `GAP_EXP_TAYLOR`, `EXP_FAST_MAX` and `MAX_OPENING` are
+//! written in `shaders/step.wgsl` with the same values (keep them in sync).
 
 /// Gaps smaller than this are stored as ln d, and enter the linear solve as this value (the
 /// velocities it yields differ from the limit d → 0 by ~GAP_FLOOR·r, far below rounding).
@@ -25,10 +26,10 @@ pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 /// the rejections).
 pub const MAX_OPENING: f64 = 5.0;
 
-/// Below this |r - 1| [`ln_ratio`] uses its series.
+/// Below this |r - 1| [`ln_ratio`](crate::backend::cpu::step::ln_ratio) uses its series.
 pub const LN_RATIO_SERIES: f64 = 1.0 / 16.0;
 
-/// Below this |h r| the gap update uses the Taylor polynomial ([`gap_exp`]).
+/// Below this |h r| the gap update uses the Taylor polynomial ([`gap_exp`](crate::backend::cpu::step::gap_exp)).
 pub const GAP_EXP_TAYLOR: f64 = 1.0 / 16.0;
 
 /// Range in which the back sweep's branch-free exp is used (`f64_math::exp_in_range`); a step
