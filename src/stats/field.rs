@@ -308,6 +308,8 @@ fn fill_block(
         };
     }
     let mut n = [0u64; BLOCK];
+    // Rows without a non-finite value, counted once for every point of the block.
+    let mut finite_rows = 0u64;
     let mut s1 = [0.0f64; BLOCK];
     let mut s2 = [0.0f64; BLOCK];
     let mut min = [f64::INFINITY; BLOCK];
@@ -330,9 +332,6 @@ fn fill_block(
             for k in 0..width {
                 let x = xs[k];
                 let d = x - shift[k];
-                // Counted here, packed, not beside the scattered increments below (a
-                // scalar read-modify-write each, a fifth of the fill's time).
-                n[k] += 1;
                 s1[k] += d;
                 s2[k] += d * d;
                 min[k] = min[k].min(x);
@@ -342,6 +341,7 @@ fn fill_block(
             for (k, &s) in slot[..width].iter().enumerate() {
                 count(k, s);
             }
+            finite_rows += 1;
             continue;
         }
         for k in 0..width {
@@ -363,6 +363,7 @@ fn fill_block(
         }
     }
     for (k, point) in points.iter_mut().enumerate() {
+        n[k] += finite_rows;
         let non_finite = rows.len() as u64 - n[k];
         if n[k] > 0 {
             let mean_d = s1[k] / n[k] as f64;

@@ -43,6 +43,7 @@
 //! The plain `f64` fields of [`FieldBand`] (its range) rely on the same feature. Binary
 //! (non-human-readable) formats store raw `f64`.
 
+mod buckets;
 mod field;
 mod histogram;
 mod moments;

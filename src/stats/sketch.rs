@@ -4,6 +4,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use super::buckets::BucketStore;
 use super::{Histogram, StatsError};
 
 /// `2 atanh(s) = ln((1 + s) / (1 - s))` by its Taylor series `2 s (1 + z/3 + z^2/5 + ...)`,
@@ -93,7 +94,9 @@ fn det_ln(x: f64) -> f64 {
 ///
 /// # Memory
 ///
-/// One `(i32, u64)` entry per non-empty bucket. Values with magnitudes in `[lo, hi]` occupy at
+/// Per sign, a `u64` count for every bucket between the lowest and highest non-empty one while
+/// they are at most 512 apart (4 KiB), else one `(i32, u64)` map entry per non-empty bucket.
+/// Values with magnitudes in `[lo, hi]` occupy at
 /// most [`bucket_bound(lo, hi)`](Self::bucket_bound) `= key(hi) - key(lo) + 1 <= ln(hi/lo) / ln
 /// gamma + 2` buckets per sign, whatever their number (`ln gamma ~= 2 alpha`); for `[1e-12, 1e12]`
 /// and the default `alpha = 0.005` that is `ln(1e24) / ln gamma ~= 5526` plus one or two, i.e.
@@ -120,8 +123,8 @@ pub struct QuantileSketch {
     min: f64,
     max: f64,
     zero_count: u64,
-    negative: BTreeMap<i32, u64>,
-    positive: BTreeMap<i32, u64>,
+    negative: BucketStore,
+    positive: BucketStore,
 }
 
 impl Default for QuantileSketch {
@@ -160,8 +163,8 @@ impl QuantileSketch {
             min: f64::INFINITY,
             max: f64::NEG_INFINITY,
             zero_count: 0,
-            negative: BTreeMap::new(),
-            positive: BTreeMap::new(),
+            negative: BucketStore::default(),
+            positive: BucketStore::default(),
         })
     }
 
@@ -214,7 +217,7 @@ impl QuantileSketch {
             } else {
                 &mut self.negative
             };
-            *store.entry(k).or_insert(0) += 1;
+            store.add(k, 1);
         }
         true
     }
@@ -233,11 +236,11 @@ impl QuantileSketch {
     /// `self` unchanged, if the two sketches were built with different `alpha`.
     pub fn merge(&mut self, other: &QuantileSketch) -> Result<(), StatsError> {
         self.check_compatible(other)?;
-        for (&k, &c) in &other.positive {
-            *self.positive.entry(k).or_insert(0) += c;
+        for (k, c) in other.positive.iter() {
+            self.positive.add(k, c);
         }
-        for (&k, &c) in &other.negative {
-            *self.negative.entry(k).or_insert(0) += c;
+        for (k, c) in other.negative.iter() {
+            self.negative.add(k, c);
         }
         self.zero_count += other.zero_count;
         self.count += other.count;
@@ -291,12 +294,12 @@ impl QuantileSketch {
             .negative
             .iter()
             .rev()
-            .map(move |(&k, &c)| (clamp(-self.representative(k)), c));
+            .map(move |(k, c)| (clamp(-self.representative(k)), c));
         let zeros = (self.zero_count > 0).then(|| (clamp(0.0), self.zero_count));
         let positive = self
             .positive
             .iter()
-            .map(move |(&k, &c)| (clamp(self.representative(k)), c));
+            .map(move |(k, c)| (clamp(self.representative(k)), c));
         negative.chain(zeros).chain(positive)
     }
 
@@ -399,8 +402,8 @@ impl From<QuantileSketch> for SketchState {
             min: s.min,
             max: s.max,
             zero_count: s.zero_count,
-            negative: s.negative,
-            positive: s.positive,
+            negative: s.negative.to_map(),
+            positive: s.positive.to_map(),
         }
     }
 }
@@ -414,14 +417,10 @@ impl TryFrom<SketchState> for QuantileSketch {
             message,
         };
         let mut s = QuantileSketch::new(st.alpha)?;
-        s.positive = st.positive;
-        s.negative = st.negative;
-        s.positive.retain(|_, c| *c > 0);
-        s.negative.retain(|_, c| *c > 0);
-        let total = s
+        let total = st
             .positive
             .values()
-            .chain(s.negative.values())
+            .chain(st.negative.values())
             .try_fold(st.zero_count, |acc, &c| acc.checked_add(c));
         if total != Some(st.count) {
             return Err(bad(format!(
@@ -432,6 +431,8 @@ impl TryFrom<SketchState> for QuantileSketch {
         if st.count > 0 && !(st.min <= st.max && st.min.is_finite() && st.max.is_finite()) {
             return Err(bad(format!("min = {} and max = {}", st.min, st.max)));
         }
+        s.positive = BucketStore::from_map(&st.positive);
+        s.negative = BucketStore::from_map(&st.negative);
         s.count = st.count;
         s.non_finite = st.non_finite;
         s.zero_count = st.zero_count;
