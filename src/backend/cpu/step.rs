@@ -371,33 +371,62 @@ macro_rules! specialised {
     (@go $t:ty, [$($pre:tt)*], $terms:expr, $f:ident, ($($arg:expr),*)) => {{
         let terms = $terms;
         macro_rules! with_flags {
-            ($rep:literal, $law:expr) => {{
+            ($rep:literal, $clu:literal, $law:expr) => {{
                 // Forcing is a run-time branch (a loop of its own per row, skipped without it): as
                 // a const flag it doubled the kernels' instances and build time for no measured
                 // speed. The law is bound once: a closure written in each arm would be a type of
-                // its own per arm, and every function generic over it (the partitioned solve, which
-                // tests clusters at run time) would be compiled once per arm.
+                // its own per arm, and every function generic over it would be compiled once per
+                // arm.
                 let law = $law;
-                match terms.bonded.is_some() {
-                    false => $f::<$($pre)* L, $rep, false, _, _>($($arg,)* law),
-                    true => $f::<$($pre)* L, $rep, true, _, _>($($arg,)* law),
-                }
+                $f::<$($pre)* L, $rep, $clu, _, _>($($arg,)* law)
             }};
         }
+        // A law evaluated per lane (any gamma, integer or not, with the same operations as the
+        // uniform laws below: `Power::of` gives back the plan's `Power`, so the same bits).
+        macro_rules! per_lane_law {
+            ($clu:literal, $gs:expr) => {{
+                let gs: [f64; L] = $gs;
+                let gt: [$t; L] = gs.map(<$t as Real>::c);
+                with_flags!(
+                    true,
+                    $clu,
+                    Law {
+                        power: move |l: usize, r: $t| <$t as Real>::power(Power::of(gs[l]), r),
+                        gamma: move |l: usize| gt[l]
+                    }
+                )
+            }};
+        }
+        let no_repulsion = Law { power: |_l: usize, _r: $t| <$t as Real>::ZERO, gamma: |_l: usize| <$t as Real>::ONE };
+        if terms.bonded.is_some() {
+            // Clusters (touching particles of a particle file) are rare, so with them every
+            // gamma takes the per-lane law: two instances of each kernel instead of seven
+            // (measured: the clusters' seven doubled the step kernels' build).
+            match terms.repulsion.map(|r| r.1) {
+                None => with_flags!(false, true, no_repulsion),
+                Some(Gamma::Uniform(p)) => per_lane_law!(true, [match p {
+                    Power::Integer(k) => k as f64,
+                    Power::Real(g) => g,
+                }; L]),
+                Some(Gamma::PerLane(gs)) => per_lane_law!(true, gs),
+            }
+        } else {
         match terms.repulsion.map(|r| r.1) {
-            None => with_flags!(false, Law { power: |_l: usize, _r: $t| <$t as Real>::ZERO, gamma: |_l: usize| <$t as Real>::ONE }),
+            None => with_flags!(false, false, no_repulsion),
             Some(Gamma::Uniform(Power::Integer(1))) => {
-                with_flags!(true, Law { power: |_l: usize, r: $t| r, gamma: |_l: usize| <$t as Real>::ONE })
+                with_flags!(true, false, Law { power: |_l: usize, r: $t| r, gamma: |_l: usize| <$t as Real>::ONE })
             }
             Some(Gamma::Uniform(Power::Integer(2))) => {
-                with_flags!(true, Law { power: |_l: usize, r: $t| r * r, gamma: |_l: usize| <$t as Real>::c(2.0) })
+                with_flags!(true, false, Law { power: |_l: usize, r: $t| r * r, gamma: |_l: usize| <$t as Real>::c(2.0) })
             }
             Some(Gamma::Uniform(Power::Integer(3))) => with_flags!(
                 true,
+                false,
                 Law { power: |_l: usize, r: $t| r * r * r, gamma: |_l: usize| <$t as Real>::c(3.0) }
             ),
             Some(Gamma::Uniform(Power::Integer(4))) => with_flags!(
                 true,
+                false,
                 Law {
                     power: |_l: usize, r: $t| {
                         let r2 = r * r;
@@ -411,18 +440,10 @@ macro_rules! specialised {
                     Power::Integer(k) => k as f64,
                     Power::Real(g) => g,
                 });
-                with_flags!(true, Law { power: move |_l: usize, r: $t| <$t as Real>::power(p, r), gamma: move |_l: usize| g })
+                with_flags!(true, false, Law { power: move |_l: usize, r: $t| <$t as Real>::power(p, r), gamma: move |_l: usize| g })
             }
-            Some(Gamma::PerLane(gs)) => {
-                let gt: [$t; L] = gs.map(<$t as Real>::c);
-                with_flags!(
-                    true,
-                    Law {
-                        power: move |l: usize, r: $t| <$t as Real>::power(Power::of(gs[l]), r),
-                        gamma: move |l: usize| gt[l]
-                    }
-                )
-            }
+            Some(Gamma::PerLane(gs)) => per_lane_law!(false, gs),
+        }
         }
     }};
 }
