@@ -593,14 +593,17 @@ fn solve_pass(
             // straight into the total's (exact either way; a chunk's own sketch cost a map
             // insertion per value and a merge per bucket).
             let into = total.point_mut(inputs[i].point, header);
-            // Each (scalar, time) summary is its own accumulator, filled from its members in
-            // order (the same pushes as one after the other). An output time's summaries are
-            // filled together, member by member: one read of a member's observables serves all
-            // of them, and their independent updates overlap instead of each waiting for its
-            // previous one.
-            // (scalar, whether it is the error estimate, the chunk's summary, the total's).
-            type Pair<'a> = (usize, bool, &'a mut ScalarSummary, &'a mut ScalarSummary);
-            let mut by_time: Vec<Vec<Pair>> = Vec::new();
+            // Each (scalar, time) summary is its own accumulator: they are filled in parallel,
+            // each from its members in order (the same pushes as one after the other).
+            // (scalar, time, whether it is the error estimate, the chunk's summary, the total's).
+            type Pair<'a> = (
+                usize,
+                usize,
+                bool,
+                &'a mut ScalarSummary,
+                &'a mut ScalarSummary,
+            );
+            let mut summaries: Vec<Pair> = Vec::new();
             for ((name, per_time), (total_name, total_per_time)) in
                 stats.scalars.iter_mut().zip(into.scalars.iter_mut())
             {
@@ -609,26 +612,20 @@ fn solve_pass(
                     .iter()
                     .position(|n| n == name)
                     .expect("known observable");
-                for (k, (sum, total_sum)) in per_time
-                    .iter_mut()
-                    .zip(total_per_time.iter_mut())
-                    .enumerate()
-                {
-                    if by_time.len() <= k {
-                        by_time.resize_with(k + 1, Vec::new);
-                    }
-                    by_time[k].push((s, name == ERROR_ESTIMATE, sum, total_sum));
-                }
+                let estimate = name == ERROR_ESTIMATE;
+                summaries.extend(
+                    per_time
+                        .iter_mut()
+                        .zip(total_per_time.iter_mut())
+                        .enumerate()
+                        .map(|(k, (sum, total_sum))| (s, k, estimate, sum, total_sum)),
+                );
             }
-            by_time
+            summaries
                 .par_iter_mut()
-                .enumerate()
-                .for_each(|(k, summaries)| {
+                .for_each(|(s, k, estimate, summary, total_summary)| {
                     for (m, observed) in recorded[i..j].iter().enumerate() {
-                        let (true, Some(Some(o))) = (ok_member[i + m], observed.get(k)) else {
-                            continue;
-                        };
-                        for (s, estimate, summary, total_summary) in summaries.iter_mut() {
+                        if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(*k)) {
                             let v = o.scalars[*s];
                             if *estimate && v.is_nan() {
                                 // No estimate (order 1, fixed steps): the statistic stays empty.
