@@ -4,7 +4,7 @@ mod common;
 
 use common::reference::{dense_reference_step, rk4_reference};
 use common::{plan_for, random_chain, run_all, Rng};
-use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, Terms};
+use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, StepBuffers, Terms};
 use roughlub::backend::BatchSolver;
 use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
@@ -119,11 +119,13 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
                 n,
                 &t,
                 &h,
-                &gaps,
-                &vel,
-                &mut gaps_out,
-                &mut vel_out,
-                &mut scratch,
+                StepBuffers {
+                    gaps_in: &gaps,
+                    vel_in: &vel,
+                    gaps_out: &mut gaps_out,
+                    vel_out: &mut vel_out,
+                    scratch: &mut scratch,
+                },
             );
             for l in 0..L {
                 let c = &chains[l];

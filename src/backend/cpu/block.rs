@@ -8,7 +8,8 @@ mod tableau;
 
 use super::real::{energy_rtol, Real};
 use super::step::{
-    conclude, euler_step, state_energy, stored_ln, Gamma, HardFailure, Scratch, StepReport, Terms,
+    conclude, euler_step, state_energy, stored_ln, Gamma, HardFailure, Scratch, StepBuffers,
+    StepReport, Terms,
 };
 use crate::backend::layout::interleave;
 use crate::backend::report::{
@@ -354,11 +355,13 @@ impl<T: Real, const L: usize> Block<T, L> {
             n,
             t,
             &h_real,
-            &self.gaps,
-            &self.vel,
-            &mut self.cand_gaps,
-            &mut self.cand_vel,
-            &mut self.scratch,
+            StepBuffers {
+                gaps_in: &self.gaps,
+                vel_in: &self.vel,
+                gaps_out: &mut self.cand_gaps,
+                vel_out: &mut self.cand_vel,
+                scratch: &mut self.scratch,
+            },
         );
         let before = if r.iter().all(|x| x.certified) {
             [0.0; L]
@@ -428,11 +431,13 @@ impl<T: Real, const L: usize> Block<T, L> {
                     n,
                     &ts,
                     &hj_real,
-                    src_g,
-                    src_v,
-                    dst_g,
-                    dst_v,
-                    &mut self.scratch,
+                    StepBuffers {
+                        gaps_in: src_g,
+                        vel_in: src_v,
+                        gaps_out: dst_g,
+                        vel_out: dst_v,
+                        scratch: &mut self.scratch,
+                    },
                 );
                 for l in 0..L {
                     if j > lane_rows[l] {

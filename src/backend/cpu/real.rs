@@ -17,8 +17,8 @@ use std::fmt::Debug;
 use std::ops::{Add, AddAssign, BitAndAssign, BitOrAssign, Div, Mul, MulAssign, Neg, Sub};
 
 use super::step::{
-    partitioned_real, Layout, Scratch, StepReport, Terms, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR,
-    LN_GAP_FLOOR_F32,
+    partitioned_real, Layout, StepBuffers, StepReport, Terms, GAP_FLOOR, GAP_FLOOR_F32,
+    LN_GAP_FLOOR, LN_GAP_FLOOR_F32,
 };
 use super::SimdLevel;
 use crate::backend::shared::control::{
@@ -92,7 +92,6 @@ pub trait Real:
     fn scaled(self, scale: f64, delta: Self) -> Self;
     /// The partitioned solve of a one-member block with `layout` (`step::euler_step_as`); `None`
     /// where the type has none (then the sequential sweep is used; f64 and f32 both have it).
-    #[allow(clippy::too_many_arguments)]
     fn partitioned_step<const L: usize>(
         simd: SimdLevel,
         layout: Layout,
@@ -100,11 +99,7 @@ pub trait Real:
         particles: usize,
         t: &[f64; L],
         h: &[Self; L],
-        gaps_in: &[Self],
-        vel_in: &[Self],
-        gaps_out: &mut [Self],
-        vel_out: &mut [Self],
-        scratch: &mut Scratch<Self>,
+        io: StepBuffers<'_, Self>,
     ) -> Option<[StepReport; L]>;
 }
 
@@ -177,15 +172,9 @@ impl Real for f64 {
         particles: usize,
         t: &[f64; L],
         h: &[f64; L],
-        gaps_in: &[f64],
-        vel_in: &[f64],
-        gaps_out: &mut [f64],
-        vel_out: &mut [f64],
-        scratch: &mut Scratch<f64>,
+        io: StepBuffers<'_, f64>,
     ) -> Option<[StepReport; L]> {
-        Some(partitioned_real(
-            simd, layout, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch,
-        ))
+        Some(partitioned_real(simd, layout, terms, particles, t, h, io))
     }
 }
 
@@ -265,15 +254,9 @@ impl Real for f32 {
         particles: usize,
         t: &[f64; L],
         h: &[f32; L],
-        gaps_in: &[f32],
-        vel_in: &[f32],
-        gaps_out: &mut [f32],
-        vel_out: &mut [f32],
-        scratch: &mut Scratch<f32>,
+        io: StepBuffers<'_, f32>,
     ) -> Option<[StepReport; L]> {
-        Some(partitioned_real(
-            simd, layout, terms, particles, t, h, gaps_in, vel_in, gaps_out, vel_out, scratch,
-        ))
+        Some(partitioned_real(simd, layout, terms, particles, t, h, io))
     }
 }
 

@@ -97,11 +97,13 @@ fn step<T: Real, const M: usize>(
         N,
         &t,
         &h,
-        &gaps,
-        &vel,
-        &mut gaps_out,
-        &mut vel_out,
-        &mut scratch,
+        StepBuffers {
+            gaps_in: &gaps,
+            vel_in: &vel,
+            gaps_out: &mut gaps_out,
+            vel_out: &mut vel_out,
+            scratch: &mut scratch,
+        },
     );
     (
         gaps_out.iter().map(|x| x.to_f64().to_bits()).collect(),

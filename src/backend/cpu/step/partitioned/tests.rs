@@ -1,7 +1,9 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::super::{default_layout, euler_step_as, stored_ln, Gamma, HardFailure, GAP_FLOOR};
+use super::super::{
+    default_layout, euler_step_as, stored_ln, Gamma, HardFailure, Scratch, StepBuffers, GAP_FLOOR,
+};
 use super::*;
 use crate::expr::Expr;
 use crate::model::chain::stored_gap;
@@ -101,11 +103,13 @@ fn step_as<T: Real>(
         n,
         &[0.25],
         &[T::c(h)],
-        &gaps,
-        &vel,
-        &mut gaps_out,
-        &mut vel_out,
-        &mut scratch,
+        StepBuffers {
+            gaps_in: &gaps,
+            vel_in: &vel,
+            gaps_out: &mut gaps_out,
+            vel_out: &mut vel_out,
+            scratch: &mut scratch,
+        },
     );
     let to_f64 = |v: &[T]| -> Vec<f64> { v.iter().map(|x| x.to_f64()).collect() };
     (to_f64(&gaps_out), to_f64(&vel_out), report[0])
