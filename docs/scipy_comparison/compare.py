@@ -1,0 +1,143 @@
+"""roughlub against scipy's Radau on a realistic chain (issue 22, item 4), per member.
+
+The chain: N = 200, rho = 0.7, u0 = 0.5 sin(2 pi x), roughness r_i uniform within +-30 % (so
+d*_i = r_{i-1} + r_i within +-30 % of the gap), gamma = 2, mu = 0.01, to t = 0.3, 11 outputs, no
+forcing; written as a particle file so that both solvers start from the same numbers. The
+reference is roughlub at order auto, tolerance 1e-12 (checked against 1e-11). Both solvers run
+on a half-decade tolerance grid; the error is max over outputs of |ln d - ln d_ref| and
+max |u - u_ref| / max |u_ref|, as `roughlub accuracy` measures it. roughlub's time is the wall
+time of `roughlub run` on a batch of 64 copies of the member (best of 3) divided by 64; Radau's
+is one solve_ivp call with the model's exact sparse Jacobian.
+
+    python3 docs/scipy_comparison/compare.py [path/to/roughlub]   (from the repository root)
+
+Writes out/scipy_comparison/ (the chain, the scenes, radau.json, roughlub.json)."""
+import json, os, subprocess, sys, time
+import numpy as np
+import scipy.sparse as sp
+from scipy.integrate import solve_ivp
+
+BIN = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else "target/release/roughlub")
+OUT = os.path.abspath("out/scipy_comparison")
+os.makedirs(OUT, exist_ok=True)
+os.chdir(OUT)
+
+N, RHO, MU, GAMMA, END, T = 200, 0.7, 0.01, 2.0, 0.3, 11
+EPS = RHO / (2 * N)  # 2 eps over the spacing 1/N is rho
+x = np.linspace(0, 1, N + 1)
+gap = 1 / N - 2 * EPS
+r = 0.5 * gap * np.random.default_rng(1).uniform(0.7, 1.3, N + 1)
+u0 = 0.5 * np.sin(2 * np.pi * x)
+u0[0] = u0[-1] = 0.0
+with open("chain.csv", "w") as f:
+    f.write("x,u,r\n")
+    for row in zip(x, u0, r):
+        f.write("%r,%r,%r\n" % tuple(float(v) for v in row))
+
+def scene(tolerance, batch=False):
+    s = f"""name = "scipy_comparison"
+[model]
+mu = {MU}
+gamma = {GAMMA}
+radius = {EPS!r}
+[initial]
+particles = "chain.csv"
+[time]
+end = {END}
+outputs = {T}
+tolerance = {tolerance:.4e}
+[solver]
+order = "auto"
+backend = "cpu"
+[output]
+plots = false
+fields = ["gaps", "velocities"]
+"""
+    if batch:
+        s += "[batch]\nmu = [%s]\n" % ", ".join([str(MU)] * 64)
+    return s
+
+def run(tolerance, out, batch=False):
+    open("scene.toml", "w").write(scene(tolerance, batch))
+    t0 = time.perf_counter()
+    subprocess.run([BIN, "run", "scene.toml", "--out", out, "--quiet"], check=True)
+    return time.perf_counter() - t0
+
+run(1e-12, "ref")
+run(1e-11, "ref11")
+ref_g = np.load("ref/gaps.npy").reshape(T, N)
+ref_u = np.load("ref/velocities.npy").reshape(T, N - 1)
+
+def error(g, v):
+    return max(np.abs(np.log(g) - np.log(ref_g)).max(axis=None),
+               np.abs(v - ref_u).max() / np.abs(ref_u).max())
+
+print("reference (auto, 1e-12) against 1e-11: %.1e" % error(
+    np.load("ref11/gaps.npy").reshape(T, N), np.load("ref11/velocities.npy").reshape(T, N - 1)))
+
+d0 = np.diff(x) - 2 * EPS
+dstar = r[:-1] + r[1:]
+m = 2 * EPS
+
+def rhs(t, y):
+    d, u = y[:N], np.concatenate(([0.0], y[N:], [0.0]))
+    rate = (u[1:] - u[:-1]) / d
+    g = ((dstar + 2 * EPS) / (d + 2 * EPS)) ** GAMMA
+    return np.concatenate((u[1:] - u[:-1], (MU * (rate[1:] - rate[:-1]) + g[:-1] - g[1:]) / m))
+
+def jac(t, y):
+    d, u = y[:N], np.concatenate(([0.0], y[N:], [0.0]))
+    g = ((dstar + 2 * EPS) / (d + 2 * EPS)) ** GAMMA
+    gp = -GAMMA * g / (d + 2 * EPS)
+    rows, cols, vals = [], [], []
+    def add(i, j, v):
+        rows.append(i); cols.append(j); vals.append(v)
+    for i in range(1, N + 1):
+        if i <= N - 1:
+            add(i - 1, N + i - 1, 1.0)
+        if i >= 2:
+            add(i - 1, N + i - 2, -1.0)
+    for i in range(1, N):
+        k, dl, dr = N + i - 1, d[i - 1], d[i]
+        if i + 1 <= N - 1:
+            add(k, N + i, MU / (m * dr))
+        add(k, k, -MU / m * (1 / dr + 1 / dl))
+        if i - 1 >= 1:
+            add(k, N + i - 2, MU / (m * dl))
+        add(k, i, (-MU * (u[i + 1] - u[i]) / dr**2 - gp[i]) / m)
+        add(k, i - 1, (MU * (u[i] - u[i - 1]) / dl**2 + gp[i - 1]) / m)
+    return sp.csc_matrix((vals, (rows, cols)), shape=(2 * N - 1, 2 * N - 1))
+
+assert np.allclose(ref_g[0], d0, rtol=1e-12), "roughlub's initial gaps differ from the file's"
+y0 = np.concatenate((d0, u0[1:-1]))
+times = np.linspace(0, END, T)
+grid = [10 ** -e for e in np.arange(3, 10.51, 0.5)]
+radau, rl = [], []
+for tol in grid:
+    atol = np.concatenate((tol * d0, tol * np.ones(N - 1)))
+    t0 = time.perf_counter()
+    s = solve_ivp(rhs, (0, END), y0, method="Radau", t_eval=times, rtol=tol, atol=atol, jac=jac)
+    wall = time.perf_counter() - t0
+    if s.success:
+        radau.append((tol, error(s.y[:N].T, s.y[N:].T), wall))
+        print("Radau    rtol %.1e  error %.2e  %.4f s" % radau[-1], flush=True)
+for tol in grid:
+    wall = min(run(tol, "batch64", batch=True) for _ in range(3)) / 64
+    g = np.load("batch64/gaps.npy").reshape(T, 64, N)
+    v = np.load("batch64/velocities.npy").reshape(T, 64, N - 1)
+    err = max(error(g[:, b], v[:, b]) for b in range(64))
+    rl.append((tol, err, wall))
+    print("roughlub tol  %.1e  error %.2e  %.4f s per member" % rl[-1], flush=True)
+json.dump(radau, open("radau.json", "w"))
+json.dump(rl, open("roughlub.json", "w"))
+
+def cost_at(points, target):
+    """Least time among settings whose error is at most target (None if none)."""
+    ok = [w for _, e, w in points if e <= target]
+    return min(ok) if ok else None
+
+print("\nerror at most | Radau (s) | roughlub auto, per member of 64 (s) | ratio")
+for target in (1e-4, 1e-6, 3e-8, 1e-8, 1e-9, 1e-10):
+    a, b = cost_at(radau, target), cost_at(rl, target)
+    ratio = "%.0fx" % (a / b) if a and b else "-"
+    print("%.0e | %s | %s | %s" % (target, "%.4f" % a if a else "-", "%.4f" % b if b else "-", ratio))
