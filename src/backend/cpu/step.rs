@@ -204,8 +204,10 @@ impl<T: Real> Scratch<T> {
 }
 
 /// What a step reads and writes: the state it starts from (gaps in the stored form,
-/// velocities; L lanes interleaved), where the candidate goes, and the sweep's work rows. Every
-/// sweep (sequential and partitioned, at every SIMD level) takes it as one argument.
+/// velocities; L lanes interleaved), where the candidate goes, and the sweep's work rows, as
+/// one argument of the step's entry points ([`euler_step`], `euler_step_as`,
+/// [`Real::partitioned_step`]). The sweeps themselves take the five as arguments of their own
+/// (see `euler_step_as`).
 pub struct StepBuffers<'s, T: Real = f64> {
     pub gaps_in: &'s [T],
     pub vel_in: &'s [T],
