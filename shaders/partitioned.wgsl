@@ -1,7 +1,7 @@
 // Few members with huge N on the GPU: each trial step's tridiagonal solves split into segments
 // solved side by side (partitioned, SPIKE-style Thomas), the rest of the step (projection,
 // energy, extrapolation, error norm, step control) split the same way into per-segment parts
-// and per-member reductions. WGSL twin of src/backend/cpu/step/partitioned.rs (`forward_row`,
+// and per-member reductions. WGSL twin of kernels/src/step/partitioned.rs (`forward_row`,
 // `back_row`, `interfaces`: read its header for the algorithm) and, for everything around the
 // solve, of shaders/step.wgsl (`euler`, `conclude`, `try_step`, `advance`, `begin_interval`,
 // `gather`), whose functions this file calls: it is appended to the generated step kernel
@@ -34,7 +34,7 @@
 // file's; the rest are step.wgsl's.
 //
 // Over 700 lines on purpose: WGSL has no modules (one source string per pipeline), and this
-// file mirrors src/backend/cpu/step/partitioned.rs pass for pass.
+// file mirrors kernels/src/step/partitioned.rs pass for pass.
 
 // Keep in sync with `PartsUniform` in src/backend/gpu/partitioned.rs.
 struct Parts {

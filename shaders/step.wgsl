@@ -1,9 +1,9 @@
 // The batch advanced on the GPU, one invocation per member (member b's element i at
 // `i * batch + b`), each member with its own time, step size and status. WGSL twin of
-// src/backend/cpu/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas
+// kernels/src/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas
 // solve, the gap update exact in ln d, the projection onto sum d and the energy; read its header
 // for the equations), of the attempts and `extrapolate` in src/backend/cpu/block.rs and of
-// `StepControl`, `step_factor` and `select_order` in src/backend/shared/control.rs. Keep them in
+// `StepControl`, `step_factor` and `select_order` in kernels/src/shared/control.rs. Keep them in
 // sync, loop for loop.
 // Gaps are stored as in `crate::model::chain::stored_gap`: d, or ln d (< 0) below GAP_FLOOR, or 0
 // when bonded.
@@ -43,7 +43,7 @@
 // src/backend/gpu/buffers.rs): keep their layouts in sync.
 //
 // Over 700 lines on purpose: WGSL has no modules (one source string per pipeline), and this
-// file mirrors src/backend/cpu/step.rs, block.rs and shared/control.rs function for function;
+// file mirrors kernels/src/step.rs, block.rs and shared/control.rs function for function;
 // the f64 math it shares with partitioned.wgsl is in f64_math.wgsl, prepended at generation.
 
 alias real = f64;
@@ -73,7 +73,7 @@ struct Param {
     total_gap: real,
 }
 
-// StepControl of src/backend/shared/control.rs (counters in u32, flags as u32). Keep in sync with
+// StepControl of kernels/src/shared/control.rs (counters in u32, flags as u32). Keep in sync with
 // `ControlF64` / `ControlF32` in src/backend/gpu/wgsl_types.rs.
 struct Control {
     t: real,
@@ -102,7 +102,7 @@ struct GapTerms {
     d: real,
 }
 
-// `StepReport` of src/backend/cpu/step.rs; `hard` is the Failure code of a hard failure (0: none).
+// `StepReport` of kernels/src/step.rs; `hard` is the Failure code of a hard failure (0: none).
 struct StepReport {
     admissible: bool,
     hard: u32,
@@ -149,20 +149,20 @@ const ROW_SET: u32 = 4u;
 // `MAX_ORDER` of src/model/params.rs: the tableau's largest column.
 const MAX_ORDER: u32 = 6u;
 
-// Step control constants of src/backend/shared/control.rs.
+// Step control constants of kernels/src/shared/control.rs.
 const REJECT_SHRINK: real = 0.25;
 const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
-// GAP_EXP_TAYLOR, EXP_FAST_MAX of src/backend/shared/gaps.rs.
+// GAP_EXP_TAYLOR, EXP_FAST_MAX of kernels/src/shared/gaps.rs.
 const GAP_EXP_TAYLOR: real = 0.0625;
 const EXP_FAST_MAX: real = 700.0;
 
-// MAX_OPENING of src/backend/shared/gaps.rs.
+// MAX_OPENING of kernels/src/shared/gaps.rs.
 const MAX_OPENING: real = 5.0;
 
-// WORK_SLACK of src/backend/shared/control.rs.
+// WORK_SLACK of kernels/src/shared/control.rs.
 const WORK_SLACK: real = 0.1;
 
 //@GENERATED
@@ -511,7 +511,7 @@ fn state_energy(b: u32, which: u32, p: Param) -> real {
     return potential_sum + config.eps * kinetic;
 }
 
-// `ln_ratio` of src/backend/cpu/step.rs: ln r, by the series of 2 atanh((r - 1)/(r + 1)) near 1.
+// `ln_ratio` of kernels/src/step.rs: ln r, by the series of 2 atanh((r - 1)/(r + 1)) near 1.
 fn ln_ratio(r: real) -> real {
     if abs(r - 1.0) < LN_RATIO_SERIES {
         let z = (r - 1.0) / (r + 1.0);
@@ -624,14 +624,14 @@ fn extrapolate_velocity(idx: u32, cand: u32, k: u32, err: ptr<function, array<re
     }
 }
 
-// `energy_acceptable` of src/backend/shared/control.rs, with the rounding of G (about gamma ulps)
+// `energy_acceptable` of kernels/src/shared/control.rs, with the rounding of G (about gamma ulps)
 // added to the slack (ENERGY_RTOL_PER_GAMMA: 0 in f64, where ENERGY_RTOL covers it).
 fn energy_acceptable(before: real, after: real, work: real, gamma: real) -> bool {
     let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma;
     return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
 }
 
-// `step_factor` of src/backend/shared/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].
+// `step_factor` of kernels/src/shared/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].
 fn step_factor(err_in: real, q: u32) -> real {
     let err = max(err_in, 1e-10);
     var root: real;
@@ -650,7 +650,7 @@ fn tableau_work(k: u32) -> real {
     return real(k * (k + 1u) / 2u);
 }
 
-// `select_order` of src/backend/shared/control.rs: (next column, step factor) from the scaled
+// `select_order` of kernels/src/shared/control.rs: (next column, step factor) from the scaled
 // estimates of columns 2..=k.
 fn select_order(k: u32, errs: array<real, 7>, accepted: bool) -> vec2<real> {
     var e = errs;

@@ -2,7 +2,7 @@
 //! through the `roughlub` command, once with the partitioned tridiagonal solve (the default) and
 //! once forced onto the sequential sweep (`ROUGHLUB_CPU_PARTITION=off`): the same answers up to
 //! rounding and the same step counts, in f64 and in f32. The step-level comparisons (clusters,
-//! near contact, thread counts) are the unit tests in `src/backend/cpu/step/partitioned.rs`.
+//! near contact, thread counts) are the unit tests in `kernels/src/step/partitioned.rs`.
 
 use std::fs::File;
 use std::path::Path;

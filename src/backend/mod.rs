@@ -9,10 +9,11 @@ pub mod cpu;
 pub mod error;
 pub mod gpu;
 pub mod layout;
-pub mod overrides;
 pub mod report;
 pub mod select;
 pub mod shared;
+
+pub use roughlub_kernels::overrides;
 
 pub use error::GpuError;
 pub use report::{Failure, MemberReport, MemberStatus};

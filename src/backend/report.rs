@@ -1,6 +1,7 @@
 //! What every backend reports about its members: status, failure reason, step counts.
 
 use crate::backend::shared::control::step_floor;
+pub use roughlub_kernels::failure::Failure;
 
 /// Why a member stopped.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -72,23 +73,6 @@ pub fn run_error_estimate_method(
 /// the manifest): a tenth of the relative size of the state.
 pub const LARGE_ERROR_ESTIMATE: f64 = 0.1;
 
-/// Why a member stopped (a code, so the GPU can store it in a u32).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u32)]
-pub enum Failure {
-    None = 0,
-    /// The step fell below dt_min while every trial gave a non-finite value.
-    Inadmissible = 1,
-    /// The step fell below dt_min while the error estimate stayed above the tolerance.
-    ErrorTooLarge = 2,
-    /// The step fell below dt_min while every trial raised the energy beyond the forcing's work.
-    EnergyRose = 3,
-    /// The forcing is not finite at a particle (detail: its position).
-    Forcing = 4,
-    /// The repulsion (rho/rho*)^gamma overflows at a gap (detail: the density ratio).
-    Repulsion = 5,
-}
-
 /// Where and why a member failed, as the solvers record it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FailureRecord {
@@ -99,19 +83,6 @@ pub struct FailureRecord {
     /// A position (forcing), a density ratio (repulsion) or ln of the smallest gap (step size
     /// collapse).
     pub detail: f64,
-}
-
-impl Failure {
-    pub fn from_code(code: u32) -> Failure {
-        match code {
-            0 => Failure::None,
-            1 => Failure::Inadmissible,
-            2 => Failure::ErrorTooLarge,
-            3 => Failure::EnergyRose,
-            4 => Failure::Forcing,
-            _ => Failure::Repulsion,
-        }
-    }
 }
 
 impl FailureRecord {

@@ -33,8 +33,7 @@ impl Stepping {
     }
 }
 
-/// The highest order the extrapolation tableau reaches (`order = 1..=MAX_ORDER`).
-pub const MAX_ORDER: u8 = 6;
+pub use roughlub_kernels::shared::control::MAX_ORDER;
 
 /// The order of the time scheme: the linearly implicit Euler step (1) or its extrapolation from
 /// 1, 2, …, p substeps (Aitken–Neville; order p), fixed for the run; or chosen per member and

@@ -6,58 +6,7 @@ use crate::expr::Expr;
 use crate::model::params::{MemberParams, Order, OutputFields, Stepping};
 use crate::model::quadrature::GaussLegendre;
 
-/// The largest integer gamma evaluated by multiplications ([`Power::Integer`]); larger or
-/// non-integer gamma is [`Power::Real`]. 1000 (the largest gamma a scene accepts) takes 10 bits:
-/// at most 9 squarings and 10 multiplications, the same sequence on the CPU and in the GPU kernel
-/// (`crate::backend::gpu::kernel`), so that f64 results agree bit for bit.
-pub const MAX_INTEGER_GAMMA: u32 = 1000;
-
-/// How G = ratio^gamma is evaluated.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-#[serde(tag = "kind", content = "value", rename_all = "lowercase")]
-pub enum Power {
-    /// A chain of multiplications (square and multiply), for integer gamma <= [`MAX_INTEGER_GAMMA`].
-    Integer(u32),
-    /// exp(gamma ln ratio).
-    Real(f64),
-}
-
-impl Power {
-    /// Integer gamma in 0..=[`MAX_INTEGER_GAMMA`] by multiplications, anything else by `powf`.
-    pub fn of(gamma: f64) -> Power {
-        if gamma.fract() == 0.0 && (0.0..=MAX_INTEGER_GAMMA as f64).contains(&gamma) {
-            Power::Integer(gamma as u32)
-        } else {
-            Power::Real(gamma)
-        }
-    }
-
-    #[inline(always)]
-    pub fn apply(self, ratio: f64) -> f64 {
-        match self {
-            Power::Integer(n) => powi_by_squaring(ratio, n),
-            Power::Real(g) => ratio.powf(g),
-        }
-    }
-}
-
-/// ratio^n by square-and-multiply: ~2 log2(n) multiplications, the same sequence on CPU and GPU.
-#[inline(always)]
-pub fn powi_by_squaring(ratio: f64, n: u32) -> f64 {
-    let mut result = 1.0;
-    let mut base = ratio;
-    let mut e = n;
-    while e > 0 {
-        if e & 1 == 1 {
-            result *= base;
-        }
-        e >>= 1;
-        if e > 0 {
-            base *= base;
-        }
-    }
-    result
-}
+pub use roughlub_kernels::power::{powi_by_squaring, Power, MAX_INTEGER_GAMMA};
 
 #[derive(Debug, Clone)]
 pub struct Forcing {
@@ -66,6 +15,17 @@ pub struct Forcing {
     /// Values of the expression's symbolic parameters ([`Expr::parse_symbolic`]), member-major:
     /// member b's K values at `b·K..(b+1)·K`, K = `expr.symbolic_count()`. Empty when K = 0.
     pub params: Vec<f64>,
+}
+
+impl roughlub_kernels::step::Forcing for Forcing {
+    /// By Gauss–Legendre.
+    fn particle_force(&self, params: &[f64], eps: f64, t: f64, q: f64) -> f64 {
+        let mut s = 0.0;
+        for (xi, w) in self.rule.nodes.iter().zip(&self.rule.weights) {
+            s += w * self.expr.eval_with(q + eps * xi, t, params);
+        }
+        eps * s
+    }
 }
 
 impl Forcing {

@@ -7,10 +7,7 @@
 mod tableau;
 
 use super::real::{energy_rtol, Real};
-use super::step::{
-    conclude, euler_step, state_energy, stored_ln, Gamma, HardFailure, Scratch, StepBuffers,
-    StepReport, Terms,
-};
+use super::step::{stored_ln, Gamma, HardFailure, Scratch, StepBuffers, StepReport, Terms};
 use crate::backend::layout::interleave;
 use crate::backend::report::{
     error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
@@ -22,6 +19,7 @@ use crate::model::chain::{stored_gap, Chain};
 use crate::model::observables::{observe, Snapshot};
 use crate::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
 use crate::model::plan::{Plan, Power};
+use roughlub_kernels::BlockKernels;
 use tableau::{extrapolate, substep_buffers};
 
 #[derive(Debug, Clone)]
@@ -100,7 +98,10 @@ impl<T: Real, const L: usize> LaneModel<T, L> {
             contact_repulsion: self.contact_repulsion,
             repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
             bonded: self.bonded.as_deref(),
-            forcing: plan.forcing.as_ref(),
+            forcing: plan
+                .forcing
+                .as_ref()
+                .map(|f| f as &dyn roughlub_kernels::step::Forcing),
             forcing_params: std::array::from_fn(|l| {
                 match (plan.forcing.as_ref(), self.members[l]) {
                     (Some(f), Some(m)) => f.member_params(m),
@@ -140,7 +141,7 @@ fn to_real<T: Real>(v: Vec<f64>) -> Vec<T> {
     v.into_iter().map(T::c).collect()
 }
 
-impl<T: Real, const L: usize> Block<T, L> {
+impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
     pub(super) fn new(
         plan: &Plan,
         chains: &[&Chain; L],
@@ -218,7 +219,7 @@ impl<T: Real, const L: usize> Block<T, L> {
             vel,
             scratch: Scratch::new(n, L),
         };
-        let energy = state_energy(&block.model.terms(plan), n, &block.gaps, &block.vel);
+        let energy = T::state_energy(&block.model.terms(plan), n, &block.gaps, &block.vel);
         for (lane, e) in block.lanes.iter_mut().zip(energy) {
             lane.control.energy = e;
         }
@@ -327,7 +328,7 @@ impl<T: Real, const L: usize> Block<T, L> {
         if known.iter().all(|&e| e >= 0.0) {
             return known;
         }
-        let computed = state_energy(terms, n, &self.gaps, &self.vel);
+        let computed = T::state_energy(terms, n, &self.gaps, &self.vel);
         std::array::from_fn(|l| {
             if known[l] >= 0.0 {
                 known[l]
@@ -350,7 +351,7 @@ impl<T: Real, const L: usize> Block<T, L> {
         let n = plan.particles;
         let terms = self.model.terms(plan);
         let h_real = h.map(T::c);
-        let r = euler_step(
+        let r = T::euler_step(
             &terms,
             n,
             t,
@@ -426,7 +427,7 @@ impl<T: Real, const L: usize> Block<T, L> {
                     s,
                     j,
                 );
-                let r = euler_step(
+                let r = T::euler_step(
                     &terms,
                     n,
                     &ts,
@@ -488,7 +489,7 @@ impl<T: Real, const L: usize> Block<T, L> {
             // finest row's work.
             let mut report = [StepReport::START; L];
             let unit = [T::ONE; L];
-            conclude::<T, L>(
+            T::conclude(
                 &terms,
                 n,
                 &unit,

@@ -4,8 +4,8 @@
 //! ([`real::Real`]; the f32 path is the twin of the GPU's f32 kernel).
 
 mod block;
-pub mod real;
-pub mod step;
+
+pub use roughlub_kernels::{real, step, SimdLevel};
 
 use rayon::prelude::*;
 
@@ -16,64 +16,7 @@ use crate::model::observables::{grid_points, Snapshot};
 use crate::model::params::{MemberParams, Stepping};
 use crate::model::plan::Plan;
 use block::Block;
-use real::Real;
-
-/// The instruction set of the CPU step's lane loops, chosen once per process at run time (the
-/// build targets baseline x86-64). Every level runs the same operations in the same order (Rust
-/// never contracts a·b + c into an fma, and IEEE add, multiply, divide, min and max round the same
-/// at any width), so their results are bitwise equal; only speed differs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub enum SimdLevel {
-    /// Whatever the build targets (SSE2 on x86-64).
-    Portable,
-    /// 256-bit AVX2 with FMA enabled for the lane loops (x86-64 only).
-    Avx2Fma,
-    /// AVX-512 (F, VL, DQ) on top of AVX2 + FMA: 512-bit registers and 32 of them, so a block's
-    /// sweep state stays in registers (x86-64 only).
-    Avx512,
-}
-
-impl SimdLevel {
-    /// The widest level this CPU runs; `ROUGHLUB_CPU_SIMD=portable` or `=avx2` caps it (to
-    /// compare levels: the results are the same).
-    pub fn detect() -> SimdLevel {
-        static LEVEL: std::sync::OnceLock<SimdLevel> = std::sync::OnceLock::new();
-        *LEVEL.get_or_init(|| {
-            let cap = crate::backend::overrides::Overrides::get()
-                .cpu_simd_cap
-                .unwrap_or(SimdLevel::Avx512);
-            SimdLevel::widest_here().min(cap)
-        })
-    }
-
-    /// The widest level the CPU supports, whatever the environment says.
-    pub fn widest_here() -> SimdLevel {
-        #[cfg(target_arch = "x86_64")]
-        if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
-            if is_x86_feature_detected!("avx512f")
-                && is_x86_feature_detected!("avx512vl")
-                && is_x86_feature_detected!("avx512dq")
-            {
-                return SimdLevel::Avx512;
-            }
-            return SimdLevel::Avx2Fma;
-        }
-        SimdLevel::Portable
-    }
-
-    /// AVX2 is available at this level (the partitioned solve's transposes).
-    pub fn has_avx2(self) -> bool {
-        self >= SimdLevel::Avx2Fma
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            SimdLevel::Portable => "portable",
-            SimdLevel::Avx2Fma => "avx2+fma",
-            SimdLevel::Avx512 => "avx512",
-        }
-    }
-}
+use roughlub_kernels::BlockKernels;
 
 /// The name of the instruction set the CPU step uses here ("avx512", "avx2+fma" or "portable"),
 /// for the manifest.
@@ -116,7 +59,7 @@ pub struct CpuSolver {
     time_index: usize,
 }
 
-fn build_blocks<T: Real, const L: usize>(
+fn build_blocks<T: BlockKernels<L>, const L: usize>(
     plan: &Plan,
     chains: &[Chain],
     dt0: f64,
@@ -210,7 +153,7 @@ impl CpuSolver {
     }
 }
 
-fn advance_all<T: Real, const L: usize>(
+fn advance_all<T: BlockKernels<L>, const L: usize>(
     blocks: &mut [Block<T, L>],
     plan: &Plan,
     grid: &[f64],

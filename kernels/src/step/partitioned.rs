@@ -86,7 +86,7 @@ pub(crate) const PARTITION_MIN_PARTICLES: usize = 1 << 18;
 /// Rows per segment the default layout aims at (at least): 2^14 particles would make 4 groups to
 /// share out over cores, and a group's rows and inputs (16·m·48 bytes) stay well inside L2.
 const SEGMENT_ROWS: usize = 256;
-pub(crate) use crate::backend::shared::gaps::{SPIKE_TINY as TINY, SPIKE_TINY_F32 as TINY_F32};
+pub(crate) use crate::shared::gaps::{SPIKE_TINY as TINY, SPIKE_TINY_F32 as TINY_F32};
 const _: () = assert!(TINY_F32 > 1e6 * f32::MIN_POSITIVE as f64);
 
 /// What the partitioned solve needs of its element type beyond [`Real`]: the spike's flush
@@ -280,7 +280,7 @@ impl Layout {
     /// sweep: below PARTITION_MIN_PARTICLES, or with `ROUGHLUB_CPU_PARTITION=off`. Depends on n
     /// only (never on the thread count).
     pub(crate) fn for_chain(n: usize) -> Option<Layout> {
-        let off = crate::backend::overrides::Overrides::get().cpu_partition_off;
+        let off = crate::overrides::Overrides::get().cpu_partition_off;
         if off || n < PARTITION_MIN_PARTICLES {
             return None;
         }

@@ -7,8 +7,10 @@
 //! and ln of `f64_math`, which the f64 kernel computes operation for operation.)
 
 use super::f64_math;
-use crate::backend::report::Failure;
-use crate::model::params::MAX_ORDER;
+use crate::failure::Failure;
+
+/// The highest order the extrapolation tableau reaches (`order = 1..=MAX_ORDER`).
+pub const MAX_ORDER: u8 = 6;
 
 /// How steps are chosen within one output interval [t_start, t_end].
 #[derive(Debug, Clone, Copy, PartialEq)]

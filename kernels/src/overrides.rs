@@ -6,7 +6,7 @@
 
 use std::sync::OnceLock;
 
-use super::cpu::SimdLevel;
+use crate::SimdLevel;
 
 /// What the environment overrides (see the module's documentation).
 #[derive(Debug, Clone, Default, PartialEq)]

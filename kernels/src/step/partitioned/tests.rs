@@ -1,14 +1,13 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use super::super::tests::Wave;
 use super::super::{
     default_layout, euler_step_as, stored_ln, Gamma, HardFailure, Scratch, StepBuffers, GAP_FLOOR,
 };
 use super::*;
-use crate::expr::Expr;
-use crate::model::chain::stored_gap;
-use crate::model::plan::{Forcing, Power};
-use crate::model::quadrature::GaussLegendre;
+use crate::power::Power;
+use crate::stored_gap;
 
 /// A random chain of n particles: gaps of very different sizes around 1/n (stored form),
 /// velocities, d*, bonded flags; `near` gaps of 1e-300 (stored as ln d) and `bonds` bonded
@@ -74,10 +73,9 @@ fn step_as<T: Real>(
 ) -> Outcome {
     let n = c.n;
     let eps = 0.25 / n as f64;
-    let forcing = model.forced.then(|| Forcing {
-        expr: Expr::parse("0.3*sin(2*pi*(x - t)) + 0.1").unwrap(),
-        rule: GaussLegendre::new(3),
-        params: Vec::new(),
+    let forcing = model.forced.then_some(Wave {
+        amplitude: 0.3,
+        offset: 0.1,
     });
     let to_t = |v: &[f64]| -> Vec<T> { v.iter().map(|&x| T::c(x)).collect() };
     let (gaps, vel, dstar) = (to_t(&c.gaps), to_t(&c.vel), to_t(&c.dstar));
@@ -90,7 +88,7 @@ fn step_as<T: Real>(
             .gamma
             .map(|g| (dstar.as_slice(), Gamma::Uniform(Power::of(g)))),
         bonded: model.clusters.then_some(c.bonded.as_slice()),
-        forcing: forcing.as_ref(),
+        forcing: forcing.as_ref().map(|f| f as &dyn super::super::Forcing),
         forcing_params: [&[]],
     };
     let mut gaps_out = vec![T::ZERO; n];
@@ -425,7 +423,7 @@ fn bitwise_equal<T: Real>() {
             .unwrap();
         pool.install(|| bits(&step_as::<T>(&c, model, 1e-3, Some(layout), simd)))
     };
-    let p = T::PRECISION.name();
+    let p = T::NAME;
     let one = run(1, SimdLevel::detect());
     assert_eq!(one, run(2, SimdLevel::detect()), "{p}: 1 vs 2 threads");
     assert_eq!(
@@ -486,7 +484,7 @@ fn hard_failure<T: Real>(dstar: f64, gamma: f64) {
 fn f32_spike_tiny_is_the_gpus() {
     assert_eq!(
         f32::SPIKE_TINY as f64,
-        crate::backend::gpu::partitioned::SPIKE_TINY_F32 as f32 as f64
+        crate::shared::gaps::SPIKE_TINY_F32 as f32 as f64
     );
     assert_eq!(f64::SPIKE_TINY, TINY);
 }

@@ -43,19 +43,19 @@
 //! change to one is a change to the other; split further, the side-by-side reading that keeps
 //! them in sync would span files that the WGSL side cannot mirror. Its unit tests are in
 //! `step/tests.rs`; what both backends share (constants, step control, f64 math) is in
-//! `crate::backend::shared`.
+//! `crate::shared`.
 
 use self::partitioned::euler_partitioned;
 pub use self::partitioned::Layout;
 pub(crate) use self::partitioned::PartitionedReal;
-use super::real::Real;
-use super::SimdLevel;
-use crate::backend::shared::f64_math;
-pub use crate::backend::shared::gaps::{
+use crate::power::Power;
+use crate::real::Real;
+use crate::shared::f64_math;
+pub use crate::shared::gaps::{
     EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32,
     LN_RATIO_SERIES, MAX_OPENING,
 };
-use crate::model::plan::{Forcing, Power};
+use crate::SimdLevel;
 
 /// gap_exp of a row of W values: the polynomial for the whole row when every |x| is small
 /// (`small` != 0; the loop then stays branch-free), else value by value. Either way each value
@@ -157,7 +157,7 @@ pub struct Terms<'a, const L: usize, T: Real = f64> {
     pub repulsion: Option<(&'a [T], Gamma<L>)>,
     /// Bonded gaps (interleaved, length N·L): present iff some member has clusters.
     pub bonded: Option<&'a [bool]>,
-    pub forcing: Option<&'a Forcing>,
+    pub forcing: Option<&'a dyn Forcing>,
     /// Each lane's values of the forcing's symbolic parameters (empty without).
     pub forcing_params: [&'a [f64]; L],
 }
@@ -587,14 +587,18 @@ where
     energy
 }
 
-/// F_i = ∫_{q_i - eps}^{q_i + eps} f(t, x) dx by Gauss–Legendre.
+/// F_i = ∫_{q_i - eps}^{q_i + eps} f(t, x) dx ([`Forcing::particle_force`]).
 #[inline(always)]
-fn particle_force(forcing: &Forcing, params: &[f64], eps: f64, t: f64, q: f64) -> f64 {
-    let mut s = 0.0;
-    for (xi, w) in forcing.rule.nodes.iter().zip(&forcing.rule.weights) {
-        s += w * forcing.expr.eval_with(q + eps * xi, t, params);
-    }
-    eps * s
+fn particle_force(forcing: &dyn Forcing, params: &[f64], eps: f64, t: f64, q: f64) -> f64 {
+    forcing.particle_force(params, eps, t, q)
+}
+
+/// A body force density f(t, x), as the step needs it: integrated over each particle. The
+/// scene's forcing (an expression and a Gauss–Legendre rule, `roughlub::model::plan::Forcing`)
+/// implements it; the step calls it once per particle, outside its lane loops.
+pub trait Forcing: Sync {
+    /// ∫_{q - eps}^{q + eps} f(t, x) dx for a member whose symbolic parameters are `params`.
+    fn particle_force(&self, params: &[f64], eps: f64, t: f64, q: f64) -> f64;
 }
 
 /// max(a, b) as one packed max: b when a is NaN, as `f64::max` gives (whose NaN handling for
@@ -662,7 +666,7 @@ pub fn euler_step<T: Real, const L: usize>(
 /// chain the partitioned one (the sequential sweep would be bound by its row-to-row latency),
 /// else the sequential sweep (`None`). The same rule in f64 and f32 ([`Layout::for_chain`]: it
 /// depends on the chain's length only).
-pub(crate) fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
+pub fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
     if L == 1 {
         Layout::for_chain(particles)
     } else {
@@ -673,7 +677,7 @@ pub(crate) fn default_layout<const L: usize>(particles: usize) -> Option<Layout>
 /// [`euler_step`] with the lane loops compiled for `simd` (which the CPU must support) and the
 /// solve chosen: the sequential sweep (`None`) or the partitioned one with this layout (L = 1;
 /// [`Real::partitioned_step`]).
-pub(crate) fn euler_step_as<T: Real, const L: usize>(
+pub fn euler_step_as<T: Real, const L: usize>(
     simd: SimdLevel,
     layout: Option<Layout>,
     terms: &Terms<L, T>,
@@ -889,7 +893,7 @@ where
     let fast = |grown: T, x: T| grown >= floor && grown < T::INFINITY && x <= fast_max;
     // f64 sums the new gaps inside the row's lane loop (measured: 7 % faster than a loop of its
     // own at 256 × N = 1000), f32 after it; the same sums in the same order either way.
-    let sum_inline = T::PRECISION == crate::backend::Precision::F64;
+    let sum_inline = T::IS_F64;
     // Gaps i_top..1 are left to the loop over rows below.
     let mut i_top = n - 1;
     if L == 1 {

@@ -1,6 +1,6 @@
 //! The gap floors and the limits of the gap update: values both backends' step kernels use.
 //! The WGSL kernels get the gap floors, `LN_RATIO_SERIES` and the spike's threshold from
-//! `crate::backend::gpu::kernel`; `GAP_EXP_TAYLOR`, `EXP_FAST_MAX` and `MAX_OPENING` are
+//! `roughlub::backend::gpu::kernel`; `GAP_EXP_TAYLOR`, `EXP_FAST_MAX` and `MAX_OPENING` are
 //! written in `shaders/step.wgsl` with the same values (keep them in sync).
 
 /// Gaps smaller than this are stored as ln d, and enter the linear solve as this value (the
@@ -26,17 +26,17 @@ pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 /// the rejections).
 pub const MAX_OPENING: f64 = 5.0;
 
-/// Below this |r - 1| [`ln_ratio`](crate::backend::cpu::step::ln_ratio) uses its series.
+/// Below this |r - 1| [`ln_ratio`](crate::step::ln_ratio) uses its series.
 pub const LN_RATIO_SERIES: f64 = 1.0 / 16.0;
 
-/// Below this |h r| the gap update uses the Taylor polynomial ([`gap_exp`](crate::backend::cpu::step::gap_exp)).
+/// Below this |h r| the gap update uses the Taylor polynomial ([`gap_exp`](crate::step::gap_exp)).
 pub const GAP_EXP_TAYLOR: f64 = 1.0 / 16.0;
 
 /// Range in which the back sweep's branch-free exp is used (`f64_math::exp_in_range`); a step
 /// whose h r leaves it is redone in log form (below) or is far beyond MAX_OPENING (above).
 pub const EXP_FAST_MAX: f64 = 700.0;
 
-/// The partitioned solve (`crate::backend::cpu::step::partitioned` and its GPU twin): spike
+/// The partitioned solve (`crate::step::partitioned` and its GPU twin): spike
 /// coefficients and the running product of w are set to 0 below this: their terms are
 /// then far below rounding, and letting them decay through the subnormals would cost a
 /// microcode assist per operation.

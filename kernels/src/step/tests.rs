@@ -1,7 +1,21 @@
 use super::*;
-use crate::expr::Expr;
-use crate::model::chain::stored_gap;
-use crate::model::quadrature::GaussLegendre;
+use crate::stored_gap;
+
+/// A travelling wave amplitude·sin(2π(x − t)) + offset, integrated over a particle by the
+/// 3-point Gauss–Legendre rule (as a scene's forcing with `quadrature = 3`).
+pub(crate) struct Wave {
+    pub amplitude: f64,
+    pub offset: f64,
+}
+
+impl Forcing for Wave {
+    fn particle_force(&self, _params: &[f64], eps: f64, t: f64, q: f64) -> f64 {
+        let node = (0.6f64).sqrt();
+        let f =
+            |x: f64| self.amplitude * (2.0 * std::f64::consts::PI * (x - t)).sin() + self.offset;
+        eps * (5.0 / 9.0 * f(q - eps * node) + 8.0 / 9.0 * f(q) + 5.0 / 9.0 * f(q + eps * node))
+    }
+}
 
 const N: usize = 37;
 const L: usize = 8;
@@ -57,7 +71,7 @@ fn step<T: Real, const M: usize>(
     lanes: [usize; M],
     gamma: Option<Gamma<M>>,
     clusters: bool,
-    forcing: Option<&Forcing>,
+    forcing: Option<&Wave>,
 ) -> Outcome {
     let pick = |v: &[f64], rows: usize| -> Vec<T> {
         (0..rows * M)
@@ -82,7 +96,7 @@ fn step<T: Real, const M: usize>(
         contact_repulsion: [5.0; M],
         repulsion: gamma.map(|g| (dstar.as_slice(), g)),
         bonded: clusters.then_some(bonded.as_slice()),
-        forcing,
+        forcing: forcing.map(|f| f as &dyn Forcing),
         forcing_params: [&[]; M],
     };
     let h = lanes.map(|l| T::c(c.h[l]));
@@ -113,7 +127,7 @@ fn step<T: Real, const M: usize>(
 }
 
 /// Every combination of the terms the step specialises on or tests at run time.
-fn variants() -> Vec<(String, Option<Gamma<L>>, bool, Option<Forcing>)> {
+fn variants() -> Vec<(String, Option<Gamma<L>>, bool, Option<Wave>)> {
     let gammas: [(&str, Option<Gamma<L>>); 5] = [
         ("none", None),
         ("2", Some(Gamma::Uniform(Power::Integer(2)))),
@@ -130,10 +144,9 @@ fn variants() -> Vec<(String, Option<Gamma<L>>, bool, Option<Forcing>)> {
     for (name, gamma) in gammas {
         for clusters in [false, true] {
             for forced in [false, true] {
-                let forcing = forced.then(|| Forcing {
-                    expr: Expr::parse("0.3*sin(2*pi*(x - t))").unwrap(),
-                    rule: GaussLegendre::new(3),
-                    params: Vec::new(),
+                let forcing = forced.then_some(Wave {
+                    amplitude: 0.3,
+                    offset: 0.0,
                 });
                 let label = format!("gamma {name}, clusters {clusters}, forcing {forced}");
                 out.push((label, gamma, clusters, forcing));
@@ -170,7 +183,7 @@ fn wide_equals_portable<T: Real>(level: SimdLevel) {
             let f = forcing.as_ref();
             let portable = step::<T, L>(SimdLevel::Portable, &c, all, gamma, clusters, f);
             let wide = step::<T, L>(level, &c, all, gamma, clusters, f);
-            let (p, name) = (T::PRECISION.name(), level.name());
+            let (p, name) = (T::NAME, level.name());
             assert!(
                 portable == wide,
                 "{p}: {label}, mild {mild}: {name} and portable differ"
@@ -196,7 +209,7 @@ fn lanes_are_independent_of_their_block() {
 
 fn lanes_independent<T: Real>() {
     for (label, gamma, clusters, forcing) in variants() {
-        let label = format!("{}: {label}", T::PRECISION.name());
+        let label = format!("{}: {label}", T::NAME);
         let c = case(clusters, false);
         let all = std::array::from_fn(|l| l);
         let block = step::<T, L>(

@@ -1,0 +1,31 @@
+//! Why a member stopped.
+
+/// Why a member stopped (a code, so the GPU can store it in a u32).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum Failure {
+    None = 0,
+    /// The step fell below dt_min while every trial gave a non-finite value.
+    Inadmissible = 1,
+    /// The step fell below dt_min while the error estimate stayed above the tolerance.
+    ErrorTooLarge = 2,
+    /// The step fell below dt_min while every trial raised the energy beyond the forcing's work.
+    EnergyRose = 3,
+    /// The forcing is not finite at a particle (detail: its position).
+    Forcing = 4,
+    /// The repulsion (rho/rho*)^gamma overflows at a gap (detail: the density ratio).
+    Repulsion = 5,
+}
+
+impl Failure {
+    pub fn from_code(code: u32) -> Failure {
+        match code {
+            0 => Failure::None,
+            1 => Failure::Inadmissible,
+            2 => Failure::ErrorTooLarge,
+            3 => Failure::EnergyRose,
+            4 => Failure::Forcing,
+            _ => Failure::Repulsion,
+        }
+    }
+}
