@@ -18,22 +18,12 @@ pub mod stored_gap;
 pub use simd::SimdLevel;
 
 use real::Real;
-use step::{Layout, StepBuffers, StepReport, Terms};
+use step::{StepBuffers, StepReport, Terms};
 
 /// The step's entry points for blocks of L lanes of this type, compiled in this crate (see the
 /// crate's documentation); each is the function of [`step`] with the same name.
 pub trait BlockKernels<const L: usize>: Real {
     fn euler_step(
-        terms: &Terms<L, Self>,
-        particles: usize,
-        t: &[f64; L],
-        h: &[Self; L],
-        io: StepBuffers<'_, Self>,
-    ) -> [StepReport; L];
-
-    fn euler_step_as(
-        simd: SimdLevel,
-        layout: Option<Layout>,
         terms: &Terms<L, Self>,
         particles: usize,
         t: &[f64; L],
@@ -65,19 +55,6 @@ macro_rules! block_kernels {
                 io: StepBuffers<'_, $t>,
             ) -> [StepReport; $l] {
                 step::euler_step(terms, particles, t, h, io)
-            }
-
-            #[inline(never)]
-            fn euler_step_as(
-                simd: SimdLevel,
-                layout: Option<Layout>,
-                terms: &Terms<$l, $t>,
-                particles: usize,
-                t: &[f64; $l],
-                h: &[$t; $l],
-                io: StepBuffers<'_, $t>,
-            ) -> [StepReport; $l] {
-                step::euler_step_as(simd, layout, terms, particles, t, h, io)
             }
 
             #[inline(never)]

@@ -666,7 +666,7 @@ pub fn euler_step<T: Real, const L: usize>(
 /// chain the partitioned one (the sequential sweep would be bound by its row-to-row latency),
 /// else the sequential sweep (`None`). The same rule in f64 and f32 ([`Layout::for_chain`]: it
 /// depends on the chain's length only).
-pub fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
+pub(crate) fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
     if L == 1 {
         Layout::for_chain(particles)
     } else {
@@ -677,7 +677,7 @@ pub fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
 /// [`euler_step`] with the lane loops compiled for `simd` (which the CPU must support) and the
 /// solve chosen: the sequential sweep (`None`) or the partitioned one with this layout (L = 1;
 /// [`Real::partitioned_step`]).
-pub fn euler_step_as<T: Real, const L: usize>(
+pub(crate) fn euler_step_as<T: Real, const L: usize>(
     simd: SimdLevel,
     layout: Option<Layout>,
     terms: &Terms<L, T>,
