@@ -1,5 +1,7 @@
 //! How the repulsion G = ratio^gamma is evaluated, the same way on the CPU and in the GPU kernel.
 
+use crate::real::Real;
+
 /// The largest integer gamma evaluated by multiplications ([`Power::Integer`]); larger or
 /// non-integer gamma is [`Power::Real`]. 1000 (the largest gamma a scene accepts) takes 10 bits:
 /// at most 9 squarings and 10 multiplications, the same sequence on the CPU and in the GPU kernel
@@ -35,10 +37,11 @@ impl Power {
     }
 }
 
-/// ratio^n by square-and-multiply: ~2 log2(n) multiplications, the same sequence on CPU and GPU.
+/// ratio^n by square-and-multiply in any [`Real`]: ~2 log2(n) multiplications, the same
+/// sequence on CPU and GPU (f64 and f32 alike, so each agrees with its GPU twin bit for bit).
 #[inline(always)]
-pub fn powi_by_squaring(ratio: f64, n: u32) -> f64 {
-    let mut result = 1.0;
+pub fn powi_by_squaring<T: Real>(ratio: T, n: u32) -> T {
+    let mut result = T::ONE;
     let mut base = ratio;
     let mut e = n;
     while e > 0 {

@@ -16,7 +16,7 @@
 use std::fmt::Debug;
 use std::ops::{Add, AddAssign, BitAndAssign, BitOrAssign, Div, Mul, MulAssign, Neg, Sub};
 
-use crate::power::Power;
+use crate::power::{powi_by_squaring, Power};
 use crate::shared::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32};
 use crate::shared::f64_math;
 use crate::step::{
@@ -233,7 +233,7 @@ impl Real for f32 {
     fn power(p: Power, ratio: f32) -> f32 {
         match p {
             // The GPU's f32 chain (square and multiply in f32), bit for bit.
-            Power::Integer(n) => powi_by_squaring_real(ratio, n),
+            Power::Integer(n) => powi_by_squaring(ratio, n),
             // Rounded once from f64 (the GPU's f32 exp(gamma ln r) rounds more; both are
             // covered by ENERGY_RTOL_PER_GAMMA_F32, the rounding of the ratio itself being
             // amplified gamma times anyway).
@@ -260,24 +260,6 @@ impl Real for f32 {
     ) -> Option<[StepReport; L]> {
         Some(partitioned_real(simd, layout, terms, particles, t, h, io))
     }
-}
-
-/// `powi_by_squaring` in any [`Real`] (the same sequence of multiplications).
-#[inline(always)]
-pub fn powi_by_squaring_real<T: Real>(ratio: T, n: u32) -> T {
-    let mut result = T::ONE;
-    let mut base = ratio;
-    let mut e = n;
-    while e > 0 {
-        if e & 1 == 1 {
-            result *= base;
-        }
-        e >>= 1;
-        if e > 0 {
-            base *= base;
-        }
-    }
-    result
 }
 
 /// The energy check's slack for a member with this gamma (1 without repulsion, as the kernel's

@@ -504,10 +504,10 @@ macro_rules! simd_versions {
             #[cfg(target_arch = "x86_64")]
             match simd {
                 SimdLevel::Avx512 => {
-                    return unsafe { $avx512::<$($ta)* L, $($ca)* P, Q>($($arg,)* law) };
+                    return unsafe { $avx512::$avx512::<$($ta)* L, $($ca)* P, Q>($($arg,)* law) };
                 }
                 SimdLevel::Avx2Fma => {
-                    return unsafe { $avx::<$($ta)* L, $($ca)* P, Q>($($arg,)* law) };
+                    return unsafe { $avx::$avx::<$($ta)* L, $($ca)* P, Q>($($arg,)* law) };
                 }
                 SimdLevel::Portable => {}
             }
@@ -518,20 +518,27 @@ macro_rules! simd_versions {
         simd_versions!(@instance "avx2,fma", [$($tp)*] [$($ta)*] $elem {$($cp)*} {$($ca)*}; $avx, $body, ($($arg: $ty),*) -> $ret);
         simd_versions!(@instance "avx2,fma,avx512f,avx512vl,avx512dq", [$($tp)*] [$($ta)*] $elem {$($cp)*} {$($ca)*}; $avx512, $body, ($($arg: $ty),*) -> $ret);
     };
-    // `$body` compiled with the target features `$features` enabled, as the unsafe fn `$name`.
+    // `$body` compiled with the target features `$features` enabled, as the unsafe fn
+    // `$name::$name`. In a module of its own because rustc places a generic function's instances
+    // in the codegen unit of the module that defines it: all levels in one module made one
+    // unit that LLVM optimised on one core for most of the crate's build.
     (@instance $features:literal, [$($tp:tt)*] [$($ta:tt)*] $elem:ty {$($cp:tt)*} {$($ca:tt)*}; $name:ident, $body:ident, ($($arg:ident: $ty:ty),*) -> $ret:ty) => {
         #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = $features)]
-        #[allow(clippy::too_many_arguments)]
-        unsafe fn $name<$($tp)* const L: usize, $($cp)* P, Q>(
-            $($arg: $ty,)*
-            law: Law<P, Q>,
-        ) -> $ret
-        where
-            P: Fn(usize, $elem) -> $elem + Copy,
-            Q: Fn(usize) -> $elem + Copy,
-        {
-            $body::<$($ta)* L, $($ca)* P, Q>($($arg,)* law)
+        mod $name {
+            use super::*;
+
+            #[target_feature(enable = $features)]
+            #[allow(clippy::too_many_arguments)]
+            pub(super) unsafe fn $name<$($tp)* const L: usize, $($cp)* P, Q>(
+                $($arg: $ty,)*
+                law: Law<P, Q>,
+            ) -> $ret
+            where
+                P: Fn(usize, $elem) -> $elem + Copy,
+                Q: Fn(usize) -> $elem + Copy,
+            {
+                $body::<$($ta)* L, $($ca)* P, Q>($($arg,)* law)
+            }
         }
     };
 }
