@@ -3,6 +3,8 @@
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
+use roughlub_kernels::SimdLevel;
+
 use super::{Bins, Histogram, RunningStats, StatsError};
 
 /// Pointwise statistics of a field sampled on a grid of G points, over members: per point the
@@ -106,6 +108,15 @@ impl FieldBand {
     /// study's statistics. Fails, adding nothing, if a row's length is not G or a point would
     /// hold more than `u32::MAX` values.
     pub fn push_rows(&mut self, rows: &[&[f64]]) -> Result<(), StatsError> {
+        // The step's instruction set (chosen once per process, `ROUGHLUB_CPU_SIMD` caps it).
+        self.push_rows_at(SimdLevel::detect(), rows)
+    }
+
+    /// [`push_rows`](Self::push_rows) at a given instruction set (at most what the CPU runs,
+    /// [`SimdLevel::widest_here`]): every level does the same operations in the same order, so
+    /// the same bits.
+    fn push_rows_at(&mut self, level: SimdLevel, rows: &[&[f64]]) -> Result<(), StatsError> {
+        let level = level.min(SimdLevel::widest_here());
         let g = self.points.len();
         if let Some(bad) = rows.iter().find(|r| r.len() != g) {
             return Err(StatsError::LengthMismatch {
@@ -123,14 +134,20 @@ impl FieldBand {
             .points
             .chunks_mut(BLOCK)
             .zip(self.slots.chunks_mut(BLOCK * stride));
-        #[cfg(target_arch = "x86_64")]
-        let avx2 = is_x86_feature_detected!("avx2");
         for (b, (points, slots)) in blocks.enumerate() {
             #[cfg(target_arch = "x86_64")]
-            if avx2 {
-                // SAFETY: the CPU has AVX2 (checked before the loop).
-                unsafe { fill_block_avx2(bins, rows, b * BLOCK, points, slots) };
-                continue;
+            match level {
+                // SAFETY: the CPU has AVX-512 F/VL/DQ (what `detect` checked).
+                SimdLevel::Avx512 => {
+                    unsafe { fill_block_avx512(bins, rows, b * BLOCK, points, slots) };
+                    continue;
+                }
+                // SAFETY: the CPU has AVX2 (what `detect` checked).
+                SimdLevel::Avx2Fma => {
+                    unsafe { fill_block_avx2(bins, rows, b * BLOCK, points, slots) };
+                    continue;
+                }
+                SimdLevel::Portable => {}
             }
             fill_block(bins, rows, b * BLOCK, points, slots)
         }
@@ -247,11 +264,30 @@ impl FieldBand {
 /// through it.
 const BLOCK: usize = 64;
 
+/// How many rows ahead the fill asks for its part of a row: the rows are members' snapshots,
+/// apart in memory and often in another core's cache, so the prefetcher cannot guess them
+/// (the study's fill took 14 % less time with it).
+const PREFETCH_AHEAD: usize = 2;
+
 /// [`fill_block`] compiled for AVX2: the same operations in the same order (no FMA contraction
 /// in Rust), so the same bits, on 4 lanes instead of 2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn fill_block_avx2(
+    bins: Bins,
+    rows: &[&[f64]],
+    j0: usize,
+    points: &mut [RunningStats],
+    slots: &mut [u32],
+) {
+    fill_block(bins, rows, j0, points, slots)
+}
+
+/// [`fill_block`] compiled for AVX-512: 8 lanes, and 32 registers for the block's sums
+/// (1.5 times the AVX2 fill's speed on warm rows, `cargo bench --bench field_band`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx2,fma")]
+fn fill_block_avx512(
     bins: Bins,
     rows: &[&[f64]],
     j0: usize,
@@ -324,7 +360,18 @@ fn fill_block(
     // Members outer, the points of a row inner: each point's sums run over the rows in order
     // (the result does not depend on the blocking), and the moment updates are straight-line
     // over the block (packed SIMD).
-    for row in rows {
+    for (m, row) in rows.iter().enumerate() {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(next) = rows.get(m + PREFETCH_AHEAD) {
+            for line in next[j0..j0 + width].chunks(8) {
+                // SAFETY: a prefetch is a hint; the address is inside the row.
+                unsafe {
+                    std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                        line.as_ptr().cast(),
+                    )
+                };
+            }
+        }
         let xs = &row[j0..j0 + width];
         // A row without NaN or infinity (nearly all) takes the loop without the
         // non-finite selects; both loops do the same arithmetic on finite values.
@@ -379,6 +426,9 @@ fn fill_block(
         point.add_non_finite(non_finite);
     }
 }
+
+#[cfg(test)]
+mod tests;
 
 /// The serialized form (field names and layout of the study's chunk and partial files).
 #[derive(Serialize)]

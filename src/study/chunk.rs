@@ -390,8 +390,6 @@ fn solve_pass(
         let mut group_estimates: Vec<Vec<f64>> = (a..b).map(|_| Vec::new()).collect();
         let mut solver = engine.solver(plan, chains)?;
         let mut k = 0;
-        // Each output's pushes (rows of the groups that push as they go) run beside the solve
-        // to the next output time, which has the threads to itself otherwise only in parts.
         // An output's statistics beside the solve to the next output time, which has the
         // threads to itself otherwise only in parts: the rows of groups that push as they go
         // into their bands, the others' rows copied for after the chunk, and the peak centres.
@@ -474,14 +472,69 @@ fn solve_pass(
                     .map_err(|e| super::report::stats_error(dir, e))?;
             Ok(busy.into_inner() as f64 * 1e-9 + pushing)
         };
-        let mut pending: Option<(Vec<Snapshot>, usize, Vec<bool>)> = None;
+        // The output last reached, with the members' reports there, for the statistics beside
+        // the next solve.
+        let mut pending: Option<(Vec<Snapshot>, usize, Vec<MemberReport>)> = None;
         loop {
             let (next, statistics) = rayon::join(
                 || solver.next_output(&|_| {}),
                 || -> Result<f64> {
-                    let Some((snaps, k, recorded)) = pending.take() else {
+                    let Some((snaps, k, reports_now)) = pending.take() else {
                         return Ok(0.0);
                     };
+                    let started = Instant::now();
+                    let t = header.times[k];
+                    let ok_now = |g: usize| reports_now[g].status == MemberStatus::Ok;
+                    let recorded_here =
+                        |g: usize| ok_now(g) && header.is_detailed(inputs[a + g].point);
+                    for (g, s) in snaps.iter().enumerate() {
+                        let i = a + g;
+                        // The estimate of the state at this output time (the last one recorded).
+                        let estimate = match (&reports_now[g].error_estimate, ok_now(g)) {
+                            (Some(e), true) => e.last().copied().unwrap_or(f64::NAN),
+                            _ => f64::NAN,
+                        };
+                        if keep {
+                            group_kept[g].push(s.clone());
+                            group_estimates[g].push(estimate);
+                        }
+                        if !ok_now(g) {
+                            group_recorded[g].push(None);
+                            continue;
+                        }
+                        if s.max_density > peak[i].0 {
+                            peak[i] = (s.max_density, t);
+                        }
+                        min_gap[i] = min_gap[i].min(s.min_gap);
+                        final_energy[i] = s.energy;
+                        if first_hit[i].is_nan() && s.max_density >= spec.threshold {
+                            first_hit[i] = t;
+                        }
+                        if !recorded_here(g) {
+                            // Responses only: nothing per time is kept.
+                            continue;
+                        }
+                        let mut rows_present = 0u8;
+                        for (f, name) in header.band_fields.iter().enumerate() {
+                            if band_row(s, name).len() == grid {
+                                rows_present |= 1 << f;
+                            }
+                        }
+                        group_recorded[g].push(Some(RecordedObservables {
+                            scalars: [
+                                s.max_density,
+                                s.min_gap,
+                                s.energy,
+                                s.dissipation,
+                                // Set by `output_statistics` below.
+                                f64::NAN,
+                                estimate,
+                            ],
+                            rows_present,
+                        }));
+                    }
+                    let recorded: Vec<bool> = (0..b - a).map(recorded_here).collect();
+                    let recording = started.elapsed().as_secs_f64();
                     let busy = output_statistics(
                         &snaps,
                         k,
@@ -492,66 +545,15 @@ fn solve_pass(
                     )?;
                     // Beside the solve, so its cost to the study's wall time is its threads'
                     // time spread over the threads, not how long it was under way.
-                    Ok(busy / rayon::current_num_threads() as f64)
+                    Ok((recording + busy) / rayon::current_num_threads() as f64)
                 },
             );
             costs.statistics_seconds += statistics?;
-            let Some(mut snaps) = next? else {
+            let Some(snaps) = next? else {
                 break;
             };
             let started = Instant::now();
-            let reports_now = solver.reports();
-            let t = header.times[k];
-            let ok_now = |g: usize| reports_now[g].status == MemberStatus::Ok;
-            let recorded_here = |g: usize| ok_now(g) && header.is_detailed(inputs[a + g].point);
-            for (g, s) in snaps.iter_mut().enumerate() {
-                let i = a + g;
-                // The estimate of the state at this output time (the last one recorded).
-                let estimate = match (&reports_now[g].error_estimate, ok_now(g)) {
-                    (Some(e), true) => e.last().copied().unwrap_or(f64::NAN),
-                    _ => f64::NAN,
-                };
-                if keep {
-                    group_kept[g].push(s.clone());
-                    group_estimates[g].push(estimate);
-                }
-                if !ok_now(g) {
-                    group_recorded[g].push(None);
-                    continue;
-                }
-                if s.max_density > peak[i].0 {
-                    peak[i] = (s.max_density, t);
-                }
-                min_gap[i] = min_gap[i].min(s.min_gap);
-                final_energy[i] = s.energy;
-                if first_hit[i].is_nan() && s.max_density >= spec.threshold {
-                    first_hit[i] = t;
-                }
-                if !recorded_here(g) {
-                    // Responses only: nothing per time is kept.
-                    continue;
-                }
-                let mut rows_present = 0u8;
-                for (f, name) in header.band_fields.iter().enumerate() {
-                    if band_row(s, name).len() == grid {
-                        rows_present |= 1 << f;
-                    }
-                }
-                group_recorded[g].push(Some(RecordedObservables {
-                    scalars: [
-                        s.max_density,
-                        s.min_gap,
-                        s.energy,
-                        s.dissipation,
-                        // Set beside the next solve (`output_statistics`).
-                        f64::NAN,
-                        estimate,
-                    ],
-                    rows_present,
-                }));
-            }
-            let recorded: Vec<bool> = (0..b - a).map(recorded_here).collect();
-            pending = Some((snaps, k, recorded));
+            pending = Some((snaps, k, solver.reports()));
             costs.statistics_seconds += started.elapsed().as_secs_f64();
             k += 1;
         }
