@@ -516,7 +516,14 @@ impl FieldBandColumns {
             }
             let mut previous = -1i64;
             let mut filled = 0u64;
-            for (slot, &c) in slots.iter().enumerate().filter(|(_, &c)| c > 0) {
+            let occupied = super::histogram::occupied_slots(slots);
+            for (slot, &c) in slots
+                .iter()
+                .enumerate()
+                .take(occupied.end)
+                .skip(occupied.start)
+                .filter(|(_, &c)| c > 0)
+            {
                 put(&mut steps, (slot as i64 - previous) as u64, step_bytes);
                 put(&mut counts, c.into(), count_bytes);
                 previous = slot as i64;

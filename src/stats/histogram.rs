@@ -177,7 +177,9 @@ impl Bins {
         by_rank.sort_unstable();
         let mut pending = by_rank.into_iter().peekable();
         let mut seen = 0;
-        for (s, &c) in slots.iter().enumerate() {
+        // Empty slots below the first value find no level (every rank is >= 0 = seen there).
+        let occupied = occupied_slots(slots);
+        for (s, &c) in slots.iter().enumerate().skip(occupied.start) {
             seen += c.into();
             while let Some(&(rank, i)) = pending.peek() {
                 if rank >= seen {
@@ -398,3 +400,32 @@ impl TryFrom<HistogramState> for Histogram {
         Ok(h)
     }
 }
+
+/// The slots from the first non-empty one to the last, found 16 slots at a time (a field
+/// band's point holds its members' values in a few dozen of its hundreds of slots, and its
+/// quantiles and state file read only those): `0..0` if every slot is empty.
+pub(super) fn occupied_slots<C: Copy + Into<u64>>(slots: &[C]) -> std::ops::Range<usize> {
+    const RUN: usize = 16;
+    let empty = |run: &[C]| run.iter().fold(0u64, |any, &c| any | c.into()) == 0;
+    let mut start = 0;
+    while start + RUN <= slots.len() && empty(&slots[start..start + RUN]) {
+        start += RUN;
+    }
+    while start < slots.len() && slots[start].into() == 0 {
+        start += 1;
+    }
+    let mut end = slots.len();
+    while end >= start + RUN && empty(&slots[end - RUN..end]) {
+        end -= RUN;
+    }
+    while end > start && slots[end - 1].into() == 0 {
+        end -= 1;
+    }
+    if start == end {
+        return 0..0;
+    }
+    start..end
+}
+
+#[cfg(test)]
+mod tests;
