@@ -24,7 +24,7 @@ use crate::model::params::MemberParams;
 use crate::model::plan::Plan;
 use crate::output::{write_npy, ProgressReporter};
 use crate::scene::{EnsembleSpec, Scene};
-use crate::stats::{FieldBand, RunningStats, ScalarSummary};
+use crate::stats::{FieldBand, RunningStats};
 use rayon::prelude::*;
 
 /// The plan of a chunk: the scene's, with these members, and the fields the statistics need
@@ -50,6 +50,7 @@ pub(super) fn chunk_plan(
 /// One member's observables at one output time, as far as the statistics need them: kept until
 /// the chunk is solved, because a member that fails later must not enter the statistics of any
 /// time (failed members are counted and listed, never averaged in).
+#[derive(Clone, Copy)]
 struct RecordedObservables {
     /// The values of [`SCALARS`], in that order.
     scalars: [f64; SCALARS.len()],
@@ -307,6 +308,45 @@ fn point_groups(inputs: &[MemberInputs]) -> Vec<(usize, usize)> {
     groups
 }
 
+/// Output `k`'s scalars of `members` (consecutive, with `recorded[g]` the observables of
+/// `members[g]` at each output time, None where not recorded) into the chunk's summaries of
+/// their points, member after member: each summary of a (scalar, time) receives its members in
+/// member order, as one push per member after the chunk would.
+fn push_output_scalars(
+    state: &mut StudyState,
+    header: &StudyHeader,
+    members: &[MemberInputs],
+    k: usize,
+    recorded: &[Vec<Option<RecordedObservables>>],
+) {
+    let mut g = 0;
+    while g < members.len() {
+        let point = members[g].point;
+        let end = (g..members.len())
+            .find(|&h| members[h].point != point)
+            .unwrap_or(members.len());
+        let stats = state.point_mut(point, header);
+        for (name, per_time) in stats.scalars.iter_mut() {
+            let s = SCALARS
+                .iter()
+                .position(|n| n == name)
+                .expect("known observable");
+            let estimate = name == ERROR_ESTIMATE;
+            for per_member in &recorded[g..end] {
+                if let Some(Some(o)) = per_member.get(k) {
+                    let v = o.scalars[s];
+                    if estimate && v.is_nan() {
+                        // No estimate (order 1, fixed steps): the statistic stays empty.
+                        continue;
+                    }
+                    per_time[k].push(v);
+                }
+            }
+        }
+        g = end;
+    }
+}
+
 /// One pass of [`solve_chunk`]: the groups with `Some` in `eager` push each output's rows as
 /// they are observed, the others after the solve; `undo` holds what an earlier pass over the
 /// same chunk pushed as it went (its moments before), to be taken back first.
@@ -543,9 +583,12 @@ fn solve_pass(
                         field_rows,
                         &mut group_recorded,
                     )?;
+                    let started = Instant::now();
+                    push_output_scalars(&mut state, header, &inputs[a..b], k, &group_recorded);
+                    let scalars = started.elapsed().as_secs_f64();
                     // Beside the solve, so its cost to the study's wall time is its threads'
                     // time spread over the threads, not how long it was under way.
-                    Ok((recording + busy) / rayon::current_num_threads() as f64)
+                    Ok((recording + busy + scalars) / rayon::current_num_threads() as f64)
                 },
             );
             costs.statistics_seconds += statistics?;
@@ -585,60 +628,43 @@ fn solve_pass(
     }
 
     // Statistics of the members that completed (a member that failed at any time enters none),
-    // per sweep point.
+    // per sweep point. The scalars at each output time went into the chunk's summaries beside
+    // the solve (`push_output_scalars`); a point with a member that failed after some outputs
+    // has them summed again, without it. The moments are merged into the total below, so their
+    // rounding does not depend on the chunking of earlier runs, and so are the sketches' counts
+    // (exact either way).
     let started = Instant::now();
+    let mut summed_again: Vec<u64> = Vec::new();
+    for &(i, j) in groups {
+        let point = inputs[i].point;
+        if !header.is_detailed(point) || (i..j).all(|m| ok_member[m]) {
+            continue;
+        }
+        if !summed_again.contains(&point) {
+            summed_again.push(point);
+            state.point_mut(point, header).scalars =
+                super::state::PointStats::without_bands(header, point).scalars;
+        }
+    }
+    if !summed_again.is_empty() {
+        let completed: Vec<Vec<Option<RecordedObservables>>> = recorded
+            .iter()
+            .enumerate()
+            .map(|(m, per_time)| match ok_member[m] {
+                true => per_time.clone(),
+                false => per_time.iter().map(|_| None).collect(),
+            })
+            .collect();
+        for k in 0..t_count {
+            for &(i, j) in groups {
+                if summed_again.contains(&inputs[i].point) {
+                    push_output_scalars(&mut state, header, &inputs[i..j], k, &completed[i..j]);
+                }
+            }
+        }
+    }
     for &(i, j) in groups {
         let stats = state.point_mut(inputs[i].point, header);
-        if stats.is_detailed() {
-            // The moments go into the chunk's summaries (merged into the total below, so their
-            // rounding does not depend on the chunking of earlier runs), the sketches' counts
-            // straight into the total's (exact either way; a chunk's own sketch cost a map
-            // insertion per value and a merge per bucket).
-            let into = total.point_mut(inputs[i].point, header);
-            // Each (scalar, time) summary is its own accumulator: they are filled in parallel,
-            // each from its members in order (the same pushes as one after the other).
-            // (scalar, time, whether it is the error estimate, the chunk's summary, the total's).
-            type Pair<'a> = (
-                usize,
-                usize,
-                bool,
-                &'a mut ScalarSummary,
-                &'a mut ScalarSummary,
-            );
-            let mut summaries: Vec<Pair> = Vec::new();
-            for ((name, per_time), (total_name, total_per_time)) in
-                stats.scalars.iter_mut().zip(into.scalars.iter_mut())
-            {
-                debug_assert_eq!(name, total_name);
-                let s = SCALARS
-                    .iter()
-                    .position(|n| n == name)
-                    .expect("known observable");
-                let estimate = name == ERROR_ESTIMATE;
-                summaries.extend(
-                    per_time
-                        .iter_mut()
-                        .zip(total_per_time.iter_mut())
-                        .enumerate()
-                        .map(|(k, (sum, total_sum))| (s, k, estimate, sum, total_sum)),
-                );
-            }
-            summaries
-                .par_iter_mut()
-                .for_each(|(s, k, estimate, summary, total_summary)| {
-                    for (m, observed) in recorded[i..j].iter().enumerate() {
-                        if let (true, Some(Some(o))) = (ok_member[i + m], observed.get(*k)) {
-                            let v = o.scalars[*s];
-                            if *estimate && v.is_nan() {
-                                // No estimate (order 1, fixed steps): the statistic stays empty.
-                                continue;
-                            }
-                            summary.push_moments(v);
-                            total_summary.push_quantile(v);
-                        }
-                    }
-                });
-        }
         for m in i..j {
             if !ok_member[m] {
                 stats.failed += 1;

@@ -18,7 +18,11 @@ fn occupied_slots_are_first_to_last_non_empty() {
                 slots.fill(0);
                 slots[first] = 1;
                 slots[last] = 3;
-                assert_eq!(occupied_slots(&slots), naive(&slots), "{first}..={last} of {len}");
+                assert_eq!(
+                    occupied_slots(&slots),
+                    naive(&slots),
+                    "{first}..={last} of {len}"
+                );
                 assert_eq!(occupied_slots(&slots), first..last + 1);
             }
         }
