@@ -212,3 +212,70 @@ fn the_companion_can_be_turned_off_and_does_not_change_the_run() {
         );
     }
 }
+
+/// What a study records at each output (`output_status`: running or not, the last estimate) is
+/// what the full reports say, at every output time, for the companion's estimate (order 1,
+/// fixed steps), the controller's (order 4, adaptive) and members that fail part way (a step
+/// floor the tight tolerance runs into near contact).
+#[test]
+fn output_status_is_what_the_reports_say() {
+    use roughlub::backend::OutputStatus;
+    use roughlub::model::params::Order;
+    let text = format!("{}\n[batch]\nmu = [1e-3, 1e-2, 0.1]\n", near_contact(""));
+    let scene = Scene::from_toml(&text, Path::new("estimate.toml")).expect("valid scene");
+    let chain = scene.initial_chain().expect("initial chain");
+    let plan = scene.plan(&chain);
+    let members = plan.members.len();
+    assert_eq!(members, 3);
+    let engine = select(Backend::Cpu, Precision::F64, &plan).unwrap();
+    let mut adaptive = plan.clone();
+    adaptive.order = Order::Fixed(4);
+    adaptive.stepping = Stepping::Adaptive {
+        tolerance: 1e-6,
+        dt_initial: 1e-4,
+        dt_min: 1e-14,
+    };
+    let mut failing = adaptive.clone();
+    failing.stepping = Stepping::Adaptive {
+        tolerance: 1e-12,
+        dt_initial: 1e-4,
+        dt_min: 1e-5,
+    };
+    let mut failures = 0;
+    for (name, plan) in [
+        ("order 1", plan),
+        ("order 4", adaptive),
+        ("failing", failing),
+    ] {
+        let mut solver = engine.solver(plan, vec![chain.clone(); members]).unwrap();
+        let mut outputs = 0;
+        while solver.next_output(&|_| {}).unwrap().is_some() {
+            let expected: Vec<OutputStatus> =
+                solver.reports().iter().map(OutputStatus::of).collect();
+            let got = solver.output_status();
+            assert_eq!(got.len(), members, "{name}");
+            for (g, e) in got.iter().zip(&expected) {
+                assert_eq!(g.ok, e.ok, "{name}, output {outputs}");
+                assert_eq!(
+                    g.error_estimate.to_bits(),
+                    e.error_estimate.to_bits(),
+                    "{name}, output {outputs}"
+                );
+            }
+            // An estimate where the scheme has one (NaN only before the first step).
+            if outputs > 0 {
+                assert!(
+                    got.iter().all(|s| !s.error_estimate.is_nan()),
+                    "{name}: {got:?}"
+                );
+            }
+            failures += got.iter().filter(|s| !s.ok).count();
+            outputs += 1;
+        }
+        assert_eq!(outputs, 3, "{name}");
+    }
+    assert!(
+        failures > 0,
+        "no member failed: the failing case does not test failures"
+    );
+}

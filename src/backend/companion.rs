@@ -7,7 +7,7 @@
 
 use rayon::prelude::*;
 
-use super::{BatchSolver, MemberReport, MemberStatus};
+use super::{BatchSolver, MemberReport, MemberStatus, OutputStatus};
 use crate::error::Result;
 use crate::model::observables::Snapshot;
 use crate::model::params::{Order, Stepping};
@@ -155,6 +155,14 @@ impl BatchSolver for CompanionEstimate<'_> {
             r.error_estimate = Some(e.clone());
         }
         reports
+    }
+
+    fn output_status(&self) -> Vec<OutputStatus> {
+        let mut status = self.run.output_status();
+        for (s, e) in status.iter_mut().zip(&self.estimates) {
+            s.error_estimate = e.last().copied().unwrap_or(f64::NAN);
+        }
+        status
     }
 
     fn plan(&self) -> &Plan {

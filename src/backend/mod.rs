@@ -66,6 +66,28 @@ impl Precision {
 /// Told how many member-intervals were completed (called from the solver's worker threads).
 pub type Progress<'a> = &'a (dyn Fn(u64) + Sync);
 
+/// A member at an output time, as far as a study records it ([`BatchSolver::output_status`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OutputStatus {
+    pub ok: bool,
+    /// The estimate of the member's error at this output time; NaN without one.
+    pub error_estimate: f64,
+}
+
+impl OutputStatus {
+    /// Read from a member's report.
+    pub fn of(report: &MemberReport) -> OutputStatus {
+        OutputStatus {
+            ok: report.status == MemberStatus::Ok,
+            error_estimate: report
+                .error_estimate
+                .as_ref()
+                .and_then(|e| e.last().copied())
+                .unwrap_or(f64::NAN),
+        }
+    }
+}
+
 /// A batch of members advanced from output time to output time.
 pub trait BatchSolver: Send {
     /// Advances every member to the next output time and returns their snapshots in member
@@ -75,6 +97,14 @@ pub trait BatchSolver: Send {
 
     /// Every member's status and step counts as of the last output, in member order.
     fn reports(&self) -> Vec<MemberReport>;
+
+    /// What a study records of each member at every output time, in member order: whether it
+    /// is still running (not failed), and the estimate of its error at the last output (NaN
+    /// where it has none). The same as read from [`reports`](Self::reports), which builds
+    /// every report and copies every estimate so far (20 ms of a 0.75 s study, between solves).
+    fn output_status(&self) -> Vec<OutputStatus> {
+        self.reports().iter().map(OutputStatus::of).collect()
+    }
 
     /// The plan the batch runs.
     fn plan(&self) -> &Plan;

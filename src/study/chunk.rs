@@ -15,7 +15,7 @@ use super::files::{MemberRow, StudyHeader};
 use super::state::StudyState;
 use super::{ERROR_ESTIMATE, SCALARS};
 use crate::backend::gpu::solver::GpuStats;
-use crate::backend::{Engine, MemberReport, MemberStatus};
+use crate::backend::{Engine, MemberReport, MemberStatus, OutputStatus};
 use crate::ensemble::members::{EnsembleMembers, MemberInputs};
 use crate::error::{Error, Result};
 use crate::model::chain::Chain;
@@ -514,25 +514,25 @@ fn solve_pass(
         };
         // The output last reached, with the members' reports there, for the statistics beside
         // the next solve.
-        let mut pending: Option<(Vec<Snapshot>, usize, Vec<MemberReport>)> = None;
+        let mut pending: Option<(Vec<Snapshot>, usize, Vec<OutputStatus>)> = None;
         loop {
             let (next, statistics) = rayon::join(
                 || solver.next_output(&|_| {}),
                 || -> Result<f64> {
-                    let Some((snaps, k, reports_now)) = pending.take() else {
+                    let Some((snaps, k, status_now)) = pending.take() else {
                         return Ok(0.0);
                     };
                     let started = Instant::now();
                     let t = header.times[k];
-                    let ok_now = |g: usize| reports_now[g].status == MemberStatus::Ok;
+                    let ok_now = |g: usize| status_now[g].ok;
                     let recorded_here =
                         |g: usize| ok_now(g) && header.is_detailed(inputs[a + g].point);
                     for (g, s) in snaps.iter().enumerate() {
                         let i = a + g;
                         // The estimate of the state at this output time (the last one recorded).
-                        let estimate = match (&reports_now[g].error_estimate, ok_now(g)) {
-                            (Some(e), true) => e.last().copied().unwrap_or(f64::NAN),
-                            _ => f64::NAN,
+                        let estimate = match ok_now(g) {
+                            true => status_now[g].error_estimate,
+                            false => f64::NAN,
                         };
                         if keep {
                             group_kept[g].push(s.clone());
@@ -596,7 +596,7 @@ fn solve_pass(
                 break;
             };
             let started = Instant::now();
-            pending = Some((snaps, k, solver.reports()));
+            pending = Some((snaps, k, solver.output_status()));
             costs.statistics_seconds += started.elapsed().as_secs_f64();
             k += 1;
         }

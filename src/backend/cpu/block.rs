@@ -15,6 +15,7 @@ use crate::backend::report::{
 use crate::backend::shared::control::{
     energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl, TIME_RESOLUTION_F64,
 };
+use crate::backend::OutputStatus;
 use crate::model::chain::{stored_gap, Chain};
 use crate::model::observables::{observe, Snapshot};
 use crate::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
@@ -572,6 +573,26 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
             ));
         }
         out
+    }
+
+    /// [`reports`](Self::reports)' status and last estimate of each member, with its index.
+    pub(super) fn output_status(
+        &self,
+        has_estimates: bool,
+    ) -> impl Iterator<Item = (usize, OutputStatus)> + '_ {
+        self.lanes.iter().filter_map(move |lane| {
+            let error_estimate = match has_estimates {
+                true => lane.error_estimates.last().copied().unwrap_or(f64::NAN),
+                false => f64::NAN,
+            };
+            Some((
+                lane.member?,
+                OutputStatus {
+                    ok: lane.control.failure == Failure::None,
+                    error_estimate,
+                },
+            ))
+        })
     }
 
     pub(super) fn reports(&self, plan: &Plan, dt_min: f64) -> Vec<MemberReport> {

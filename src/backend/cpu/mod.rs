@@ -9,7 +9,8 @@ pub use roughlub_kernels::{real, step, SimdLevel};
 
 use rayon::prelude::*;
 
-use crate::backend::{BatchSolver, MemberReport, Precision, Progress};
+use crate::backend::report::error_estimate_method;
+use crate::backend::{BatchSolver, MemberReport, OutputStatus, Precision, Progress};
 use crate::error::Result;
 use crate::model::chain::Chain;
 use crate::model::observables::{grid_points, Snapshot};
@@ -181,6 +182,16 @@ impl BatchSolver for CpuSolver {
 
     fn reports(&self) -> Vec<MemberReport> {
         self.member_reports()
+    }
+
+    fn output_status(&self) -> Vec<OutputStatus> {
+        let has_estimates = error_estimate_method(self.plan.order, self.plan.stepping).is_some();
+        let mut status: Vec<(usize, OutputStatus)> = with_blocks!(&self.blocks, bs => bs
+            .iter()
+            .flat_map(|b| b.output_status(has_estimates))
+            .collect());
+        status.sort_by_key(|s| s.0);
+        status.into_iter().map(|s| s.1).collect()
     }
 
     fn plan(&self) -> &Plan {
