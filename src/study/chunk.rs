@@ -512,7 +512,7 @@ fn solve_pass(
                     .map_err(|e| super::report::stats_error(dir, e))?;
             Ok(busy.into_inner() as f64 * 1e-9 + pushing)
         };
-        // The output last reached, with the members' reports there, for the statistics beside
+        // The output last reached, with each member's status there, for the statistics beside
         // the next solve.
         let mut pending: Option<(Vec<Snapshot>, usize, Vec<OutputStatus>)> = None;
         loop {
