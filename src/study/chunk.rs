@@ -319,13 +319,8 @@ fn push_output_scalars(
     k: usize,
     recorded: &[Vec<Option<RecordedObservables>>],
 ) {
-    let mut g = 0;
-    while g < members.len() {
-        let point = members[g].point;
-        let end = (g..members.len())
-            .find(|&h| members[h].point != point)
-            .unwrap_or(members.len());
-        let stats = state.point_mut(point, header);
+    for (g, end) in point_groups(members) {
+        let stats = state.point_mut(members[g].point, header);
         for (name, per_time) in stats.scalars.iter_mut() {
             let s = SCALARS
                 .iter()
@@ -343,7 +338,6 @@ fn push_output_scalars(
                 }
             }
         }
-        g = end;
     }
 }
 
