@@ -8,6 +8,9 @@
 // (`generate_partitioned_wgsl` in src/backend/gpu/kernel.rs), with the same marker blocks.
 // Keep them in sync, loop for loop.
 //
+// Over 700 lines on purpose: WGSL has no modules, and this file is appended to the generated
+// step kernel as one piece; its functions follow kernels/src/step/partitioned.rs in order.
+//
 // Why: one invocation per member runs a member's whole chain in one invocation. With fewer
 // members than the GPU's parallel width most of it idles, and lavapipe stops an invocation
 // after 65535 loop iterations (N <= ~32767 at order 1). Here no invocation loops over more than

@@ -8,6 +8,10 @@
 // Gaps are stored as in `crate::model::chain::stored_gap`: d, or ln d (< 0) below GAP_FLOOR, or 0
 // when bonded.
 //
+// Over 700 lines on purpose: WGSL has no modules, and the kernel is generated from this one
+// template (one pass over its marker blocks); its functions follow kernels/src/step.rs and
+// src/backend/cpu/block.rs in the same order, to be read side by side.
+//
 // Entry points: `begin_interval` (StepControl::begin_interval), `advance` (up to
 // config.max_attempts trial steps per member per dispatch, as the lane loop of Block::advance:
 // one Euler step for order 1 with fixed steps, else rows 1..=k of the extrapolation tableau

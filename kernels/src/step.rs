@@ -44,6 +44,12 @@
 //! them in sync would span files that the WGSL side cannot mirror. Its unit tests are in
 //! `step/tests.rs`; what both backends share (constants, step control, f64 math) is in
 //! `crate::shared`.
+//!
+//! Over 700 lines on purpose: the step is one fused sweep (forward rows, back sweep with the gap
+//! update, fix-ups, projection, energy, conclusion), and its functions follow `shaders/step.wgsl`
+//! loop for loop, so the twins are reviewed side by side. What stands alone is elsewhere: the
+//! element types (`real.rs`), the step control both backends share (`shared/`), the partitioned
+//! solve (`step/partitioned.rs`), the tests (`step/tests.rs`).
 
 use self::partitioned::euler_partitioned;
 pub use self::partitioned::Layout;

@@ -175,7 +175,7 @@ impl BatchSolver for CompanionEstimate<'_> {
 
     /// The run's own counters (the companion's work, about a quarter of its steps, is not in
     /// them: the counters describe the run the manifest reports).
-    fn gpu_stats(&self) -> Option<super::gpu::solver::GpuStats> {
+    fn gpu_stats(&self) -> Option<super::report::GpuStats> {
         self.run.gpu_stats()
     }
 }

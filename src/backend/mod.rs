@@ -113,7 +113,7 @@ pub trait BatchSolver: Send {
     fn grid(&self) -> &[f64];
 
     /// The GPU's work counters (`None` on the CPU), for the manifest.
-    fn gpu_stats(&self) -> Option<gpu::solver::GpuStats> {
+    fn gpu_stats(&self) -> Option<report::GpuStats> {
         None
     }
 }

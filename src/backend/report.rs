@@ -124,3 +124,43 @@ impl FailureRecord {
         }
     }
 }
+
+/// Work counters of a GPU solver (`gpu::solver::GpuSolver`): part of every backend's report,
+/// since a study's manifest sums them over its chunks whatever ran them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct GpuStats {
+    /// Compute dispatches (begin_interval, advance, gather).
+    pub dispatches: u64,
+    /// Accepted steps summed over members.
+    pub steps: u64,
+    /// Command buffers submitted.
+    pub submits: u64,
+    /// Read-backs (each one a copy submission and a wait).
+    pub readbacks: u64,
+    /// Bytes read back from the GPU.
+    pub bytes_read: u64,
+    /// Bytes written to the GPU (initial upload, configs).
+    pub bytes_written: u64,
+    /// Trial steps each member may take per `advance` dispatch.
+    pub attempts_per_dispatch: u64,
+    /// `advance` dispatches per submit (partitioned kernel: trial steps per submit).
+    pub dispatches_per_submit: u64,
+    /// Segments per member of the partitioned kernel; 0: one invocation per member.
+    pub segments: u64,
+}
+
+impl GpuStats {
+    /// Adds the work of another solver (a study's next chunk): counters add up, the per-dispatch
+    /// settings are the largest seen.
+    pub fn accumulate(&mut self, other: &GpuStats) {
+        self.dispatches += other.dispatches;
+        self.steps += other.steps;
+        self.submits += other.submits;
+        self.readbacks += other.readbacks;
+        self.bytes_read += other.bytes_read;
+        self.bytes_written += other.bytes_written;
+        self.attempts_per_dispatch = self.attempts_per_dispatch.max(other.attempts_per_dispatch);
+        self.dispatches_per_submit = self.dispatches_per_submit.max(other.dispatches_per_submit);
+        self.segments = self.segments.max(other.segments);
+    }
+}

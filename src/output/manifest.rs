@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use crate::backend::gpu::solver::GpuStats;
+use crate::backend::report::GpuStats;
 use crate::backend::select::BackendRecord;
 use crate::backend::MemberReport;
 use crate::model::params::Stepping;

@@ -14,7 +14,7 @@ use super::centre::{peak_centres, CENTRES_TOGETHER};
 use super::files::{MemberRow, StudyHeader};
 use super::state::StudyState;
 use super::{ERROR_ESTIMATE, SCALARS};
-use crate::backend::gpu::solver::GpuStats;
+use crate::backend::report::GpuStats;
 use crate::backend::{Engine, MemberReport, MemberStatus, OutputStatus};
 use crate::ensemble::members::{EnsembleMembers, MemberInputs};
 use crate::error::{Error, Result};

@@ -68,6 +68,10 @@
 //! segments' forward and back sweeps, the interfaces' reduced system, the per-segment parts of
 //! the projection and energy); it reads only beside its twin. Its unit tests are in
 //! `partitioned/tests.rs`.
+//!
+//! Over 700 lines on purpose: the segments' forward and back sweeps, their interface system and
+//! the tile transposes that feed the lanes are one algorithm whose loops mirror
+//! `shaders/partitioned.wgsl`; split apart, neither twin would read against the other.
 
 use rayon::prelude::*;
 

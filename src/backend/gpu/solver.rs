@@ -48,6 +48,7 @@ use super::wgsl_types::{
     config_bytes, control_size, controls_from_bytes, reals_from_bytes, ConfigF64, ControlF64,
 };
 use crate::backend::error::GpuError;
+pub use crate::backend::report::GpuStats;
 use crate::backend::report::{
     error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
 };
@@ -57,45 +58,6 @@ use crate::model::chain::Chain;
 use crate::model::observables::{grid_points, observe, Snapshot};
 use crate::model::params::Stepping;
 use crate::model::plan::{Plan, Power};
-
-/// Work counters of a [`GpuSolver`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
-pub struct GpuStats {
-    /// Compute dispatches (begin_interval, advance, gather).
-    pub dispatches: u64,
-    /// Accepted steps summed over members.
-    pub steps: u64,
-    /// Command buffers submitted.
-    pub submits: u64,
-    /// Read-backs (each one a copy submission and a wait).
-    pub readbacks: u64,
-    /// Bytes read back from the GPU.
-    pub bytes_read: u64,
-    /// Bytes written to the GPU (initial upload, configs).
-    pub bytes_written: u64,
-    /// Trial steps each member may take per `advance` dispatch.
-    pub attempts_per_dispatch: u64,
-    /// `advance` dispatches per submit (partitioned kernel: trial steps per submit).
-    pub dispatches_per_submit: u64,
-    /// Segments per member of the partitioned kernel; 0: one invocation per member.
-    pub segments: u64,
-}
-
-impl GpuStats {
-    /// Adds the work of another solver (a study's next chunk): counters add up, the per-dispatch
-    /// settings are the largest seen.
-    pub fn accumulate(&mut self, other: &GpuStats) {
-        self.dispatches += other.dispatches;
-        self.steps += other.steps;
-        self.submits += other.submits;
-        self.readbacks += other.readbacks;
-        self.bytes_read += other.bytes_read;
-        self.bytes_written += other.bytes_written;
-        self.attempts_per_dispatch = self.attempts_per_dispatch.max(other.attempts_per_dispatch);
-        self.dispatches_per_submit = self.dispatches_per_submit.max(other.dispatches_per_submit);
-        self.segments = self.segments.max(other.segments);
-    }
-}
 
 /// The compute pipelines of the kernel's entry points.
 struct StepPipelines {
