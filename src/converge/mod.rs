@@ -35,7 +35,7 @@ use std::time::Instant;
 use crate::backend::select::RunsOn;
 use crate::backend::{select, Backend, BackendRecord, MemberStatus, Precision};
 use crate::error::{Error, Result};
-use crate::model::observables::{cell_centres, cubic_interpolated};
+use crate::model::observables::{cell_centres, cubic_interpolated, Snapshot};
 use crate::model::params::OutputFields;
 use crate::output::manifest::{SceneRecord, VERSION};
 use crate::output::{write_json_atomic, write_npy, ProgressReporter, StagedDir, MANIFEST};
@@ -259,37 +259,10 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         let mut per_field: [Vec<Vec<f64>>; 3] = Default::default();
         while let Some(snaps) = solver.next_output(&|_| {})? {
             progress.inc(n as u64);
-            let snap = &snaps[0];
-            let widths: Vec<f64> = snap.gaps.iter().map(|&d| d + 2.0 * eps).collect();
-            let finite = widths.iter().chain(&snap.velocities).all(|v| v.is_finite());
-            if !finite {
-                // A failed member's rows are NaN.
-                for rows in per_field.iter_mut() {
-                    rows.push(vec![f64::NAN; g]);
-                }
-                continue;
+            let rows = sampled_fields(&snaps[0], eps, dstar.as_deref(), &grid);
+            for (field_rows, row) in per_field.iter_mut().zip(rows) {
+                field_rows.push(row);
             }
-            let centres = cell_centres(&widths);
-            let rho: Vec<f64> = widths.iter().map(|&w| 2.0 * eps / w).collect();
-            per_field[0].push(cubic_interpolated(&centres, &rho, &grid));
-            let mut nodes = Vec::with_capacity(n + 1);
-            nodes.push(0.0);
-            nodes.extend(widths.iter().scan(0.0, |q, &w| {
-                *q += w;
-                Some(*q)
-            }));
-            let mut u = Vec::with_capacity(n + 1);
-            u.push(0.0);
-            u.extend_from_slice(&snap.velocities);
-            u.push(0.0);
-            per_field[1].push(cubic_interpolated(&nodes, &u, &grid));
-            per_field[2].push(match &dstar {
-                Some(ds) => {
-                    let rs: Vec<f64> = ds.iter().map(|&d| 2.0 * eps / (d + 2.0 * eps)).collect();
-                    cubic_interpolated(&centres, &rs, &grid)
-                }
-                None => vec![f64::NAN; g],
-            });
         }
         let member = solver.reports().remove(0);
         if member.status != MemberStatus::Ok {
@@ -479,109 +452,18 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         );
     }
 
-    // Arrays.
-    let (k64, t64, g64) = (k_count as u64, t_count as u64, g as u64);
-    for (f, name) in FIELDS.iter().enumerate() {
-        if !field_on(f) {
-            continue;
-        }
-        let flat: Vec<f64> = fields[f].iter().flatten().flatten().copied().collect();
-        files.push(write_npy(
-            dir.join(format!("fields_{name}.npy")),
-            &[k64, t64, g64],
-            &flat,
-        )?);
-        if k_count >= 3 {
-            files.push(write_npy(
-                dir.join(format!("limit_{name}.npy")),
-                &[t64, g64],
-                &limits[f],
-            )?);
-        }
-    }
-    let ns_f64: Vec<f64> = ns.iter().map(|&n| n as f64).collect();
-    files.push(write_npy(dir.join("particles.npy"), &[k64], &ns_f64)?);
-    files.push(write_npy(
-        dir.join("times.npy"),
-        &[t64],
-        &scene.output_times,
-    )?);
-    files.push(write_npy(dir.join("x.npy"), &[g64], &grid)?);
-
-    // Plots.
+    let drawn = Drawn {
+        scene,
+        ns,
+        grid: &grid,
+        fields: &fields,
+        limits: &limits,
+        summaries: &summaries,
+        repulsion,
+    };
+    files.extend(write_arrays(&dir, &drawn)?);
     if scene.plots {
-        let plot_dir = dir.join("plots");
-        std::fs::create_dir_all(&plot_dir).map_err(|e| Error::io(&plot_dir, e))?;
-        let shown = shown_times(t_count);
-        let labels: Vec<String> = ns.iter().map(|n| format!("N = {n}")).collect();
-        let times: Vec<f64> = shown.iter().map(|&t| scene.output_times[t]).collect();
-        let last_t = *scene.output_times.last().expect("output times");
-        for (f, name) in FIELDS.iter().enumerate() {
-            if !field_on(f) {
-                continue;
-            }
-            let values: Vec<Vec<Vec<f64>>> = shown
-                .iter()
-                .map(|&t| (0..k_count).map(|k| fields[f][k][t].clone()).collect())
-                .collect();
-            let limit_rows: Vec<Vec<f64>> = shown
-                .iter()
-                .map(|&t| limits[f][t * g..(t + 1) * g].to_vec())
-                .collect();
-            let path = plot_dir.join(format!("{name}_profiles.png"));
-            plot_convergence_profiles(
-                &path,
-                &ConvergenceProfilesPlot {
-                    title: &format!("{}: {name} at each N", scene.name),
-                    y_label: name,
-                    x: &grid,
-                    times: &times,
-                    labels: &labels,
-                    values: &values,
-                    limit: (k_count >= 3).then_some(limit_rows.as_slice()),
-                },
-            )?;
-            files.push(path);
-
-            let summary = summaries
-                .iter()
-                .find(|s| s.field == *name)
-                .expect("summary of every field shown");
-            let n_fine: Vec<f64> = ns[1..].iter().map(|&n| n as f64).collect();
-            let fit =
-                fit_rate(&n_fine, &summary.diff_l1).filter(|_| summary.fitted_rate.is_finite());
-            let mut note = match fit {
-                Some((p, _)) => format!("fitted rate {p:.3} (dashed)"),
-                None if summary.verdict == Verdict::Exact => {
-                    "differences at rounding level: no rate".to_string()
-                }
-                None => "no fitted rate (fewer than 2 nonzero differences)".to_string(),
-            };
-            if summary.rate.is_finite() {
-                note.push_str(&format!(
-                    "\nrate at the largest pair {:.3}\n{}",
-                    summary.rate,
-                    summary.verdict.name().replace('_', " ")
-                ));
-            }
-            let path = plot_dir.join(format!("{name}_rate.png"));
-            plot_convergence_rate(
-                &path,
-                &ConvergenceRatePlot {
-                    title: &format!(
-                        "{}: {name}, L1 difference between successive N at t = {}",
-                        scene.name,
-                        time_text(last_t)
-                    ),
-                    y_label: &format!("L1 difference of {name}"),
-                    n: &n_fine,
-                    diff: &summary.diff_l1,
-                    fit,
-                    note: &note,
-                },
-            )?;
-            files.push(path);
-        }
+        files.extend(write_plots(&dir, &drawn)?);
     }
 
     for line in &warnings {
@@ -639,6 +521,185 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         warnings,
         wall_seconds: wall,
     })
+}
+
+/// One output of one N on the grid: rho and rho* cubic through the cells' centres, u cubic
+/// through the particles (walls at rest); NaN rows for a member that has failed.
+fn sampled_fields(snap: &Snapshot, eps: f64, dstar: Option<&[f64]>, grid: &[f64]) -> [Vec<f64>; 3] {
+    let g = grid.len();
+    let widths: Vec<f64> = snap.gaps.iter().map(|&d| d + 2.0 * eps).collect();
+    if !widths.iter().chain(&snap.velocities).all(|v| v.is_finite()) {
+        return std::array::from_fn(|_| vec![f64::NAN; g]);
+    }
+    let centres = cell_centres(&widths);
+    let rho: Vec<f64> = widths.iter().map(|&w| 2.0 * eps / w).collect();
+    let mut nodes = Vec::with_capacity(widths.len() + 1);
+    nodes.push(0.0);
+    nodes.extend(widths.iter().scan(0.0, |q, &w| {
+        *q += w;
+        Some(*q)
+    }));
+    let mut u = Vec::with_capacity(widths.len() + 1);
+    u.push(0.0);
+    u.extend_from_slice(&snap.velocities);
+    u.push(0.0);
+    let rho_star = match dstar {
+        Some(ds) => {
+            let rs: Vec<f64> = ds.iter().map(|&d| 2.0 * eps / (d + 2.0 * eps)).collect();
+            cubic_interpolated(&centres, &rs, grid)
+        }
+        None => vec![f64::NAN; g],
+    };
+    [
+        cubic_interpolated(&centres, &rho, grid),
+        cubic_interpolated(&nodes, &u, grid),
+        rho_star,
+    ]
+}
+
+/// What the study's arrays and plots are drawn from.
+struct Drawn<'a> {
+    scene: &'a Scene,
+    ns: &'a [usize],
+    grid: &'a [f64],
+    /// fields[f][k][t] = the grid's values.
+    fields: &'a FieldStack,
+    /// limits[f] = the extrapolated limit, t-major (three or more N).
+    limits: &'a [Vec<f64>],
+    summaries: &'a [FieldSummary],
+    repulsion: bool,
+}
+
+impl Drawn<'_> {
+    /// rho* is a field only where the scene has roughness.
+    fn field_on(&self, f: usize) -> bool {
+        f != 2 || self.repulsion
+    }
+}
+
+/// The arrays: each field at every N, time and grid point, its limit, and the axes.
+fn write_arrays(dir: &Path, drawn: &Drawn) -> Result<Vec<PathBuf>> {
+    let scene = drawn.scene;
+    let (k_count, t_count, g) = (drawn.ns.len(), scene.output_times.len(), drawn.grid.len());
+    let (k64, t64, g64) = (k_count as u64, t_count as u64, g as u64);
+    let mut files = Vec::new();
+    for (f, name) in FIELDS.iter().enumerate() {
+        if !drawn.field_on(f) {
+            continue;
+        }
+        let flat: Vec<f64> = drawn.fields[f]
+            .iter()
+            .flatten()
+            .flatten()
+            .copied()
+            .collect();
+        files.push(write_npy(
+            dir.join(format!("fields_{name}.npy")),
+            &[k64, t64, g64],
+            &flat,
+        )?);
+        if k_count >= 3 {
+            files.push(write_npy(
+                dir.join(format!("limit_{name}.npy")),
+                &[t64, g64],
+                &drawn.limits[f],
+            )?);
+        }
+    }
+    let ns_f64: Vec<f64> = drawn.ns.iter().map(|&n| n as f64).collect();
+    files.push(write_npy(dir.join("particles.npy"), &[k64], &ns_f64)?);
+    files.push(write_npy(
+        dir.join("times.npy"),
+        &[t64],
+        &scene.output_times,
+    )?);
+    files.push(write_npy(dir.join("x.npy"), &[g64], drawn.grid)?);
+    Ok(files)
+}
+
+/// The plots: each field's profiles at every N (and the limit), and its L1 differences against
+/// N with the fitted rate.
+fn write_plots(dir: &Path, drawn: &Drawn) -> Result<Vec<PathBuf>> {
+    let (scene, ns, grid) = (drawn.scene, drawn.ns, drawn.grid);
+    let (k_count, t_count, g) = (ns.len(), scene.output_times.len(), grid.len());
+    let mut files = Vec::new();
+    let plot_dir = dir.join("plots");
+    std::fs::create_dir_all(&plot_dir).map_err(|e| Error::io(&plot_dir, e))?;
+    let shown = shown_times(t_count);
+    let labels: Vec<String> = ns.iter().map(|n| format!("N = {n}")).collect();
+    let times: Vec<f64> = shown.iter().map(|&t| scene.output_times[t]).collect();
+    let last_t = *scene.output_times.last().expect("output times");
+    for (f, name) in FIELDS.iter().enumerate() {
+        if !drawn.field_on(f) {
+            continue;
+        }
+        let values: Vec<Vec<Vec<f64>>> = shown
+            .iter()
+            .map(|&t| {
+                (0..k_count)
+                    .map(|k| drawn.fields[f][k][t].clone())
+                    .collect()
+            })
+            .collect();
+        let limit_rows: Vec<Vec<f64>> = shown
+            .iter()
+            .map(|&t| drawn.limits[f][t * g..(t + 1) * g].to_vec())
+            .collect();
+        let path = plot_dir.join(format!("{name}_profiles.png"));
+        plot_convergence_profiles(
+            &path,
+            &ConvergenceProfilesPlot {
+                title: &format!("{}: {name} at each N", scene.name),
+                y_label: name,
+                x: grid,
+                times: &times,
+                labels: &labels,
+                values: &values,
+                limit: (k_count >= 3).then_some(limit_rows.as_slice()),
+            },
+        )?;
+        files.push(path);
+
+        let summary = drawn
+            .summaries
+            .iter()
+            .find(|s| s.field == *name)
+            .expect("summary of every field shown");
+        let n_fine: Vec<f64> = ns[1..].iter().map(|&n| n as f64).collect();
+        let fit = fit_rate(&n_fine, &summary.diff_l1).filter(|_| summary.fitted_rate.is_finite());
+        let mut note = match fit {
+            Some((p, _)) => format!("fitted rate {p:.3} (dashed)"),
+            None if summary.verdict == Verdict::Exact => {
+                "differences at rounding level: no rate".to_string()
+            }
+            None => "no fitted rate (fewer than 2 nonzero differences)".to_string(),
+        };
+        if summary.rate.is_finite() {
+            note.push_str(&format!(
+                "\nrate at the largest pair {:.3}\n{}",
+                summary.rate,
+                summary.verdict.name().replace('_', " ")
+            ));
+        }
+        let path = plot_dir.join(format!("{name}_rate.png"));
+        plot_convergence_rate(
+            &path,
+            &ConvergenceRatePlot {
+                title: &format!(
+                    "{}: {name}, L1 difference between successive N at t = {}",
+                    scene.name,
+                    time_text(last_t)
+                ),
+                y_label: &format!("L1 difference of {name}"),
+                n: &n_fine,
+                diff: &summary.diff_l1,
+                fit,
+                note: &note,
+            },
+        )?;
+        files.push(path);
+    }
+    Ok(files)
 }
 
 #[cfg(test)]
