@@ -335,35 +335,15 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         }
         let mut records = Vec::with_capacity(t_count);
         for (t, &time) in scene.output_times.iter().enumerate() {
-            let norms: Vec<Norms> = (0..k_count - 1)
-                .map(|k| difference_norms(&fields[f][k + 1][t], &fields[f][k][t]))
-                .collect();
-            let rate_of = |pick: fn(&Norms) -> f64| -> Vec<f64> {
-                (1..k_count - 1)
-                    .map(|k| observed_rate(pick(&norms[k - 1]), pick(&norms[k]), ratios[k - 1]))
-                    .collect()
-            };
-            let (r1, r2, rinf) = (rate_of(|n| n.l1), rate_of(|n| n.l2), rate_of(|n| n.linf));
-            let fine = &fields[f][k_count - 1][t];
-            let coarse = &fields[f][k_count - 2][t];
-            let scale = fine
-                .iter()
-                .map(|v| v.abs())
-                .filter(|v| v.is_finite())
-                .fold(0.0, f64::max)
-                .max(1.0);
+            let rows: Vec<&[f64]> = (0..k_count).map(|k| &fields[f][k][t][..]).collect();
+            let AtTime {
+                norms,
+                rates: [r1, r2, rinf],
+                verdict: v,
+                limit,
+                limit_error,
+            } = at_time(&rows, &ratios, unit_rounding);
             let diffs: Vec<f64> = norms.iter().map(|n| n.l1).collect();
-            let v = verdict(&diffs, &r1, unit_rounding * scale);
-            // The limit: the field itself when exact; Richardson with the last rate otherwise
-            // (NaN when there is no rate, or it is not positive).
-            let usable = |p: f64| p.is_finite() && p > 0.0;
-            let limit: Vec<f64> = match (v, r1.last()) {
-                (Verdict::Exact, _) => fine.clone(),
-                (Verdict::RoundingLimited, p) if !p.is_some_and(|&p| usable(p)) => fine.clone(),
-                (_, Some(&p)) => richardson(fine, coarse, ratios[k_count - 2], p),
-                (_, None) => vec![f64::NAN; g],
-            };
-            let limit_error = difference_norms(&limit, fine).l1;
             limits[f].extend_from_slice(&limit);
             for (k, norm) in norms.iter().enumerate() {
                 let rate = |r: &[f64]| {
@@ -520,6 +500,57 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         warnings,
         wall_seconds: wall,
     })
+}
+
+/// One field at one output time, from its rows at each N (coarse to fine): the differences of
+/// successive N, their observed rates (L1, L2, Linf), the verdict and the extrapolated limit.
+struct AtTime {
+    norms: Vec<Norms>,
+    rates: [Vec<f64>; 3],
+    verdict: Verdict,
+    limit: Vec<f64>,
+    /// L1 distance from the limit to the finest N.
+    limit_error: f64,
+}
+
+fn at_time(rows: &[&[f64]], ratios: &[f64], unit_rounding: f64) -> AtTime {
+    let k_count = rows.len();
+    let norms: Vec<Norms> = (0..k_count - 1)
+        .map(|k| difference_norms(rows[k + 1], rows[k]))
+        .collect();
+    let rate_of = |pick: fn(&Norms) -> f64| -> Vec<f64> {
+        (1..k_count - 1)
+            .map(|k| observed_rate(pick(&norms[k - 1]), pick(&norms[k]), ratios[k - 1]))
+            .collect()
+    };
+    let (r1, r2, rinf) = (rate_of(|n| n.l1), rate_of(|n| n.l2), rate_of(|n| n.linf));
+    let fine = rows[k_count - 1];
+    let coarse = rows[k_count - 2];
+    let scale = fine
+        .iter()
+        .map(|v| v.abs())
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max)
+        .max(1.0);
+    let diffs: Vec<f64> = norms.iter().map(|n| n.l1).collect();
+    let v = verdict(&diffs, &r1, unit_rounding * scale);
+    // The limit: the field itself when exact; Richardson with the last rate otherwise
+    // (NaN when there is no rate, or it is not positive).
+    let usable = |p: f64| p.is_finite() && p > 0.0;
+    let limit: Vec<f64> = match (v, r1.last()) {
+        (Verdict::Exact, _) => fine.to_vec(),
+        (Verdict::RoundingLimited, p) if !p.is_some_and(|&p| usable(p)) => fine.to_vec(),
+        (_, Some(&p)) => richardson(fine, coarse, ratios[k_count - 2], p),
+        (_, None) => vec![f64::NAN; fine.len()],
+    };
+    let limit_error = difference_norms(&limit, fine).l1;
+    AtTime {
+        norms,
+        rates: [r1, r2, rinf],
+        verdict: v,
+        limit,
+        limit_error,
+    }
 }
 
 /// One output of one N on the grid: rho and rho* cubic through the cells' centres, u cubic
