@@ -247,38 +247,19 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
     let total: u64 = ns.iter().map(|&n| n as u64).sum::<u64>() * t_count as u64;
     let progress = ProgressReporter::new(total, "particle-intervals", options.quiet);
     for &n in ns {
-        let run_started = Instant::now();
-        let s = scene_at(scene, n);
-        let chain = s.initial_chain()?;
-        let plan = s.plan(&chain);
-        let engine = select(requested, precision, &plan)?;
-        let eps = plan.eps;
-        let dstar = chain.dstar.clone();
-        let mut solver = engine.solver(plan, vec![chain])?;
-        let mut per_field: [Vec<Vec<f64>>; 3] = Default::default();
-        while let Some(snaps) = solver.next_output(&|_| {})? {
-            progress.inc(n as u64);
-            let rows = sampled_fields(&snaps[0], eps, dstar.as_deref(), &grid);
-            for (field_rows, row) in per_field.iter_mut().zip(rows) {
-                field_rows.push(row);
-            }
-        }
-        let member = solver.reports().remove(0);
-        if member.status != MemberStatus::Ok {
-            let line = format!(
+        let RunAtN {
+            run,
+            backend,
+            fields: per_field,
+        } = run_at_n(scene, n, requested, precision, &grid, &progress)?;
+        if run.member.status != MemberStatus::Ok {
+            warnings.push(format!(
                 "the run at N = {n} failed ({}); its fields after the failure are NaN, and every rate involving it is NaN",
-                serde_json::to_string(&member.status).unwrap_or_default()
-            );
-            warnings.push(line);
+                serde_json::to_string(&run.member.status).unwrap_or_default()
+            ));
         }
-        runs.push(RunRecord {
-            particles: n,
-            eps,
-            adapter: engine.record.short(),
-            wall_seconds: run_started.elapsed().as_secs_f64(),
-            member,
-        });
-        record = Some(engine.record.clone());
+        runs.push(run);
+        record = Some(backend);
         for (f, rows) in per_field.into_iter().enumerate() {
             fields[f].push(rows);
         }
@@ -499,6 +480,54 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         asymptotic,
         warnings,
         wall_seconds: wall,
+    })
+}
+
+/// What [`run_at_n`] gives: the run's record, the backend's, and each field's rows on the grid
+/// at every output time (`fields[f][t]`, f in rho, u, rho*).
+struct RunAtN {
+    run: RunRecord,
+    backend: BackendRecord,
+    fields: [Vec<Vec<f64>>; 3],
+}
+
+/// The scene at N particles, one member, on the backend chosen for it.
+fn run_at_n(
+    scene: &Scene,
+    n: usize,
+    requested: Backend,
+    precision: Precision,
+    grid: &[f64],
+    progress: &ProgressReporter,
+) -> Result<RunAtN> {
+    let run_started = Instant::now();
+    let s = scene_at(scene, n);
+    let chain = s.initial_chain()?;
+    let plan = s.plan(&chain);
+    let engine = select(requested, precision, &plan)?;
+    let eps = plan.eps;
+    let dstar = chain.dstar.clone();
+    let mut solver = engine.solver(plan, vec![chain])?;
+    let mut per_field: [Vec<Vec<f64>>; 3] = Default::default();
+    while let Some(snaps) = solver.next_output(&|_| {})? {
+        progress.inc(n as u64);
+        let rows = sampled_fields(&snaps[0], eps, dstar.as_deref(), grid);
+        for (field_rows, row) in per_field.iter_mut().zip(rows) {
+            field_rows.push(row);
+        }
+    }
+    let member = solver.reports().remove(0);
+    let run = RunRecord {
+        particles: n,
+        eps,
+        adapter: engine.record.short(),
+        wall_seconds: run_started.elapsed().as_secs_f64(),
+        member,
+    };
+    Ok(RunAtN {
+        run,
+        backend: engine.record.clone(),
+        fields: per_field,
     })
 }
 
