@@ -186,36 +186,8 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         .ensemble
         .as_ref()
         .ok_or_else(|| Error::missing("ensemble", "this scene has no [ensemble] section"))?;
+    check_options(scene, options)?;
     let (k, n) = options.shard;
-    if n == 0 || k >= n {
-        return Err(Error::invalid(
-            "--shard",
-            format!("{k}/{n}"),
-            "shard K of N, K counted from 0",
-            "0 <= K < N",
-        ));
-    }
-    // NaN fails the comparison too; infinity is allowed (never checkpoint).
-    if !(options.checkpoint_seconds >= 0.0) {
-        return Err(Error::invalid(
-            "--checkpoint-every",
-            options.checkpoint_seconds,
-            "seconds of solving between checkpoints",
-            "0 <= SECONDS (0: after every chunk)",
-        ));
-    }
-    let points = scene.sweep_points();
-    if points > crate::scene::MAX_SWEEP_POINTS && !options.allow_large {
-        return Err(Error::invalid(
-            "sweep.points",
-            points,
-            "every sweep point keeps its own responses (in memory, partial.state, stats/ and points.csv)",
-            format!(
-                "at most {} points, or --allow-large",
-                crate::scene::MAX_SWEEP_POINTS
-            ),
-        ));
-    }
     let members = EnsembleMembers::new(scene, spec)?;
     let range = shard_range(members.total(), options.shard);
     let engine = select_for_study(scene, spec, &members, range, options)?;
@@ -478,4 +450,40 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
                     .is_some(),
             ),
     )
+}
+
+/// The options a study checks before it reads or writes anything: the shard, the checkpoint
+/// interval and the number of sweep points.
+fn check_options(scene: &Scene, options: &StudyOptions) -> Result<()> {
+    let (k, n) = options.shard;
+    if n == 0 || k >= n {
+        return Err(Error::invalid(
+            "--shard",
+            format!("{k}/{n}"),
+            "shard K of N, K counted from 0",
+            "0 <= K < N",
+        ));
+    }
+    // NaN fails the comparison too; infinity is allowed (never checkpoint).
+    if !(options.checkpoint_seconds >= 0.0) {
+        return Err(Error::invalid(
+            "--checkpoint-every",
+            options.checkpoint_seconds,
+            "seconds of solving between checkpoints",
+            "0 <= SECONDS (0: after every chunk)",
+        ));
+    }
+    let points = scene.sweep_points();
+    if points > crate::scene::MAX_SWEEP_POINTS && !options.allow_large {
+        return Err(Error::invalid(
+            "sweep.points",
+            points,
+            "every sweep point keeps its own responses (in memory, partial.state, stats/ and points.csv)",
+            format!(
+                "at most {} points, or --allow-large",
+                crate::scene::MAX_SWEEP_POINTS
+            ),
+        ));
+    }
+    Ok(())
 }
