@@ -228,36 +228,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     // stays the earlier complete run until then); `--resume` continues in the target when it
     // holds the study, or adopts the staging directory an interrupted fresh run left beside it.
     let target = &options.out_dir;
-    let mut staged: Option<StagedDir> = None;
-    let dir: PathBuf = if options.resume {
-        // An interrupted run of this very study beside --out first (a rerun into a directory
-        // that holds a complete study), else the study in --out itself.
-        let same_study = |path: &Path| {
-            read_json::<StudyHeader>(path)
-                .is_ok_and(|old| check_resume(&old, &header, path).is_ok())
-        };
-        if let Some(found) = StagedDir::adopt_interrupted_study(target, same_study)? {
-            if !options.quiet {
-                eprintln!("resuming the interrupted run into {}", target.display());
-            }
-            let dir = found.staging.clone();
-            staged = Some(found);
-            dir
-        } else if target.join("study.json").exists() {
-            target.clone()
-        } else {
-            return Err(Error::Output {
-                path: target.clone(),
-                message: "nothing to resume: no study.json there and no interrupted run of this study beside it; run without --resume".into(),
-            });
-        }
-    } else {
-        let mut fresh = StagedDir::begin(target, options.force)?;
-        fresh.keep_on_failure();
-        let dir = fresh.staging.clone();
-        staged = Some(fresh);
-        dir
-    };
+    let (dir, staged) = study_dir(&header, options)?;
     let dir = &dir;
     let chunks_dir = dir.join("chunks");
     let header_path = dir.join("study.json");
@@ -450,6 +421,36 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
                     .is_some(),
             ),
     )
+}
+
+/// Where the study is built, and the staging directory when it is not the target itself: a
+/// fresh staging directory, or with `--resume` the one an interrupted run of this study left
+/// beside the target, else the target when it holds this study.
+fn study_dir(header: &StudyHeader, options: &StudyOptions) -> Result<(PathBuf, Option<StagedDir>)> {
+    let target = &options.out_dir;
+    if !options.resume {
+        let mut fresh = StagedDir::begin(target, options.force)?;
+        fresh.keep_on_failure();
+        return Ok((fresh.staging.clone(), Some(fresh)));
+    }
+    // An interrupted run of this very study beside --out first (a rerun into a directory that
+    // holds a complete study), else the study in --out itself.
+    let same_study = |path: &Path| {
+        read_json::<StudyHeader>(path).is_ok_and(|old| check_resume(&old, header, path).is_ok())
+    };
+    if let Some(found) = StagedDir::adopt_interrupted_study(target, same_study)? {
+        if !options.quiet {
+            eprintln!("resuming the interrupted run into {}", target.display());
+        }
+        return Ok((found.staging.clone(), Some(found)));
+    }
+    if target.join("study.json").exists() {
+        return Ok((target.clone(), None));
+    }
+    Err(Error::Output {
+        path: target.clone(),
+        message: "nothing to resume: no study.json there and no interrupted run of this study beside it; run without --resume".into(),
+    })
 }
 
 /// The options a study checks before it reads or writes anything: the shard, the checkpoint
