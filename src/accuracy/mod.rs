@@ -234,22 +234,7 @@ const MAX_HALVINGS: u32 = 16;
 
 /// `roughlub accuracy`.
 pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<AccuracySummary> {
-    if !(options.target > 0.0 && options.target < 1.0) {
-        return Err(Error::invalid(
-            "--target",
-            options.target,
-            "the error to reach (relative gaps, relative velocities, L1 of rho)",
-            "0 < target < 1, e.g. 1e-6",
-        ));
-    }
-    if options.members.is_some_and(|m| m == 0 || m > 4096) {
-        return Err(Error::invalid(
-            "--members",
-            options.members.unwrap_or(0),
-            "how many members are measured",
-            "1 ..= 4096",
-        ));
-    }
+    check_options(options)?;
     let (scene, mut groups) = measured_members(scene, options.members)?;
     for group in &mut groups {
         group.plan.fields = OutputFields {
@@ -452,18 +437,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         .map(|(i, _)| i);
 
     write_csv(&dir.join("work_precision.csv"), &measurements)?;
-    let mut lines: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
-    for m in &measurements {
-        let Some(e) = m.errors else { continue };
-        let scheme = m.setting.scheme();
-        match lines.iter_mut().find(|(s, _)| *s == scheme) {
-            Some((_, points)) => points.push((m.wall_seconds, e.worst())),
-            None => lines.push((scheme, vec![(m.wall_seconds, e.worst())])),
-        }
-    }
-    for (_, points) in &mut lines {
-        points.sort_by(|a, b| a.0.total_cmp(&b.0));
-    }
+    let lines = work_precision_lines(&measurements);
     crate::plot::plot_work_precision(
         &dir.join("work_precision.png"),
         &format!(
@@ -494,33 +468,87 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         }),
     )?;
     staged.commit()?;
-    match recommended {
-        Some(i) => {
-            let m = &measurements[i];
-            say(format!(
-                "cheapest setting that meets {:e}: {} (error {:.2e}, {:.3} s for {} member(s){})",
-                options.target,
-                m.setting.label(),
-                m.errors.map_or(f64::NAN, |e| e.worst()),
-                m.wall_seconds,
-                member_count,
-                m.worst_point
-                    .map_or(String::new(), |p| format!("; worst at sweep point {p}"))
-            ));
-        }
-        None => say(format!(
-            "no setting of the ladder meets {:e}; the best error was {:.2e}",
-            options.target,
-            measurements
-                .iter()
-                .filter_map(|m| m.errors.map(|e| e.worst()))
-                .fold(f64::INFINITY, f64::min)
-        )),
-    }
+    say(recommendation(
+        &measurements,
+        recommended,
+        options.target,
+        member_count,
+    ));
     Ok(AccuracySummary {
         out_dir: options.out_dir.clone(),
         measurements,
         reference_error,
         recommended,
     })
+}
+
+/// The options `accuracy` checks before it solves anything.
+fn check_options(options: &AccuracyOptions) -> Result<()> {
+    if !(options.target > 0.0 && options.target < 1.0) {
+        return Err(Error::invalid(
+            "--target",
+            options.target,
+            "the error to reach (relative gaps, relative velocities, L1 of rho)",
+            "0 < target < 1, e.g. 1e-6",
+        ));
+    }
+    if options.members.is_some_and(|m| m == 0 || m > 4096) {
+        return Err(Error::invalid(
+            "--members",
+            options.members.unwrap_or(0),
+            "how many members are measured",
+            "1 ..= 4096",
+        ));
+    }
+    Ok(())
+}
+
+/// The work-precision figure's lines: one per scheme, its measured (wall time, error) points in
+/// order of time (failed runs have no point).
+fn work_precision_lines(measurements: &[Measurement]) -> Vec<(String, Vec<(f64, f64)>)> {
+    let mut lines: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    for m in measurements {
+        let Some(e) = m.errors else { continue };
+        let scheme = m.setting.scheme();
+        match lines.iter_mut().find(|(s, _)| *s == scheme) {
+            Some((_, points)) => points.push((m.wall_seconds, e.worst())),
+            None => lines.push((scheme, vec![(m.wall_seconds, e.worst())])),
+        }
+    }
+    for (_, points) in &mut lines {
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    lines
+}
+
+/// The closing line: the cheapest setting that meets the target, or the best error reached.
+fn recommendation(
+    measurements: &[Measurement],
+    recommended: Option<usize>,
+    target: f64,
+    member_count: usize,
+) -> String {
+    match recommended {
+        Some(i) => {
+            let m = &measurements[i];
+            format!(
+                "cheapest setting that meets {:e}: {} (error {:.2e}, {:.3} s for {} member(s){})",
+                target,
+                m.setting.label(),
+                m.errors.map_or(f64::NAN, |e| e.worst()),
+                m.wall_seconds,
+                member_count,
+                m.worst_point
+                    .map_or(String::new(), |p| format!("; worst at sweep point {p}"))
+            )
+        }
+        None => format!(
+            "no setting of the ladder meets {:e}; the best error was {:.2e}",
+            target,
+            measurements
+                .iter()
+                .filter_map(|m| m.errors.map(|e| e.worst()))
+                .fold(f64::INFINITY, f64::min)
+        ),
+    }
 }
