@@ -164,35 +164,8 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         eprintln!("{}", engine.record.line());
     }
     let members = plan.members.len();
-    let bytes = output_bytes(&plan);
-    if bytes > OUTPUT_SIZE_LIMIT && !options.allow_large {
-        return Err(Error::invalid(
-            "time.outputs",
-            plan.output_times.len(),
-            format!(
-                "the outputs would take {:.1} GB ({} output times x {} members x N = {}, grid = {}, fields {}) before anything else is written",
-                bytes as f64 / 1e9,
-                plan.output_times.len(),
-                members,
-                plan.particles,
-                plan.grid,
-                {
-                    let f = &plan.fields;
-                    let on = [f.gaps, f.velocities, f.rho, f.u, f.rho_star, f.energy];
-                    crate::model::params::FIELD_NAMES
-                        .iter()
-                        .zip(on)
-                        .filter(|(_, on)| *on)
-                        .map(|(n, _)| *n)
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                }
-            ),
-            format!(
-                "at most {:.1} GB: fewer outputs, a coarser [output] grid or fewer fields, or --allow-large",
-                OUTPUT_SIZE_LIMIT as f64 / 1e9
-            ),
-        ));
+    if !options.allow_large {
+        check_output_size(&plan)?;
     }
     let mut solver = engine.solver(plan.clone(), vec![chain; members])?;
 
@@ -270,64 +243,18 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     )?);
 
     if plotted > 0 {
-        let plot_dir = dir.join("plots");
-        std::fs::create_dir_all(&plot_dir).map_err(|e| Error::io(&plot_dir, e))?;
-        for (m, p) in profiles.iter().enumerate() {
-            let params = &plan.members[m];
-            let title = format!(
-                "{} - member {m} (mu = {}, gamma = {})",
-                scene.name, params.mu, params.gamma
-            );
-            let path = plot_dir.join(format!("member_{m:04}.png"));
-            plot_profiles(
-                &path,
-                &ProfilePlot {
-                    title: &title,
-                    x: solver.grid(),
-                    times: &drawn_times
-                        .iter()
-                        .map(|&k| plan.output_times[k])
-                        .collect::<Vec<f64>>(),
-                    rho: &p.profiles.rho,
-                    u: &p.profiles.u,
-                    rho_star: plan.repulsion.then_some(p.profiles.rho_star.as_slice()),
-                },
-            )?;
-            files.push(path);
-            let map_t: Vec<f64> = map_times.iter().map(|&k| plan.output_times[k]).collect();
-            let mut maps = vec![("rho", &p.map.rho), ("u", &p.map.u)];
-            if plan.repulsion {
-                maps.push(("rho_star", &p.map.rho_star));
-            }
-            for (field, rows) in maps {
-                let path = plot_dir.join(format!("member_{m:04}_{field}_xt.png"));
-                crate::plot::plot_xt(
-                    &path,
-                    &format!("{title}: {field}(x, t)"),
-                    field,
-                    solver.grid(),
-                    &map_t,
-                    rows,
-                )?;
-                files.push(path);
-            }
-        }
-        let series: Vec<(String, Vec<f64>)> = (0..members.min(16))
-            .map(|m| {
-                let p = &plan.members[m];
-                let column = (0..t_count as usize).map(|t| max_density[t * members + m]);
-                (format!("mu={} gamma={}", p.mu, p.gamma), column.collect())
-            })
-            .collect();
-        let path = plot_dir.join("max_density.png");
-        plot_series(
-            &path,
-            &format!("{}: max density", scene.name),
-            "max rho",
-            &plan.output_times,
-            &series,
-        )?;
-        files.push(path);
+        files.extend(write_plots(
+            dir,
+            &RunPlots {
+                scene,
+                plan: &plan,
+                grid: solver.grid(),
+                profiles: &profiles,
+                drawn_times: &drawn_times,
+                map_times: &map_times,
+                max_density: &max_density,
+            },
+        )?);
     }
 
     let reports = solver.reports();
@@ -401,6 +328,131 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         )
         .is_some(),
     })
+}
+
+/// Refuses a run whose outputs would exceed [`OUTPUT_SIZE_LIMIT`], naming what drives their
+/// size (`--allow-large` skips this).
+fn check_output_size(plan: &Plan) -> Result<()> {
+    let bytes = output_bytes(plan);
+    if bytes > OUTPUT_SIZE_LIMIT {
+        return Err(Error::invalid(
+            "time.outputs",
+            plan.output_times.len(),
+            format!(
+                "the outputs would take {:.1} GB ({} output times x {} members x N = {}, grid = {}, fields {}) before anything else is written",
+                bytes as f64 / 1e9,
+                plan.output_times.len(),
+                plan.members.len(),
+                plan.particles,
+                plan.grid,
+                {
+                    let f = &plan.fields;
+                    let on = [f.gaps, f.velocities, f.rho, f.u, f.rho_star, f.energy];
+                    crate::model::params::FIELD_NAMES
+                        .iter()
+                        .zip(on)
+                        .filter(|(_, on)| *on)
+                        .map(|(n, _)| *n)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                }
+            ),
+            format!(
+                "at most {:.1} GB: fewer outputs, a coarser [output] grid or fewer fields, or --allow-large",
+                OUTPUT_SIZE_LIMIT as f64 / 1e9
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// What a run's plots are drawn from.
+struct RunPlots<'a> {
+    scene: &'a Scene,
+    plan: &'a Plan,
+    grid: &'a [f64],
+    /// The plotted members' profiles and x-t maps.
+    profiles: &'a [PlottedProfiles],
+    drawn_times: &'a [usize],
+    map_times: &'a [usize],
+    /// Time-major, every member.
+    max_density: &'a [f64],
+}
+
+/// The plotted members' profiles and x-t maps, and the largest density over time of the first
+/// 16 members.
+fn write_plots(dir: &std::path::Path, plots: &RunPlots) -> Result<Vec<PathBuf>> {
+    let RunPlots {
+        scene,
+        plan,
+        grid,
+        profiles,
+        drawn_times,
+        map_times,
+        max_density,
+    } = *plots;
+    let members = plan.members.len();
+    let t_count = plan.output_times.len() as u64;
+    let mut files = Vec::new();
+    let plot_dir = dir.join("plots");
+    std::fs::create_dir_all(&plot_dir).map_err(|e| Error::io(&plot_dir, e))?;
+    for (m, p) in profiles.iter().enumerate() {
+        let params = &plan.members[m];
+        let title = format!(
+            "{} - member {m} (mu = {}, gamma = {})",
+            scene.name, params.mu, params.gamma
+        );
+        let path = plot_dir.join(format!("member_{m:04}.png"));
+        plot_profiles(
+            &path,
+            &ProfilePlot {
+                title: &title,
+                x: grid,
+                times: &drawn_times
+                    .iter()
+                    .map(|&k| plan.output_times[k])
+                    .collect::<Vec<f64>>(),
+                rho: &p.profiles.rho,
+                u: &p.profiles.u,
+                rho_star: plan.repulsion.then_some(p.profiles.rho_star.as_slice()),
+            },
+        )?;
+        files.push(path);
+        let map_t: Vec<f64> = map_times.iter().map(|&k| plan.output_times[k]).collect();
+        let mut maps = vec![("rho", &p.map.rho), ("u", &p.map.u)];
+        if plan.repulsion {
+            maps.push(("rho_star", &p.map.rho_star));
+        }
+        for (field, rows) in maps {
+            let path = plot_dir.join(format!("member_{m:04}_{field}_xt.png"));
+            crate::plot::plot_xt(
+                &path,
+                &format!("{title}: {field}(x, t)"),
+                field,
+                grid,
+                &map_t,
+                rows,
+            )?;
+            files.push(path);
+        }
+    }
+    let series: Vec<(String, Vec<f64>)> = (0..members.min(16))
+        .map(|m| {
+            let p = &plan.members[m];
+            let column = (0..t_count as usize).map(|t| max_density[t * members + m]);
+            (format!("mu={} gamma={}", p.mu, p.gamma), column.collect())
+        })
+        .collect();
+    let path = plot_dir.join("max_density.png");
+    plot_series(
+        &path,
+        &format!("{}: max density", scene.name),
+        "max rho",
+        &plan.output_times,
+        &series,
+    )?;
+    files.push(path);
+    Ok(files)
 }
 
 #[cfg(test)]
