@@ -640,21 +640,20 @@ fn solve_pass(
                 super::state::PointStats::without_bands(header, point).scalars;
         }
     }
-    if !summed_again.is_empty() {
-        let completed: Vec<Vec<Option<RecordedObservables>>> = recorded
-            .iter()
-            .enumerate()
-            .map(|(m, per_time)| match ok_member[m] {
-                true => per_time.clone(),
-                false => per_time.iter().map(|_| None).collect(),
+    // Only the points summed again copy their members' observables, the failed ones left out.
+    // Each (scalar, time) summary still receives its point's groups in order, members in order.
+    for &(i, j) in groups {
+        if !summed_again.contains(&inputs[i].point) {
+            continue;
+        }
+        let completed: Vec<Vec<Option<RecordedObservables>>> = (i..j)
+            .map(|m| match ok_member[m] {
+                true => recorded[m].clone(),
+                false => vec![None; recorded[m].len()],
             })
             .collect();
         for k in 0..t_count {
-            for &(i, j) in groups {
-                if summed_again.contains(&inputs[i].point) {
-                    push_output_scalars(&mut state, header, &inputs[i..j], k, &completed[i..j]);
-                }
-            }
+            push_output_scalars(&mut state, header, &inputs[i..j], k, &completed);
         }
     }
     for &(i, j) in groups {
