@@ -5,10 +5,16 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use roughlub_kernels::SimdLevel;
 
+use std::ops::Range;
+
+use super::histogram::{levels_in_order, occupied_slots};
 use super::{Bins, Histogram, RunningStats, StatsError};
-use fill::{fill_block, BLOCK};
+use fill::{fill_block, Counter, DenseCounts, HeldSlots, BLOCK};
 #[cfg(target_arch = "x86_64")]
 use fill::{fill_block_avx2, fill_block_avx512};
+
+/// A held entry of a value that is counted nowhere (NaN or an infinity).
+const UNCOUNTED: u32 = u32::MAX;
 
 /// Pointwise statistics of a field sampled on a grid of G points, over members: per point the
 /// moments ([`RunningStats`], Chan-mergeable) and the counts of a fixed-bin histogram on
@@ -28,6 +34,15 @@ use fill::{fill_block_avx2, fill_block_avx512};
 /// NaN and ±infinity are rejected pointwise: they enter neither the moments nor the counts and
 /// are counted in that point's [`RunningStats::non_finite`].
 ///
+/// # Few members
+///
+/// A band that holds few rows (at most a quarter of its slots a point: 100 rows for 400 bins)
+/// keeps each row's slots as they are and counts them only when read: the per-point bands of a
+/// sampled design hold one member each, and 402 counters a grid point for one value made their
+/// memory and its first touch most of a small study's statistics. Past that many rows it
+/// counts them into the slots, as a band of many members does from its first push. Both
+/// give the same counts, so the same quantiles, histograms and state files.
+///
 /// # Serialization
 ///
 /// Human-readable formats (JSON): `{lo, hi, bins, points, counts}`, where `counts` holds per
@@ -40,22 +55,99 @@ use fill::{fill_block_avx2, fill_block_avx512};
 pub struct FieldBand {
     bins: Bins,
     points: Vec<RunningStats>,
-    /// Per point, `bins + 2` slot counts (see [`Bins::slot`]), point after point in one block:
-    /// the fill indexes it without a pointer per point, and u32 halves what is zeroed, scanned
-    /// and read. A point holds at most `u32::MAX` values (4 billion members of one sweep
-    /// point); more is refused ([`StatsError::CountOverflow`]), never wrapped.
+    /// Once `dense`: per point, `bins + 2` slot counts (see [`Bins::slot`]), point after point
+    /// in one block: the fill indexes it without a pointer per point, and u32 halves what is
+    /// zeroed, scanned and read. A point holds at most `u32::MAX` values (4 billion members of
+    /// one sweep point); more is refused ([`StatsError::CountOverflow`]), never wrapped. Empty
+    /// before.
     slots: Vec<u32>,
+    /// Until `dense`: the slot of every value pushed, row after row of G points
+    /// ([`UNCOUNTED`] for a non-finite value), `held_rows` rows. Empty after.
+    held: Vec<u32>,
+    held_rows: usize,
+    dense: bool,
 }
 
 impl FieldBand {
     /// An empty band of a field with `points` grid points, `bins` equal bins on `[lo, hi]`.
     pub fn new(points: usize, lo: f64, hi: f64, bins: usize) -> Result<Self, StatsError> {
         let bins = Bins::new(lo, hi, bins)?;
-        Ok(FieldBand {
+        Ok(FieldBand::from_parts(
             bins,
-            points: vec![RunningStats::new(); points],
-            slots: vec![0; points * (bins.len() + 2)],
-        })
+            vec![RunningStats::new(); points],
+            Vec::new(),
+        ))
+    }
+
+    /// A band of these points: dense with these slot counts, or held and empty if there are
+    /// none (a new band).
+    fn from_parts(bins: Bins, points: Vec<RunningStats>, slots: Vec<u32>) -> Self {
+        let dense = !slots.is_empty();
+        FieldBand {
+            bins,
+            points,
+            slots,
+            held: Vec::new(),
+            held_rows: 0,
+            dense,
+        }
+    }
+
+    /// The most rows a band holds before it counts them into slots: their entries then take a
+    /// quarter of the slots' memory.
+    fn max_held_rows(&self) -> usize {
+        self.stride() / 4
+    }
+
+    /// Counts the held rows into slots; from then on pushes and merges count there.
+    fn make_dense(&mut self) {
+        if self.dense {
+            return;
+        }
+        let (g, stride) = (self.points.len(), self.stride());
+        let mut slots = vec![0u32; g * stride];
+        for row in self.held.chunks_exact(g.max(1)) {
+            for (j, &s) in row.iter().enumerate().filter(|(_, &s)| s != UNCOUNTED) {
+                slots[j * stride + s as usize] += 1;
+            }
+        }
+        self.slots = slots;
+        self.held = Vec::new();
+        self.held_rows = 0;
+        self.dense = true;
+    }
+
+    /// Calls `f` with each point's index, slot counts and occupied slots (empty outside them),
+    /// in order: a held band counts each point's values into one reused array, cleared after
+    /// each call.
+    fn for_each_point(&self, mut f: impl FnMut(usize, &[u32], Range<usize>)) {
+        let (g, stride) = (self.points.len(), self.stride());
+        if self.dense {
+            for (j, slots) in self.slots.chunks_exact(stride).enumerate() {
+                f(j, slots, occupied_slots(slots));
+            }
+            return;
+        }
+        let mut slots = vec![0u32; stride];
+        for j in 0..g {
+            let values = || {
+                self.held
+                    .iter()
+                    .skip(j)
+                    .step_by(g)
+                    .filter(|&&s| s != UNCOUNTED)
+                    .map(|&s| s as usize)
+            };
+            let (mut first, mut last) = (stride, 0);
+            for s in values() {
+                slots[s] += 1;
+                (first, last) = (first.min(s), last.max(s + 1));
+            }
+            f(j, &slots, first.min(last)..last);
+            for s in values() {
+                slots[s] = 0;
+            }
+        }
     }
 
     /// Slots per point: the bins, underflow and overflow.
@@ -64,9 +156,17 @@ impl FieldBand {
     }
 
     /// The slot counts of point `j`.
-    fn point_slots(&self, j: usize) -> &[u32] {
+    fn point_slots(&self, j: usize) -> std::borrow::Cow<'_, [u32]> {
         let stride = self.stride();
-        &self.slots[j * stride..(j + 1) * stride]
+        if self.dense {
+            return self.slots[j * stride..(j + 1) * stride].into();
+        }
+        let mut slots = vec![0u32; stride];
+        let values = self.held.iter().skip(j).step_by(self.points.len());
+        for &s in values.filter(|&&s| s != UNCOUNTED) {
+            slots[s as usize] += 1;
+        }
+        slots.into()
     }
 
     /// Fails unless every point can count `extra` more values (see [`slots`](Self::slots)).
@@ -132,28 +232,32 @@ impl FieldBand {
         if rows.is_empty() {
             return Ok(());
         }
-        let (bins, stride) = (self.bins, self.stride());
-        let blocks = self
-            .points
-            .chunks_mut(BLOCK)
-            .zip(self.slots.chunks_mut(BLOCK * stride));
-        for (b, (points, slots)) in blocks.enumerate() {
-            #[cfg(target_arch = "x86_64")]
-            match level {
-                // SAFETY: the CPU has AVX-512 F/VL/DQ (`level` is at most `widest_here`).
-                SimdLevel::Avx512 => {
-                    unsafe { fill_block_avx512(bins, rows, b * BLOCK, points, slots) };
-                    continue;
-                }
-                // SAFETY: the CPU has AVX2 (`level` is at most `widest_here`).
-                SimdLevel::Avx2Fma => {
-                    unsafe { fill_block_avx2(bins, rows, b * BLOCK, points, slots) };
-                    continue;
-                }
-                SimdLevel::Portable => {}
-            }
-            fill_block(bins, rows, b * BLOCK, points, slots)
+        if self.held_rows + rows.len() > self.max_held_rows() {
+            self.make_dense();
         }
+        let (bins, stride) = (self.bins, self.stride());
+        if self.dense {
+            let blocks = self
+                .points
+                .chunks_mut(BLOCK)
+                .zip(self.slots.chunks_mut(BLOCK * stride));
+            for (b, (points, slots)) in blocks.enumerate() {
+                let counts = DenseCounts { slots, stride };
+                fill_at(level, bins, rows, b * BLOCK, points, counts);
+            }
+            return Ok(());
+        }
+        let first = self.held.len();
+        self.held.resize(first + rows.len() * g, UNCOUNTED);
+        for (b, points) in self.points.chunks_mut(BLOCK).enumerate() {
+            let held = HeldSlots {
+                held: &mut self.held[first..],
+                points: g,
+                j0: b * BLOCK,
+            };
+            fill_at(level, bins, rows, b * BLOCK, points, held);
+        }
+        self.held_rows += rows.len();
         Ok(())
     }
 
@@ -182,6 +286,7 @@ impl FieldBand {
                 got: bad.len(),
             });
         }
+        self.make_dense();
         let stride = self.stride();
         let mut slots = self.slots.clone();
         for row in rows {
@@ -212,8 +317,23 @@ impl FieldBand {
         for (a, b) in self.points.iter_mut().zip(&other.points) {
             a.merge(b);
         }
-        for (x, y) in self.slots.iter_mut().zip(&other.slots) {
-            *x += y;
+        if other.dense || self.held_rows + other.held_rows > self.max_held_rows() {
+            self.make_dense();
+        }
+        if !self.dense {
+            self.held.extend_from_slice(&other.held);
+            self.held_rows += other.held_rows;
+        } else if other.dense {
+            for (x, y) in self.slots.iter_mut().zip(&other.slots) {
+                *x += y;
+            }
+        } else {
+            let (g, stride) = (self.points(), self.stride());
+            for row in other.held.chunks_exact(g.max(1)) {
+                for (j, &s) in row.iter().enumerate().filter(|(_, &s)| s != UNCOUNTED) {
+                    self.slots[j * stride + s as usize] += 1;
+                }
+            }
         }
         Ok(())
     }
@@ -253,14 +373,42 @@ impl FieldBand {
     /// [`quantile_row`](Self::quantile_row) at each level of `qs` (one row per level, in that
     /// order), from one pass over each point's slots.
     pub fn quantile_rows(&self, qs: &[f64]) -> Result<Vec<Vec<f64>>, StatsError> {
+        if let Some(&q) = qs.iter().find(|q| !(0.0..=1.0).contains(*q)) {
+            return Err(StatsError::InvalidQuantile(q));
+        }
         let mut rows = vec![Vec::with_capacity(self.points()); qs.len()];
-        for slots in self.slots.chunks_exact(self.stride()) {
-            for (row, v) in rows.iter_mut().zip(self.bins.quantiles(slots, qs)?) {
+        let (by_level, mut values) = (levels_in_order(qs), vec![f64::NAN; qs.len()]);
+        self.for_each_point(|_, slots, occupied| {
+            self.bins
+                .quantiles_in(slots, occupied, qs, &by_level, &mut values);
+            for (row, &v) in rows.iter_mut().zip(&values) {
                 row.push(v);
             }
-        }
+        });
         Ok(rows)
     }
+}
+
+/// [`fill_block`] at the instruction set `level` (at most what the CPU runs).
+fn fill_at<C: Counter>(
+    level: SimdLevel,
+    bins: Bins,
+    rows: &[&[f64]],
+    j0: usize,
+    points: &mut [RunningStats],
+    counter: C,
+) {
+    #[cfg(target_arch = "x86_64")]
+    match level {
+        // SAFETY: the CPU has AVX-512 F/VL/DQ (`level` is at most `widest_here`).
+        SimdLevel::Avx512 => return unsafe { fill_block_avx512(bins, rows, j0, points, counter) },
+        // SAFETY: the CPU has AVX2 (`level` is at most `widest_here`).
+        SimdLevel::Avx2Fma => return unsafe { fill_block_avx2(bins, rows, j0, points, counter) },
+        SimdLevel::Portable => {}
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = level;
+    fill_block(bins, rows, j0, points, counter)
 }
 
 mod fill;
@@ -275,7 +423,7 @@ struct FieldBandRef<'a> {
     bins: u32,
     points: &'a [RunningStats],
     #[serde(serialize_with = "sparse_counts::serialize")]
-    counts: Vec<&'a [u32]>,
+    counts: Vec<Vec<u32>>,
 }
 
 #[derive(Deserialize)]
@@ -340,12 +488,8 @@ impl FieldBandColumns {
         let mut moments = Vec::with_capacity(40 * g);
         let mut nonzero = Vec::with_capacity(4 * g);
         let (mut steps, mut counts) = (Vec::new(), Vec::new());
-        for (stats, slots) in band
-            .points
-            .iter()
-            .zip(band.slots.chunks_exact(band.stride()))
-        {
-            let (n, nf, m) = stats.raw();
+        band.for_each_point(|j, slots, occupied| {
+            let (n, nf, m) = band.points[j].raw();
             put(&mut count, n, 8);
             put(&mut non_finite, nf, 8);
             for v in m {
@@ -353,7 +497,6 @@ impl FieldBandColumns {
             }
             let mut previous = -1i64;
             let mut filled = 0u64;
-            let occupied = super::histogram::occupied_slots(slots);
             for (slot, &c) in slots
                 .iter()
                 .enumerate()
@@ -367,7 +510,7 @@ impl FieldBandColumns {
                 filled += 1;
             }
             put(&mut nonzero, filled, 4);
-        }
+        });
         FieldBandColumns {
             lo: band.bins.lo(),
             hi: band.bins.hi(),
@@ -431,11 +574,7 @@ impl FieldBandColumns {
                 next += 1;
             }
         }
-        Ok(FieldBand {
-            bins,
-            points,
-            slots,
-        })
+        Ok(FieldBand::from_parts(bins, points, slots))
     }
 }
 
@@ -449,7 +588,11 @@ impl Serialize for FieldBand {
             hi: self.bins.hi(),
             bins: self.bins.len() as u32,
             points: &self.points,
-            counts: self.slots.chunks_exact(self.stride()).collect(),
+            counts: {
+                let mut counts = Vec::with_capacity(self.points());
+                self.for_each_point(|_, slots, _| counts.push(slots.to_vec()));
+                counts
+            },
         }
         .serialize(s)
     }
@@ -493,11 +636,7 @@ impl TryFrom<FieldBandState> for FieldBand {
                 limit: u32::MAX as u64,
             })?);
         }
-        Ok(FieldBand {
-            bins,
-            points: st.points,
-            slots,
-        })
+        Ok(FieldBand::from_parts(bins, st.points, slots))
     }
 }
 
@@ -511,7 +650,7 @@ mod sparse_counts {
         nonzero: Vec<(u32, u64)>,
     }
 
-    pub fn serialize<S: Serializer>(rows: &[&[u32]], s: S) -> Result<S::Ok, S::Error> {
+    pub fn serialize<S: Serializer>(rows: &[Vec<u32>], s: S) -> Result<S::Ok, S::Error> {
         let sparse: Vec<Row> = rows
             .iter()
             .map(|r| Row {

@@ -94,8 +94,26 @@ impl Bins {
             b ^ (((b >> 63) as u64) >> 1) as i64
         };
         let value = |k: i64| f64::from_bits((k ^ (((k >> 63) as u64) >> 1) as i64) as u64);
+        let (lo_key, hi_key) = (key(self.lo), key(self.hi));
+        // The edge is within a few ulps of lo + i width: walk from there (a study writes
+        // thousands of edges), and bisect only if the walk does not end soon.
+        let guess = (self.lo + i as f64 * self.width()).clamp(self.lo, self.hi);
+        let mut k = key(guess);
+        for _ in 0..64 {
+            if self.bin(value(k)) >= i {
+                if k == lo_key || self.bin(value(k - 1)) < i {
+                    return value(k) + 0.0; // -0.0 -> +0.0
+                }
+                k -= 1;
+            } else {
+                if k == hi_key {
+                    break;
+                }
+                k += 1;
+            }
+        }
         // Invariant: bin(a) < i <= bin(b); bin(lo) = 0 and bin(hi) = bins - 1.
-        let (mut a, mut b) = (key(self.lo), key(self.hi));
+        let (mut a, mut b) = (lo_key, hi_key);
         while (b as i128 - a as i128) > 1 {
             let mid = ((a as i128 + b as i128) >> 1) as i64;
             if self.bin(value(mid)) >= i {
@@ -163,28 +181,44 @@ impl Bins {
                 got: slots.len(),
             });
         }
-        let mut out = vec![f64::NAN; qs.len()];
         // Counted over the occupied slots only: a field band's point fills a few of its
         // hundreds, and a full pass here cost as much as the rest of its quantiles.
-        let occupied = occupied_slots(slots);
+        let mut out = vec![f64::NAN; qs.len()];
+        self.quantiles_in(
+            slots,
+            occupied_slots(slots),
+            qs,
+            &levels_in_order(qs),
+            &mut out,
+        );
+        Ok(out)
+    }
+
+    /// [`quantiles`](Self::quantiles) into `out`, without allocating: `slots` are empty outside
+    /// `occupied`, the levels `qs` are in `[0, 1]` and `by_level` lists their indices in
+    /// increasing order of level ([`levels_in_order`]).
+    pub(super) fn quantiles_in<C: Copy + Into<u64>>(
+        &self,
+        slots: &[C],
+        occupied: std::ops::Range<usize>,
+        qs: &[f64],
+        by_level: &[usize],
+        out: &mut [f64],
+    ) {
+        out.fill(f64::NAN);
         let n: u64 = slots[occupied.clone()].iter().map(|&c| c.into()).sum();
         if n == 0 {
-            return Ok(out);
+            return;
         }
-        // The levels by rank, so that one walk up the cumulative counts finds each in turn.
-        let mut by_rank: Vec<(u64, usize)> = qs
-            .iter()
-            .enumerate()
-            .map(|(i, &q)| (((q * (n - 1) as f64).floor() as u64).min(n - 1), i))
-            .collect();
-        by_rank.sort_unstable();
-        let mut pending = by_rank.into_iter().peekable();
+        // Ranks grow with the level, so one walk up the cumulative counts finds each in turn.
+        let rank = |i: usize| ((qs[i] * (n - 1) as f64).floor() as u64).min(n - 1);
+        let mut pending = by_level.iter().copied().peekable();
         let mut seen = 0;
         // Empty slots below the first value find no level (every rank is >= 0 = seen there).
         for (s, &c) in slots.iter().enumerate().skip(occupied.start) {
             seen += c.into();
-            while let Some(&(rank, i)) = pending.peek() {
-                if rank >= seen {
+            while let Some(&i) = pending.peek() {
+                if rank(i) >= seen {
                     break;
                 }
                 out[i] = if s == 0 || s == self.bins + 1 {
@@ -198,7 +232,6 @@ impl Bins {
                 break;
             }
         }
-        Ok(out)
     }
 
     /// Fails unless `other` has the same range and number of bins (bit for bit).
@@ -401,6 +434,13 @@ impl TryFrom<HistogramState> for Histogram {
         h.non_finite = st.non_finite;
         Ok(h)
     }
+}
+
+/// The indices of the levels `qs` (in `[0, 1]`) in increasing order of level.
+pub(super) fn levels_in_order(qs: &[f64]) -> Vec<usize> {
+    let mut by_level: Vec<usize> = (0..qs.len()).collect();
+    by_level.sort_by(|&a, &b| qs[a].total_cmp(&qs[b]));
+    by_level
 }
 
 /// The slots from the first non-empty one to the last, found 16 slots at a time (a field

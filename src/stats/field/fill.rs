@@ -16,39 +16,81 @@ const PREFETCH_AHEAD: usize = 2;
 /// in Rust), so the same bits, on 4 lanes instead of 2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-pub(super) fn fill_block_avx2(
+pub(super) fn fill_block_avx2<C: Counter>(
     bins: Bins,
     rows: &[&[f64]],
     j0: usize,
     points: &mut [RunningStats],
-    slots: &mut [u32],
+    counter: C,
 ) {
-    fill_block(bins, rows, j0, points, slots)
+    fill_block(bins, rows, j0, points, counter)
 }
 
 /// [`fill_block`] compiled for AVX-512: 8 lanes, and 32 registers for the block's sums
 /// (1.5-2 times the AVX2 fill's speed, `cargo bench --bench field_band`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl,avx512dq,avx2,fma")]
-pub(super) fn fill_block_avx512(
+pub(super) fn fill_block_avx512<C: Counter>(
     bins: Bins,
     rows: &[&[f64]],
     j0: usize,
     points: &mut [RunningStats],
-    slots: &mut [u32],
+    counter: C,
 ) {
-    fill_block(bins, rows, j0, points, slots)
+    fill_block(bins, rows, j0, points, counter)
+}
+
+/// Where the fill puts each finite value's slot: counted in the block's dense slots, or held
+/// as it is while the band holds few rows.
+pub(super) trait Counter {
+    /// The value of row `m` at the block's point `k` falls in `slot` (in `0..=bins + 1`).
+    fn count(&mut self, m: usize, k: usize, slot: i32);
+}
+
+/// A block's `bins + 2` slot counts a point, point after point.
+pub(super) struct DenseCounts<'a> {
+    pub slots: &'a mut [u32],
+    pub stride: usize,
+}
+
+impl Counter for DenseCounts<'_> {
+    #[inline(always)]
+    fn count(&mut self, _m: usize, k: usize, slot: i32) {
+        // SAFETY: slot is in [0, bins + 1] and k < the block's width, so the index is inside
+        // the block's `width * stride` slots.
+        unsafe {
+            *self
+                .slots
+                .get_unchecked_mut(k * self.stride + slot as usize) += 1
+        };
+    }
+}
+
+/// The slots of the rows being pushed, row after row, each of G points (the entries of a
+/// non-finite value keep [`UNCOUNTED`](super::UNCOUNTED)); the block starts at point `j0`.
+pub(super) struct HeldSlots<'a> {
+    pub held: &'a mut [u32],
+    pub points: usize,
+    pub j0: usize,
+}
+
+impl Counter for HeldSlots<'_> {
+    #[inline(always)]
+    fn count(&mut self, m: usize, k: usize, slot: i32) {
+        self.held[m * self.points + self.j0 + k] = slot as u32;
+    }
 }
 
 /// The body of [`FieldBand::push_rows`] for the block of points `j0..j0 + points.len()` (rows of
-/// length G already checked, at least one row): its moments and its `bins + 2` slots a point.
+/// length G already checked, at least one row): its moments, and each finite value's slot to
+/// `counter`.
 #[inline(always)]
-pub(super) fn fill_block(
+pub(super) fn fill_block<C: Counter>(
     bins: Bins,
     rows: &[&[f64]],
     j0: usize,
     points: &mut [RunningStats],
-    slots: &mut [u32],
+    mut counter: C,
 ) {
     let first_row = rows[0];
     let width = points.len();
@@ -94,12 +136,6 @@ pub(super) fn fill_block(
     let mut min = [f64::INFINITY; BLOCK];
     let mut max = [f64::NEG_INFINITY; BLOCK];
     let mut slot = [0i32; BLOCK];
-    let stride = bins.len() + 2;
-    // SAFETY (both increments below): slot_of is in [0, bins + 1] and k < width, so the
-    // index is inside the block's `width * stride` slots.
-    let mut count = |k: usize, slot: i32| unsafe {
-        *slots.get_unchecked_mut(k * stride + slot as usize) += 1;
-    };
     // Members outer, the points of a row inner: each point's sums run over the rows in order
     // (the result does not depend on the blocking), and the moment updates are straight-line
     // over the block (packed SIMD).
@@ -129,7 +165,7 @@ pub(super) fn fill_block(
                 slot[k] = slot_of(x);
             }
             for (k, &s) in slot[..width].iter().enumerate() {
-                count(k, s);
+                counter.count(m, k, s);
             }
             finite_rows += 1;
             continue;
@@ -148,7 +184,7 @@ pub(super) fn fill_block(
         }
         for k in 0..width {
             if xs[k].is_finite() {
-                count(k, slot[k]);
+                counter.count(m, k, slot[k]);
             }
         }
     }
