@@ -3,7 +3,7 @@
 //! unless `--allow-large`, so that no study dies by the kernel's OOM killer without a message.
 //!
 //! The estimate follows what the study holds at once: the per-time statistics of the detailed
-//! points (the run's total, its field bands dense in memory, and one chunk's scalar summaries), the responses
+//! points (the run's total, its field bands, and one chunk's scalar summaries), the responses
 //! of every point, and one chunk's members (solver state, recorded observables, kept arrays).
 
 use super::files::StudyHeader;
@@ -45,8 +45,15 @@ pub fn estimate(
     let detailed = header.detailed_count();
     let per_point = header.members_per_point.max(1);
     let chunk = spec.chunk as u64;
-    // A field band: per grid point its moments and bins + 2 dense slot counts (u32).
-    let band = g * (64 + (header.bins as u64 + 2) * 4);
+    // A field band: per grid point its moments, and its members' slots as held (u32 each)
+    // while they are at most a quarter of its bins + 2 slot counts (u32), those counts beyond.
+    let slots = header.bins as u64 + 2;
+    let held = if per_point <= slots / 4 {
+        per_point
+    } else {
+        slots
+    };
+    let band = g * (64 + held * 4);
     let scalars = SCALARS.len() as u64 * t * SUMMARY_BYTES;
     let per_detailed = header.band_fields.len() as u64 * t * band + scalars;
     // The run's total, and the chunk's own scalar statistics of the detailed points it touches
