@@ -311,10 +311,11 @@ fn state_files_are_binary_and_old_directories_are_refused_by_name() {
 #[test]
 fn a_study_too_large_for_memory_is_refused_with_its_drivers() {
     let tmp = tempfile::tempdir().unwrap();
-    // 100 grid points x 100000 bins x 3 fields x 3 times x 64 points of a grid design: ~1 TB.
+    // 10^6 grid points x 402 slots x 3 fields x 3 times x 64 points of a grid design: ~1 TB
+    // (200 members a point, more than a band holds before it counts them into slots).
     let text = scene_text(
-        "members = 2\nbins = 100000",
-        "grid = 100000\n[sweep]\nA = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8]\nmu = [0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08]\n",
+        "members = 200\nbins = 400",
+        "grid = 1000000\n[sweep]\nA = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8]\nmu = [0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08]\n",
     );
     let scene = write(tmp.path(), "huge.toml", &text);
     let out = tmp.path().join("huge");
