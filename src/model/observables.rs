@@ -240,19 +240,17 @@ pub fn observe(
     };
     let gap = |i: usize| stored_gap::decode(stored_gaps[i]);
 
-    let mut rho = Vec::new();
-    let mut u = Vec::new();
-    let mut rho_star = Vec::new();
+    let g = grid_x.len();
+    // Filled in place, cell by cell (a Vec grown a cell at a time cost a call per field and
+    // cell, more than the values themselves).
+    let mut rho = vec![0.0; if f.rho { g } else { 0 }];
+    let mut u = vec![0.0; if f.u { g } else { 0 }];
+    let mut rho_star = vec![0.0; if f.rho_star && dstar.is_some() { g } else { 0 }];
     if f.rho || f.u || f.rho_star {
-        let cap = |on: bool| if on { grid_x.len() } else { 0 };
-        rho.reserve(cap(f.rho));
-        u.reserve(cap(f.u));
-        rho_star.reserve(cap(f.rho_star));
         // Cell by cell, the grid points each holds (a grid is typically several points per cell):
         // a cell's values are computed once, and its points are filled as a slice (rho and rho*
-        // constant, u linear), which the compiler packs. Cell i (1-based) covers
-        // [q_{i-1}, q_i); points at or beyond the last q_N belong to the last cell.
-        let g = grid_x.len();
+        // constant, u linear). Cell i (1-based) covers [q_{i-1}, q_i); points at or beyond the
+        // last q_N belong to the last cell.
         // The cells' widths and values first, in loops the compiler packs: a division each,
         // which inside the walk stalled it.
         let two_eps = 2.0 * eps;
@@ -261,8 +259,8 @@ pub fn observe(
             true => widths.iter().map(|&w| two_eps / w).collect(),
             false => Vec::new(),
         };
-        let cell_rho_star: Vec<f64> = match (f.rho_star, dstar) {
-            (true, Some(ds)) => ds.iter().map(|&s| two_eps / (s + two_eps)).collect(),
+        let cell_rho_star: Vec<f64> = match (rho_star.is_empty(), dstar) {
+            (false, Some(ds)) => ds.iter().map(|&s| two_eps / (s + two_eps)).collect(),
             _ => Vec::new(),
         };
         let (mut j, mut i, mut q_left) = (0, 1, 0.0);
@@ -279,21 +277,20 @@ pub fn observe(
                 }
             }
             if end > j {
-                let count = end - j;
                 if let Some(&value) = cell_rho.get(i - 1) {
-                    rho.resize(rho.len() + count, value);
+                    rho[j..end].fill(value);
                 }
                 if let Some(&value) = cell_rho_star.get(i - 1) {
-                    rho_star.resize(rho_star.len() + count, value);
+                    rho_star[j..end].fill(value);
                 }
                 if f.u {
                     let u_left = if i >= 2 { velocities[i - 2] } else { 0.0 };
                     let u_right = if i < n { velocities[i - 1] } else { 0.0 };
                     let width = q_right - q_left;
-                    u.extend(grid_x[j..end].iter().map(|&x| {
+                    for (u, &x) in u[j..end].iter_mut().zip(&grid_x[j..end]) {
                         let s = ((x - q_left) / width).clamp(0.0, 1.0);
-                        u_left + (u_right - u_left) * s
-                    }));
+                        *u = u_left + (u_right - u_left) * s;
+                    }
                 }
                 j = end;
             }
