@@ -11,6 +11,7 @@ pub mod converge;
 pub mod ensemble;
 pub mod error;
 pub mod expr;
+pub(crate) mod input;
 pub mod model;
 pub mod output;
 pub mod plot;

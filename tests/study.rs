@@ -2,7 +2,7 @@
 //! `roughlub` command:
 //!
 //! 1. the statistics written by a study against a direct computation over members rebuilt and
-//!    solved here with the library (`ensemble::members::EnsembleMembers`, `cpu::CpuSolver`);
+//!    solved here with the library (`scene::members::EnsembleMembers`, `cpu::CpuSolver`);
 //! 2. sharding: `--shard k/3` runs merged with `roughlub merge` equal the unsharded study, and
 //!    overlapping shards are refused;
 //! 3. reproducibility of members.csv across chunk sizes and thread counts;
@@ -20,7 +20,7 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use roughlub::backend::BatchSolver;
-use roughlub::ensemble::members::EnsembleMembers;
+use roughlub::scene::members::EnsembleMembers;
 use roughlub::scene::Scene;
 use serde_json::Value;
 use {roughlub::backend::cpu::CpuSolver, roughlub::backend::MemberStatus};

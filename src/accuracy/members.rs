@@ -5,11 +5,11 @@ use std::time::Instant;
 
 use super::{Errors, Run, Setting};
 use crate::backend::select;
-use crate::ensemble::members::EnsembleMembers;
 use crate::error::Result;
 use crate::model::chain::Chain;
 use crate::model::observables::Snapshot;
 use crate::model::plan::Plan;
+use crate::scene::members::EnsembleMembers;
 use crate::scene::Scene;
 
 /// How many sweep points a parameter study's accuracy measures by default: the first, the last

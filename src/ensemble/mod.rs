@@ -35,7 +35,6 @@
 use std::path::PathBuf;
 
 pub mod design;
-pub mod members;
 mod perturb;
 mod radii;
 mod roughness;
@@ -44,7 +43,9 @@ mod streams;
 
 pub use design::{Axis, Design, DesignKind, Scale};
 pub use perturb::{jitter_gaps, perturbed_velocity, validate_velocity_perturbation};
-pub use radii::{dstar_from_radii, mean_radii_from_rho_star, read_radii_file};
+pub use radii::{
+    dstar_from_radii, mean_radii_from_rho_star, read_radii_file, MAX_ROUGHNESS_RADIUS,
+};
 pub use roughness::{RoughnessKind, RoughnessSpec, UNIFORM_MAX_SPREAD};
 pub use sampler::{correlated_field, roughness_radii, RoughnessSampler};
 pub use streams::{member_rng, purpose_seed, Purpose};

@@ -3,7 +3,11 @@
 use std::path::Path;
 
 use super::EnsembleError;
-use crate::scene::{number_text, MAX_ROUGHNESS_RADIUS};
+use crate::input::{csv_rows, number_text};
+
+/// Roughness radii r (particle files, roughness files) lie in 0 <= r < MAX_ROUGHNESS_RADIUS, the
+/// length of the domain [0, 1].
+pub const MAX_ROUGHNESS_RADIUS: f64 = 1.0;
 
 /// Reads a CSV with header `r` and one radius per row (N+1 rows; `#` starts a comment line).
 pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
@@ -19,7 +23,7 @@ pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
             other => std::io::Error::other(format!("{other:?}")),
         },
     };
-    let (mut reader, headers) = crate::scene::csv_rows::open_with_header(path, open_error, err)?;
+    let (mut reader, headers) = csv_rows::open_with_header(path, open_error, err)?;
     let names: Vec<&str> = headers.iter().collect();
     if names != ["r"] {
         return Err(err(
@@ -28,7 +32,7 @@ pub fn read_radii_file(path: &Path) -> Result<Vec<f64>, EnsembleError> {
         ));
     }
     let mut radii = Vec::new();
-    for (line, record) in crate::scene::csv_rows::rows_with_lines(&mut reader, err)? {
+    for (line, record) in csv_rows::rows_with_lines(&mut reader, err)? {
         let text = record.get(0).unwrap_or("");
         let r: f64 = text
             .parse()

@@ -6,16 +6,7 @@ use std::fmt::{self, Display};
 use super::{MAX_GAMMA, MAX_MU};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
-
-/// How a message writes a number: as Rust writes it (`0.01`, `2000`, `NaN`), except that a
-/// magnitude of 1e16 or more is written with an exponent (`1e308`, not 309 digits).
-pub(crate) fn number_text(v: f64) -> String {
-    if v.is_finite() && v.abs() >= 1e16 {
-        format!("{v:e}")
-    } else {
-        v.to_string()
-    }
-}
+use crate::input::number_text;
 
 /// A computed number in a message, to 4 significant digits (`0.5563`, `1099`, `5.563e-297`).
 pub(crate) fn approx_text(v: f64) -> String {

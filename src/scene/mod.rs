@@ -6,10 +6,10 @@
 //! `particle_file` then build the initial chain.
 
 mod checks;
-pub(crate) mod csv_rows;
 mod ensemble;
 mod file;
 pub mod initial;
+pub mod members;
 mod particle_file;
 mod plan;
 pub mod sweep;
@@ -25,8 +25,8 @@ pub use sweep::{SweepSpec, SweepTarget, MAX_SWEEP_POINTS};
 use crate::backend::{Backend, Precision};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
+pub(crate) use crate::input::number_text;
 use crate::model::params::{MemberParams, Order, OutputFields, Stepping, FIELD_NAMES, MAX_ORDER};
-pub(crate) use checks::number_text;
 use checks::{
     approx_text, check_gamma, check_mu, check_non_empty, check_profile, check_range, parse_expr,
     Range,
@@ -94,9 +94,7 @@ pub const MAX_MU: f64 = 1e12;
 /// smallest size moves a particle across the domain, and from about 1e154 the kinetic energy
 /// eps Σ u_i² overflows f64.
 pub const MAX_VELOCITY: f64 = 1e12;
-/// Roughness radii r (particle files, roughness files) lie in 0 <= r < MAX_ROUGHNESS_RADIUS, the
-/// length of the domain [0, 1].
-pub const MAX_ROUGHNESS_RADIUS: f64 = 1.0;
+pub use crate::ensemble::MAX_ROUGHNESS_RADIUS;
 
 impl Scene {
     pub fn from_file(path: &Path) -> Result<Scene> {
@@ -327,7 +325,7 @@ fn check_profiles(rho: &Expr, velocity: &Expr, rho_star: Option<&Expr>) -> Resul
 /// [`check_profiles`] for the density profiles a sweep point's parameters changed (`base`
 /// holds the unswept scene's, already checked): the whole profile enters the construction of
 /// the chain. A changed velocity is checked where it is used, at each member's particles
-/// ([`crate::ensemble::members`]): re-sampling it on 20001 points cost ~1 ms per point, most of
+/// ([`crate::scene::members`]): re-sampling it on 20001 points cost ~1 ms per point, most of
 /// a design of thousands of points whose parameter sits in the velocity.
 fn check_changed_profiles(
     (rho, _velocity, rho_star): (&Expr, &Expr, Option<&Expr>),

@@ -33,7 +33,7 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
         path: path.to_path_buf(),
         source: std::io::Error::other(format!("cannot open the particle file: {e}")),
     };
-    let (mut reader, headers) = super::csv_rows::open_with_header(path, open_error, err)?;
+    let (mut reader, headers) = crate::input::csv_rows::open_with_header(path, open_error, err)?;
     let names: Vec<&str> = headers.iter().collect();
     if names != ["x", "u"] && names != ["x", "u", "r"] {
         return Err(err(
@@ -45,7 +45,7 @@ pub fn chain_from_particle_file(path: &Path, eps: f64, expected_n: Option<usize>
     let mut rows: Vec<ParticleRow> = Vec::new();
     // Physical line of each row (comment lines are skipped by the reader).
     let mut lines: Vec<usize> = Vec::new();
-    for (line, record) in super::csv_rows::rows_with_lines(&mut reader, err)? {
+    for (line, record) in crate::input::csv_rows::rows_with_lines(&mut reader, err)? {
         let row: ParticleRow = record
             .deserialize(Some(&headers))
             .map_err(|e| err(line, format!("not a row of numbers x,u,r: {e}")))?;

@@ -10,8 +10,8 @@ use serde::{Deserialize, Serialize};
 use super::state::StudyState;
 use crate::backend::select::{BackendRecord, RunsOn};
 use crate::backend::Precision;
-use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
+use crate::scene::members::EnsembleMembers;
 use crate::scene::{EnsembleSpec, Scene};
 
 /// What a study computes; written to `study.json` first and checked on resume and merge.

@@ -1,7 +1,7 @@
 //! Ensemble studies (`[ensemble]` in a scene): thousands to millions of members that differ by
 //! random roughness profiles, perturbed initial data and swept parameters, solved in chunks and
 //! summarised by mergeable statistics. Member m's random inputs are a pure function of
-//! (seed, m) ([`crate::ensemble::members`]), so its result does not depend on chunking, threads,
+//! (seed, m) ([`crate::scene::members`]), so its result does not depend on chunking, threads,
 //! backend or shard.
 //!
 //! A fresh study is written into a staging directory beside `--out` (`.NAME.partial-PID`) and
@@ -23,7 +23,7 @@
 //! State files are binary ([`crate::output::state_file`], CBOR); study.json and the manifest
 //! stay JSON.
 //!
-//! The code follows the pipeline: [`EnsembleMembers`](crate::ensemble::members::EnsembleMembers)
+//! The code follows the pipeline: [`EnsembleMembers`](crate::scene::members::EnsembleMembers)
 //! builds each member's inputs; `chunk.rs` solves a chunk of members through the backend seam and
 //! summarises it into a [`StudyState`] (`state.rs`, everything mergeable); `files.rs` holds the
 //! header, checkpoint and partial files, members.csv and the resume check; `report.rs` writes
@@ -44,13 +44,13 @@ use std::time::Instant;
 
 use crate::backend::report::run_error_estimate_method;
 use crate::backend::{select, Backend, Engine, Precision};
-use crate::ensemble::members::EnsembleMembers;
 use crate::error::{Error, Result};
 use crate::output::manifest::{ErrorEstimateRecord, StudyManifest, StudySceneRecord, VERSION};
 use crate::output::{
     prepare_dir, read_json, read_state, write_json_atomic, write_state_atomic, ProgressReporter,
     StagedDir, MANIFEST,
 };
+use crate::scene::members::EnsembleMembers;
 use crate::scene::{EnsembleSpec, Scene};
 
 use chunk::{chunk_plan, solve_chunk, RowBuffer, StudyCosts};
