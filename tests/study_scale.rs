@@ -6,6 +6,7 @@
 //! 3. the state files are binary, merge exactly, and a study directory of the old (JSON) format
 //!    is refused by name;
 //! 4. a study whose memory estimate exceeds the limit is refused with the settings that drive it.
+//! 5. a design with every point detailed keeps each one-member band at what it holds.
 //!
 //! The peak memory of a run is the child's own `ru_maxrss` (wait4), so this file holds the only
 //! tests that measure it and each spawns its own child.
@@ -340,4 +341,62 @@ fn a_study_too_large_for_memory_is_refused_with_its_drivers() {
     }
     assert!(!out.exists(), "a refused study wrote {out:?}");
     assert!(peak < 500_000_000, "the refusal itself used {peak} B");
+}
+
+/// 5. Per-time statistics for every point of a sampled design (400 points of one member, each
+///    detailed): each point's field bands hold its one member's slots, not 402 counters a grid
+///    point, so the study stays far below what counted slots would take (3 fields x 3 times x
+///    200 points x 402 x 4 B = 2.9 MB a point, 1.2 GB in all), and a band of one member reads
+///    back as that member: every quantile level in the same bin, within half a bin of its mean.
+#[test]
+fn every_point_of_a_design_detailed_stays_small() {
+    let tmp = tempfile::tempdir().unwrap();
+    let points = 400u64;
+    let text = scene_text(
+        &format!("members = 1\nchunk = 128\ndetailed_points = {points}"),
+        &format!(
+            "[sweep]\ndesign = \"random\"\npoints = {points}\nseed = 4\nmu = {{ min = 0.005, max = 0.05, scale = \"log\" }}\nA = {{ min = 0.2, max = 0.8 }}\n"
+        ),
+    );
+    let scene = write(tmp.path(), "detailed.toml", &text);
+    let out = tmp.path().join("detailed");
+    let (o, peak) = roughlub_measured(&[
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert_success(&o, "design with every point detailed");
+    let estimate = manifest(&out)["memory_estimate_bytes"].as_u64().unwrap();
+    eprintln!(
+        "{points} detailed points of one member: peak memory {:.1} MB, estimate {:.1} MB",
+        peak as f64 / 1e6,
+        estimate as f64 / 1e6
+    );
+    assert!(peak < 400_000_000, "peak memory {peak} B");
+    assert!(estimate < 600_000_000, "estimate {estimate} B");
+
+    let (shape, quantiles) = npy(&out.join("stats/rho_quantiles.npy"));
+    let (t, q, g) = (shape[1] as usize, shape[2] as usize, shape[3] as usize);
+    assert_eq!((shape[0], t, g), (points, 3, 200));
+    let (_, mean) = npy(&out.join("stats/rho_mean.npy"));
+    // rho's bins: 400 on [0, 1].
+    let half_bin = 0.5 / 400.0;
+    for p in 0..points as usize {
+        for k in 0..t {
+            for j in 0..g {
+                let m = mean[(p * t + k) * g + j];
+                let first = quantiles[((p * t + k) * q) * g + j];
+                assert!(
+                    (first - m).abs() <= half_bin + 1e-15,
+                    "point {p}, time {k}, x {j}"
+                );
+                for level in 1..q {
+                    let v = quantiles[((p * t + k) * q + level) * g + j];
+                    assert_eq!(v.to_bits(), first.to_bits(), "point {p}, level {level}");
+                }
+            }
+        }
+    }
 }
