@@ -101,6 +101,24 @@ fn roughlub_measured(args: &[&str]) -> (Output, u64) {
     (output, usage.ru_maxrss as u64 * 1024)
 }
 
+/// `roughlub run SCENE --out OUT --quiet`, with its peak resident memory in bytes.
+fn run_study_measured(scene: &Path, out: &Path) -> (Output, u64) {
+    roughlub_measured(&[
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ])
+}
+
+/// A sampled `[sweep]` of `points` points over mu (log scale) and A.
+fn sampled_sweep(design: &str, points: u64, seed: u64) -> String {
+    format!(
+        "[sweep]\ndesign = \"{design}\"\npoints = {points}\nseed = {seed}\nmu = {{ min = 0.005, max = 0.05, scale = \"log\" }}\nA = {{ min = 0.2, max = 0.8 }}\n"
+    )
+}
+
 fn roughlub(args: &[&str]) -> Output {
     Command::new(BIN).args(args).output().unwrap()
 }
@@ -157,19 +175,11 @@ fn a_sampled_design_of_thousands_of_points_runs_in_bounded_memory() {
     let points = 3000u64;
     let text = scene_text(
         "members = 1\nchunk = 512",
-        &format!(
-            "[sweep]\ndesign = \"sobol\"\npoints = {points}\nseed = 2\nmu = {{ min = 0.005, max = 0.05, scale = \"log\" }}\nA = {{ min = 0.2, max = 0.8 }}\n"
-        ),
+        &sampled_sweep("sobol", points, 2),
     );
     let scene = write(tmp.path(), "sobol.toml", &text);
     let out = tmp.path().join("sobol");
-    let (o, peak) = roughlub_measured(&[
-        "run",
-        scene.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]);
+    let (o, peak) = run_study_measured(&scene, &out);
     assert_success(&o, "sobol design");
     let disk = dir_bytes(&out);
     eprintln!(
@@ -354,19 +364,11 @@ fn every_point_of_a_design_detailed_stays_small() {
     let points = 400u64;
     let text = scene_text(
         &format!("members = 1\nchunk = 128\ndetailed_points = {points}"),
-        &format!(
-            "[sweep]\ndesign = \"random\"\npoints = {points}\nseed = 4\nmu = {{ min = 0.005, max = 0.05, scale = \"log\" }}\nA = {{ min = 0.2, max = 0.8 }}\n"
-        ),
+        &sampled_sweep("random", points, 4),
     );
     let scene = write(tmp.path(), "detailed.toml", &text);
     let out = tmp.path().join("detailed");
-    let (o, peak) = roughlub_measured(&[
-        "run",
-        scene.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]);
+    let (o, peak) = run_study_measured(&scene, &out);
     assert_success(&o, "design with every point detailed");
     let estimate = manifest(&out)["memory_estimate_bytes"].as_u64().unwrap();
     eprintln!(

@@ -7,7 +7,7 @@ use roughlub_kernels::SimdLevel;
 
 use std::ops::Range;
 
-use super::histogram::{levels_in_order, occupied_slots};
+use super::histogram::{check_levels, levels_in_order, occupied_slots};
 use super::{Bins, Histogram, RunningStats, StatsError};
 use fill::{fill_block, Counter, DenseCounts, HeldSlots, BLOCK};
 #[cfg(target_arch = "x86_64")]
@@ -93,10 +93,34 @@ impl FieldBand {
         }
     }
 
-    /// The most rows a band holds before it counts them into slots: their entries then take a
-    /// quarter of the slots' memory.
+    /// The most rows a band of `bins` bins holds before it counts them into slots: their
+    /// entries then take a quarter of the slots' memory (the study's memory estimate uses it).
+    pub(crate) fn max_held_rows_for(bins: usize) -> usize {
+        (bins + 2) / 4
+    }
+
     fn max_held_rows(&self) -> usize {
-        self.stride() / 4
+        Self::max_held_rows_for(self.bins.len())
+    }
+
+    /// Counts rows of held slots (`held`, rows of G points) into the dense `slots`.
+    fn count_held(held: &[u32], stride: usize, slots: &mut [u32]) {
+        let g = slots.len() / stride;
+        for row in held.chunks_exact(g.max(1)) {
+            for (j, &s) in row.iter().enumerate().filter(|(_, &s)| s != UNCOUNTED) {
+                slots[j * stride + s as usize] += 1;
+            }
+        }
+    }
+
+    /// The slots of point `j`'s finite values while the band holds its rows.
+    fn held_values(&self, j: usize) -> impl Iterator<Item = usize> + '_ {
+        self.held
+            .iter()
+            .skip(j)
+            .step_by(self.points.len())
+            .filter(|&&s| s != UNCOUNTED)
+            .map(|&s| s as usize)
     }
 
     /// Counts the held rows into slots; from then on pushes and merges count there.
@@ -104,13 +128,9 @@ impl FieldBand {
         if self.dense {
             return;
         }
-        let (g, stride) = (self.points.len(), self.stride());
-        let mut slots = vec![0u32; g * stride];
-        for row in self.held.chunks_exact(g.max(1)) {
-            for (j, &s) in row.iter().enumerate().filter(|(_, &s)| s != UNCOUNTED) {
-                slots[j * stride + s as usize] += 1;
-            }
-        }
+        let stride = self.stride();
+        let mut slots = vec![0u32; self.points.len() * stride];
+        Self::count_held(&self.held, stride, &mut slots);
         self.slots = slots;
         self.held = Vec::new();
         self.held_rows = 0;
@@ -130,21 +150,13 @@ impl FieldBand {
         }
         let mut slots = vec![0u32; stride];
         for j in 0..g {
-            let values = || {
-                self.held
-                    .iter()
-                    .skip(j)
-                    .step_by(g)
-                    .filter(|&&s| s != UNCOUNTED)
-                    .map(|&s| s as usize)
-            };
             let (mut first, mut last) = (stride, 0);
-            for s in values() {
+            for s in self.held_values(j) {
                 slots[s] += 1;
                 (first, last) = (first.min(s), last.max(s + 1));
             }
             f(j, &slots, first.min(last)..last);
-            for s in values() {
+            for s in self.held_values(j) {
                 slots[s] = 0;
             }
         }
@@ -162,9 +174,8 @@ impl FieldBand {
             return self.slots[j * stride..(j + 1) * stride].into();
         }
         let mut slots = vec![0u32; stride];
-        let values = self.held.iter().skip(j).step_by(self.points.len());
-        for &s in values.filter(|&&s| s != UNCOUNTED) {
-            slots[s as usize] += 1;
+        for s in self.held_values(j) {
+            slots[s] += 1;
         }
         slots.into()
     }
@@ -328,12 +339,7 @@ impl FieldBand {
                 *x += y;
             }
         } else {
-            let (g, stride) = (self.points(), self.stride());
-            for row in other.held.chunks_exact(g.max(1)) {
-                for (j, &s) in row.iter().enumerate().filter(|(_, &s)| s != UNCOUNTED) {
-                    self.slots[j * stride + s as usize] += 1;
-                }
-            }
+            Self::count_held(&other.held, self.stride(), &mut self.slots);
         }
         Ok(())
     }
@@ -373,9 +379,7 @@ impl FieldBand {
     /// [`quantile_row`](Self::quantile_row) at each level of `qs` (one row per level, in that
     /// order), from one pass over each point's slots.
     pub fn quantile_rows(&self, qs: &[f64]) -> Result<Vec<Vec<f64>>, StatsError> {
-        if let Some(&q) = qs.iter().find(|q| !(0.0..=1.0).contains(*q)) {
-            return Err(StatsError::InvalidQuantile(q));
-        }
+        check_levels(qs)?;
         let mut rows = vec![Vec::with_capacity(self.points()); qs.len()];
         let (by_level, mut values) = (levels_in_order(qs), vec![f64::NAN; qs.len()]);
         self.for_each_point(|_, slots, occupied| {

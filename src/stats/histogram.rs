@@ -171,9 +171,7 @@ impl Bins {
         slots: &[C],
         qs: &[f64],
     ) -> Result<Vec<f64>, StatsError> {
-        if let Some(&q) = qs.iter().find(|q| !(0.0..=1.0).contains(*q)) {
-            return Err(StatsError::InvalidQuantile(q));
-        }
+        check_levels(qs)?;
         if slots.len() != self.bins + 2 {
             return Err(StatsError::LengthMismatch {
                 what: "histogram slots",
@@ -433,6 +431,14 @@ impl TryFrom<HistogramState> for Histogram {
         h.slots[st.bins + 1] = st.overflow;
         h.non_finite = st.non_finite;
         Ok(h)
+    }
+}
+
+/// Fails unless every quantile level is in `[0, 1]`.
+pub(super) fn check_levels(qs: &[f64]) -> Result<(), StatsError> {
+    match qs.iter().find(|q| !(0.0..=1.0).contains(*q)) {
+        Some(&q) => Err(StatsError::InvalidQuantile(q)),
+        None => Ok(()),
     }
 }
 

@@ -10,6 +10,7 @@ use super::files::StudyHeader;
 use super::SCALARS;
 use crate::error::{Error, Result};
 use crate::scene::EnsembleSpec;
+use crate::stats::FieldBand;
 
 /// Bytes of one DDSketch with a few hundred buckets and its moments (a scalar summary).
 const SUMMARY_BYTES: u64 = 4096;
@@ -46,12 +47,11 @@ pub fn estimate(
     let per_point = header.members_per_point.max(1);
     let chunk = spec.chunk as u64;
     // A field band: per grid point its moments, and its members' slots as held (u32 each)
-    // while they are at most a quarter of its bins + 2 slot counts (u32), those counts beyond.
-    let slots = header.bins as u64 + 2;
-    let held = if per_point <= slots / 4 {
+    // while they are few (`FieldBand::max_held_rows_for`), its bins + 2 slot counts (u32) beyond.
+    let held = if per_point <= FieldBand::max_held_rows_for(header.bins) as u64 {
         per_point
     } else {
-        slots
+        header.bins as u64 + 2
     };
     let band = g * (64 + held * 4);
     let scalars = SCALARS.len() as u64 * t * SUMMARY_BYTES;

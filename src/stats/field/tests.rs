@@ -1,18 +1,23 @@
 use super::*;
 
+/// A fixed pseudo-random stream in [0, 1) (xorshift), so that the tests' rows are the same on
+/// every run.
+fn uniform_stream(mut seed: u64) -> impl FnMut() -> f64 {
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 /// The fill at each instruction set this CPU runs gives the portable fill's band bit for bit
 /// (moments and slot counts), on rows with NaN, infinities, values outside the range and a
 /// grid that is not a multiple of the fill's block.
 #[test]
 fn every_instruction_set_fills_the_same_bits() {
     const G: usize = 2 * BLOCK + 13;
-    let mut seed = 0x2545f4914f6cdd1du64;
-    let mut next = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut next = uniform_stream(0x2545f4914f6cdd1d);
     let data: Vec<Vec<f64>> = (0..300)
         .map(|m| {
             (0..G)
@@ -68,13 +73,7 @@ fn every_instruction_set_fills_the_same_bits() {
 
 /// Rows of G points around the range [0, 1] (NaN, infinities, underflow, overflow, the edges).
 fn test_rows(count: usize, g: usize, seed: u64) -> Vec<Vec<f64>> {
-    let mut seed = seed;
-    let mut next = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut next = uniform_stream(seed);
     (0..count)
         .map(|m| {
             (0..g)
