@@ -102,6 +102,76 @@ fn potential_of(eps: f64, gamma: f64, power: Power, d: f64, dstar: f64) -> f64 {
     }
 }
 
+/// Gaps a chunk of [`observe`]'s packed energy terms holds (on the stack).
+const TERM_CHUNK: usize = 64;
+
+/// [`potential_of`] of each gap `d[k]` with `dstar[k]`, into `terms` (as long as `d`): the same
+/// operations, with gamma's power taken a squaring at a time over the whole chunk (the steps of
+/// [`powi_by_squaring`](roughlub_kernels::power::powi_by_squaring), so the same bits) instead of
+/// a gap at a time.
+fn potential_terms(
+    eps: f64,
+    gamma: f64,
+    power: Power,
+    d: &[f64],
+    dstar: &[f64],
+    terms: &mut [f64],
+) {
+    let dstar = &dstar[..d.len()];
+    let n = match power {
+        Power::Integer(n) if gamma != 1.0 => n,
+        // ln and powf: a call a gap either way.
+        _ => {
+            for ((t, &dk), &sk) in terms.iter_mut().zip(d).zip(dstar) {
+                *t = potential_of(eps, gamma, power, dk, sk);
+            }
+            return;
+        }
+    };
+    let mut base = [0.0f64; TERM_CHUNK];
+    let base = &mut base[..d.len()];
+    for ((b, &dk), &sk) in base.iter_mut().zip(d).zip(dstar) {
+        *b = (sk + 2.0 * eps) / (dk + 2.0 * eps);
+    }
+    terms.fill(1.0);
+    let mut e = n;
+    while e > 0 {
+        if e & 1 == 1 {
+            for (t, &b) in terms.iter_mut().zip(base.iter()) {
+                *t *= b;
+            }
+        }
+        e >>= 1;
+        if e > 0 {
+            for b in base.iter_mut() {
+                *b *= *b;
+            }
+        }
+    }
+    for (t, &dk) in terms.iter_mut().zip(d) {
+        *t = (dk + 2.0 * eps) * *t / (gamma - 1.0);
+    }
+}
+
+/// [`dissipation_term`] of the positive gaps `d` (gaps `start..start + d.len()` of `n`), into
+/// `terms`: the interior gaps in a loop without the walls' branches, so that it packs.
+fn dissipation_terms(velocities: &[f64], n: usize, start: usize, d: &[f64], terms: &mut [f64]) {
+    let end = start + d.len();
+    // Gaps 1..n - 1 have a velocity on both sides.
+    let (lo, hi) = (start.max(1), end.min(n.saturating_sub(1)));
+    if lo < hi {
+        let right = &velocities[lo..hi];
+        let left = &velocities[lo - 1..hi - 1];
+        let k = lo - start..hi - start;
+        for (((t, &dk), &r), &l) in terms[k.clone()].iter_mut().zip(&d[k]).zip(right).zip(left) {
+            *t = (r - l).powi(2) / dk;
+        }
+    }
+    for i in (start..end).filter(|&i| i < lo || i >= hi.max(lo)) {
+        terms[i - start] = dissipation_term_of(velocities, n, i, d[i - start]);
+    }
+}
+
 /// Dissipation rate mu Σ (u_i − u_{i−1})² / d_i over free gaps. A gap below the float range
 /// (d = 0) contributes mu d r² = 0: its two particles move as one to rounding.
 pub fn dissipation(mu: f64, gaps: &[f64], velocities: &[f64], bonded: Option<&[bool]>) -> f64 {
@@ -119,7 +189,12 @@ pub fn dissipation(mu: f64, gaps: &[f64], velocities: &[f64], bonded: Option<&[b
 /// (u_i − u_{i−1})² / d_i of gap i (0-based) with gap d (0 for d = 0; the walls are at rest).
 #[inline(always)]
 fn dissipation_term<G>(gaps: &[G], velocities: &[f64], i: usize, d: f64) -> f64 {
-    let n = gaps.len();
+    dissipation_term_of(velocities, gaps.len(), i, d)
+}
+
+/// [`dissipation_term`] of gap i of n.
+#[inline(always)]
+fn dissipation_term_of(velocities: &[f64], n: usize, i: usize, d: f64) -> f64 {
     let right = if i < n - 1 { velocities[i] } else { 0.0 };
     let left = if i > 0 { velocities[i - 1] } else { 0.0 };
     if d > 0.0 {
@@ -209,7 +284,31 @@ pub fn observe(
     let mut kinetic = 0.0;
     let mut potential = 0.0;
     let mut dissipation = 0.0;
-    for (i, &v) in stored_gaps.iter().enumerate() {
+    let all_free_and_plain = bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0);
+    if all_free_and_plain {
+        // Every gap free and stored as d (nearly always): the same terms, computed a chunk at a
+        // time in loops the compiler packs, then summed in the chain's order, so the same bits
+        // as the loop below, whose divisions one after another took a quarter of `observe`'s
+        // time in a 4096-member batch (12.9 % of its samples before, 9.6 % after).
+        kinetic = velocities[..n.saturating_sub(1)]
+            .iter()
+            .fold(0.0, |k, &u| k + u * u);
+        min_stored_d = stored_gaps.iter().fold(f64::INFINITY, |m, &v| m.min(v));
+        min_gap = min_stored_d;
+        let mut terms = [0.0f64; TERM_CHUNK];
+        for start in (0..n).step_by(TERM_CHUNK) {
+            let d = &stored_gaps[start..(start + TERM_CHUNK).min(n)];
+            let terms = &mut terms[..d.len()];
+            if let Some(ds) = dstar {
+                potential_terms(eps, params.gamma, power, d, &ds[start..], terms);
+                potential = terms.iter().fold(potential, |p, &t| p + t);
+            }
+            dissipation_terms(velocities, n, start, d, terms);
+            dissipation = terms.iter().fold(dissipation, |q, &t| q + t);
+        }
+    }
+    let gaps_left = if all_free_and_plain { 0 } else { n };
+    for (i, &v) in stored_gaps[..gaps_left].iter().enumerate() {
         if i + 1 < n {
             kinetic += velocities[i] * velocities[i];
         }

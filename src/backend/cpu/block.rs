@@ -130,11 +130,13 @@ pub(super) struct Block<T: Real, const L: usize> {
     scratch: Scratch<T>,
 }
 
-/// Lane l's values, in f64 for the observables.
-fn lane_values<T: Real, const L: usize>(data: &[T], l: usize) -> Vec<f64> {
+/// Lane l's values into `out` (emptied first), in f64 for the observables: one buffer reused
+/// across a block's lanes, not a Vec a lane and array.
+fn lane_values_into<T: Real, const L: usize>(data: &[T], l: usize, out: &mut Vec<f64>) {
+    out.clear();
     // Whole rows: a plain (vectorised) copy for L = 1, where `step_by` was half of an output's
     // cost at N = 10^6.
-    data.chunks_exact(L).map(|row| row[l].to_f64()).collect()
+    out.extend(data.chunks_exact(L).map(|row| row[l].to_f64()));
 }
 
 /// Interleaved f64 values in T (rounded once).
@@ -547,13 +549,18 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         grid_x: &[f64],
     ) -> Vec<(usize, Snapshot)> {
         let mut out = Vec::new();
+        let (mut gaps, mut vel, mut dstar) = (Vec::new(), Vec::new(), Vec::new());
         for (l, lane) in self.lanes.iter().enumerate() {
             let Some(member) = lane.member else { continue };
             if lane.control.failure != Failure::None {
                 out.push((member, Snapshot::failed(plan)));
                 continue;
             }
-            let dstar = self.model.dstar.as_ref().map(|d| lane_values::<T, L>(d, l));
+            lane_values_into::<T, L>(&self.gaps, l, &mut gaps);
+            lane_values_into::<T, L>(&self.vel, l, &mut vel);
+            if let Some(d) = &self.model.dstar {
+                lane_values_into::<T, L>(d, l, &mut dstar);
+            }
             let bonded = self
                 .model
                 .bonded
@@ -564,9 +571,9 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                 observe(
                     plan,
                     &params[member],
-                    &lane_values::<T, L>(&self.gaps, l),
-                    &lane_values::<T, L>(&self.vel, l),
-                    dstar.as_deref(),
+                    &gaps,
+                    &vel,
+                    self.model.dstar.as_ref().map(|_| dstar.as_slice()),
                     bonded.as_deref(),
                     grid_x,
                 ),
