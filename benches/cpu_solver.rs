@@ -3,11 +3,15 @@
 //! B1_N1000000 and B4_N1000000 are the few-members-huge-N cases, which take the partitioned
 //! solve in f64 and in f32 (`ROUGHLUB_CPU_PARTITION=off` measures the sequential sweep instead).
 //! The f64 rows are the group `cpu_order1_fixed_integer_gamma`, the f32 rows
-//! `cpu_f32_order1_fixed_integer_gamma` (`cargo bench --bench cpu_solver -- f32`).
+//! `cpu_f32_order1_fixed_integer_gamma` (`cargo bench --bench cpu_solver -- f32`). The group
+//! `cpu_order1_fixed_with_estimate` runs three of the f64 rows as a scene does by default, with
+//! the companion at 4 dt that estimates order 1's error (`[solver] error_estimate`): its
+//! particle-steps are the run's, so the ratio of the two groups' rates is the estimate's cost.
 
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use roughlub::backend::companion::{companion_plan, CompanionEstimate};
 use roughlub::backend::cpu::CpuSolver;
 use roughlub::backend::{BatchSolver, Precision};
 use roughlub::expr::Expr;
@@ -22,6 +26,38 @@ fn solver(
     dt: f64,
     precision: Precision,
 ) -> CpuSolver {
+    let (plan, chains) = plan_and_chains(members, particles, steps, dt);
+    let mut s = CpuSolver::with_precision(plan, chains, precision);
+    s.next_output(&|_| {}).unwrap();
+    s
+}
+
+/// The f64 solver of [`solver`] with its companion, as `roughlub run` builds them for order 1
+/// with fixed steps, past its first output.
+fn solver_with_estimate(
+    members: usize,
+    particles: usize,
+    steps: usize,
+    dt: f64,
+) -> CompanionEstimate<'static> {
+    let (mut plan, chains) = plan_and_chains(members, particles, steps, dt);
+    plan.companion_estimate = true;
+    // The comparison reads the gaps and velocities of both.
+    plan.fields.gaps = true;
+    plan.fields.velocities = true;
+    let run = CpuSolver::with_precision(plan.clone(), chains.clone(), Precision::F64);
+    let companion = CpuSolver::with_precision(companion_plan(&plan), chains, Precision::F64);
+    let mut s = CompanionEstimate::new(plan, Box::new(run), Box::new(companion));
+    s.next_output(&|_| {}).unwrap();
+    s
+}
+
+fn plan_and_chains(
+    members: usize,
+    particles: usize,
+    steps: usize,
+    dt: f64,
+) -> (Plan, Vec<roughlub::model::chain::Chain>) {
     let chain = chain_from_profiles(
         particles,
         &Expr::parse("0.7").unwrap(),
@@ -50,14 +86,41 @@ fn solver(
         grid: 2,
         companion_estimate: false,
     };
-    let mut s = CpuSolver::with_precision(plan, vec![chain; members], precision);
-    s.next_output(&|_| {}).unwrap();
-    s
+    (plan, vec![chain; members])
 }
 
 fn particle_steps(c: &mut Criterion) {
     rows(c, "cpu_order1_fixed_integer_gamma", Precision::F64);
     rows(c, "cpu_f32_order1_fixed_integer_gamma", Precision::F32);
+    rows_with_estimate(c);
+}
+
+fn rows_with_estimate(c: &mut Criterion) {
+    let mut group = c.benchmark_group("cpu_order1_fixed_with_estimate");
+    group
+        .sample_size(10)
+        .measurement_time(Duration::from_secs(8))
+        .warm_up_time(Duration::from_secs(1));
+    for (members, particles, steps) in [
+        (1usize, 100_000usize, 20usize),
+        (256, 1000, 40),
+        (4096, 100, 40),
+    ] {
+        let dt = 1e-4;
+        group.throughput(Throughput::Elements((members * particles * steps) as u64));
+        group.bench_with_input(
+            BenchmarkId::from_parameter(format!("B{members}_N{particles}")),
+            &(members, particles, steps),
+            |b, &(m, n, k)| {
+                b.iter_batched(
+                    || solver_with_estimate(m, n, k, dt),
+                    |mut s| s.next_output(&|_| {}).unwrap(),
+                    criterion::BatchSize::LargeInput,
+                )
+            },
+        );
+    }
+    group.finish();
 }
 
 fn rows(c: &mut Criterion, name: &str, precision: Precision) {
