@@ -19,5 +19,7 @@ pub mod run;
 pub mod scene;
 pub mod stats;
 pub mod study;
+#[cfg(test)]
+mod test_rng;
 
 pub use error::{Error, Result};

@@ -229,18 +229,13 @@ impl BatchSolver for CompanionEstimate<'_> {
 #[cfg(test)]
 mod tests {
     use super::largest_log_ratio;
+    use crate::test_rng::uniform_stream;
 
     /// The two-logarithm form gives the largest |ln(a/b)| of the pairs, bit for bit, whether the
     /// ratios lie above 1, below it or on both sides; a gap of 0 on one side only is infinite.
     #[test]
     fn largest_log_ratio_is_the_largest_pairwise_one() {
-        let mut seed = 0x2545f4914f6cdd1du64;
-        let mut uniform = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut uniform = uniform_stream(0x2545f4914f6cdd1d);
         for case in 0..300 {
             let n = 1 + case % 40;
             let fine: Vec<f64> = (0..n).map(|_| 10f64.powf(-12.0 * uniform())).collect();

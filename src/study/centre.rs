@@ -67,6 +67,7 @@ fn peak_centre_of_four(x: &[f64], rows: [&[f64]; 4]) -> [f64; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::uniform_stream;
 
     /// Four rows side by side give each row's own centre, bit for bit, whatever their mix of
     /// flat, peaked, empty and NaN rows.
@@ -74,13 +75,7 @@ mod tests {
     fn peak_centres_side_by_side_are_each_rows_own() {
         let g = 37;
         let x: Vec<f64> = (0..g).map(|j| j as f64 / (g - 1) as f64).collect();
-        let mut seed = 0x9e3779b97f4a7c15u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform_stream(0x9e3779b97f4a7c15);
         let mut rows: Vec<Vec<f64>> = (0..13)
             .map(|_| (0..g).map(|_| 0.5 + next()).collect())
             .collect();

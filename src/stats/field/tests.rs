@@ -1,15 +1,5 @@
 use super::*;
-
-/// A fixed pseudo-random stream in [0, 1) (xorshift), so that the tests' rows are the same on
-/// every run.
-fn uniform_stream(mut seed: u64) -> impl FnMut() -> f64 {
-    move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+use crate::test_rng::uniform_stream;
 
 /// The fill at each instruction set this CPU runs gives the portable fill's band bit for bit
 /// (moments and slot counts), on rows with NaN, infinities, values outside the range and a
