@@ -284,8 +284,7 @@ pub fn observe(
     let mut kinetic = 0.0;
     let mut potential = 0.0;
     let mut dissipation = 0.0;
-    let all_free_and_plain = bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0);
-    if all_free_and_plain {
+    if bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0) {
         // Every gap free and stored as d (nearly always): the same terms, computed a chunk at a
         // time in loops the compiler packs, then summed in the chain's order, so the same bits
         // as the loop below, whose divisions one after another took a quarter of `observe`'s
@@ -306,27 +305,27 @@ pub fn observe(
             dissipation_terms(velocities, n, start, d, terms);
             dissipation = terms.iter().fold(dissipation, |q, &t| q + t);
         }
-    }
-    let gaps_left = if all_free_and_plain { 0 } else { n };
-    for (i, &v) in stored_gaps[..gaps_left].iter().enumerate() {
-        if i + 1 < n {
-            kinetic += velocities[i] * velocities[i];
+    } else {
+        for (i, &v) in stored_gaps.iter().enumerate() {
+            if i + 1 < n {
+                kinetic += velocities[i] * velocities[i];
+            }
+            if bonded.is_some_and(|b| b[i]) {
+                any_bonded = true;
+                continue;
+            }
+            let d = stored_gap::decode(v);
+            if v > 0.0 {
+                min_stored_d = min_stored_d.min(v);
+            } else {
+                min_stored_ln = min_stored_ln.min(stored_gap::ln(v));
+            }
+            min_gap = min_gap.min(d);
+            if let Some(ds) = dstar {
+                potential += potential_of(eps, params.gamma, power, d, ds[i]);
+            }
+            dissipation += dissipation_term(stored_gaps, velocities, i, d);
         }
-        if bonded.is_some_and(|b| b[i]) {
-            any_bonded = true;
-            continue;
-        }
-        let d = stored_gap::decode(v);
-        if v > 0.0 {
-            min_stored_d = min_stored_d.min(v);
-        } else {
-            min_stored_ln = min_stored_ln.min(stored_gap::ln(v));
-        }
-        min_gap = min_gap.min(d);
-        if let Some(ds) = dstar {
-            potential += potential_of(eps, params.gamma, power, d, ds[i]);
-        }
-        dissipation += dissipation_term(stored_gaps, velocities, i, d);
     }
     let log_min_gap = min_stored_ln.min(stored_gap::ln(min_stored_d));
     // 2eps/(d + 2eps) falls with d, and so does its rounded value: the largest density is the
