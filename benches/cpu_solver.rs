@@ -89,53 +89,46 @@ fn plan_and_chains(
     (plan, vec![chain; members])
 }
 
+/// (members, particles, steps) of each row.
+const ROWS: [(usize, usize, usize); 5] = [
+    (1, 100_000, 20),
+    (1, 1_000_000, 10),
+    (4, 1_000_000, 4),
+    (256, 1000, 40),
+    (4096, 100, 40),
+];
+
 fn particle_steps(c: &mut Criterion) {
-    rows(c, "cpu_order1_fixed_integer_gamma", Precision::F64);
-    rows(c, "cpu_f32_order1_fixed_integer_gamma", Precision::F32);
-    rows_with_estimate(c);
+    rows(c, "cpu_order1_fixed_integer_gamma", &ROWS, |m, n, k, dt| {
+        solver(m, n, k, dt, Precision::F64)
+    });
+    rows(
+        c,
+        "cpu_f32_order1_fixed_integer_gamma",
+        &ROWS,
+        |m, n, k, dt| solver(m, n, k, dt, Precision::F32),
+    );
+    rows(
+        c,
+        "cpu_order1_fixed_with_estimate",
+        &[ROWS[0], ROWS[3], ROWS[4]],
+        solver_with_estimate,
+    );
 }
 
-fn rows_with_estimate(c: &mut Criterion) {
-    let mut group = c.benchmark_group("cpu_order1_fixed_with_estimate");
-    group
-        .sample_size(10)
-        .measurement_time(Duration::from_secs(8))
-        .warm_up_time(Duration::from_secs(1));
-    for (members, particles, steps) in [
-        (1usize, 100_000usize, 20usize),
-        (256, 1000, 40),
-        (4096, 100, 40),
-    ] {
-        let dt = 1e-4;
-        group.throughput(Throughput::Elements((members * particles * steps) as u64));
-        group.bench_with_input(
-            BenchmarkId::from_parameter(format!("B{members}_N{particles}")),
-            &(members, particles, steps),
-            |b, &(m, n, k)| {
-                b.iter_batched(
-                    || solver_with_estimate(m, n, k, dt),
-                    |mut s| s.next_output(&|_| {}).unwrap(),
-                    criterion::BatchSize::LargeInput,
-                )
-            },
-        );
-    }
-    group.finish();
-}
-
-fn rows(c: &mut Criterion, name: &str, precision: Precision) {
+/// A group timing one output of `steps` steps from the solver `make` builds for each row.
+fn rows<S: BatchSolver>(
+    c: &mut Criterion,
+    name: &str,
+    sizes: &[(usize, usize, usize)],
+    make: impl Fn(usize, usize, usize, f64) -> S,
+) {
     let mut group = c.benchmark_group(name);
     group
         .sample_size(10)
         .measurement_time(Duration::from_secs(8))
         .warm_up_time(Duration::from_secs(1));
-    for (members, particles, steps) in [
-        (1usize, 100_000usize, 20usize),
-        (1, 1_000_000, 10),
-        (4, 1_000_000, 4),
-        (256, 1000, 40),
-        (4096, 100, 40),
-    ] {
+    for &(members, particles, steps) in sizes {
         let dt = 1e-4;
         group.throughput(Throughput::Elements((members * particles * steps) as u64));
         group.bench_with_input(
@@ -143,7 +136,7 @@ fn rows(c: &mut Criterion, name: &str, precision: Precision) {
             &(members, particles, steps),
             |b, &(m, n, k)| {
                 b.iter_batched(
-                    || solver(m, n, k, dt, precision),
+                    || make(m, n, k, dt),
                     |mut s| s.next_output(&|_| {}).unwrap(),
                     criterion::BatchSize::LargeInput,
                 )
