@@ -9,8 +9,7 @@ use crate::real::Real;
 pub const MAX_INTEGER_GAMMA: u32 = 1000;
 
 /// How G = ratio^gamma is evaluated.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-#[serde(tag = "kind", content = "value", rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Power {
     /// A chain of multiplications (square and multiply), for integer gamma <= [`MAX_INTEGER_GAMMA`].
     Integer(u32),

@@ -60,7 +60,24 @@ pub struct PlanSummary {
     pub clusters: bool,
     pub forcing: Option<String>,
     pub quadrature_points: Option<usize>,
+    #[serde(serialize_with = "serialize_powers")]
     pub gamma_evaluation: Vec<Power>,
+}
+
+/// [`Power`] as the manifest records it (`{"kind": "integer", "value": 2}`). The kernels crate
+/// builds without serde, so that its long build starts before serde's derive macros are built.
+#[derive(serde::Serialize)]
+#[serde(tag = "kind", content = "value", rename_all = "lowercase")]
+enum PowerRecord {
+    Integer(u32),
+    Real(f64),
+}
+
+fn serialize_powers<S: serde::Serializer>(powers: &[Power], s: S) -> Result<S::Ok, S::Error> {
+    s.collect_seq(powers.iter().map(|p| match *p {
+        Power::Integer(n) => PowerRecord::Integer(n),
+        Power::Real(g) => PowerRecord::Real(g),
+    }))
 }
 
 impl Plan {
