@@ -133,14 +133,17 @@ enum Command {
 }
 
 /// `--backends cpu,gpu,gpu-f32` or `available`.
-fn parse_backends(text: &str) -> roughlub::Result<Vec<(Backend, Precision)>> {
+fn parse_backends(
+    text: &str,
+    adapter_name: Option<&str>,
+) -> roughlub::Result<Vec<(Backend, Precision)>> {
     if text.trim() == "available" {
         let mut found = vec![
             (Backend::Cpu, Precision::F64),
             (Backend::Cpu, Precision::F32),
         ];
         // An adapter is looked for once; its f64 support decides the f64 line.
-        if let Ok(ctx) = roughlub::backend::gpu::GpuContext::acquire(false) {
+        if let Ok(ctx) = roughlub::backend::gpu::GpuContext::acquire_among(false, adapter_name) {
             if ctx.f64 {
                 found.push((Backend::Gpu, Precision::F64));
             }
@@ -227,8 +230,13 @@ fn report_study(summary: &StudySummary, quiet: bool) {
 fn main() -> ExitCode {
     // SAFETY: no other thread exists yet.
     unsafe { roughlub::backend::gpu::context::quiet_mesa_device_select() };
-    // Every variable roughlub reads, read once, here.
-    roughlub::backend::overrides::Overrides::get();
+    // Every variable roughlub reads, read once, here, and passed down with each scene.
+    let overrides = roughlub::backend::overrides::Overrides::from_env();
+    let load = |path: &std::path::Path| -> roughlub::Result<Scene> {
+        let mut scene = Scene::from_file(path)?;
+        scene.overrides = overrides.clone();
+        Ok(scene)
+    };
     let cli = Cli::parse();
     let result: roughlub::Result<()> = match cli.command {
         Command::Run {
@@ -243,7 +251,7 @@ fn main() -> ExitCode {
             force,
             allow_large,
         } => (|| {
-            let scene = Scene::from_file(&scene)?;
+            let scene = load(&scene)?;
             let out_dir = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
             if scene.ensemble.is_some() {
                 let shard = shard
@@ -319,8 +327,8 @@ fn main() -> ExitCode {
             quiet,
             force,
         } => (|| {
-            let scene = Scene::from_file(&scene)?;
-            let backends = parse_backends(&backends)?;
+            let scene = load(&scene)?;
+            let backends = parse_backends(&backends, overrides.adapter_name.as_deref())?;
             let out_dir = out
                 .unwrap_or_else(|| PathBuf::from("out").join(format!("{}_accuracy", scene.name)));
             roughlub::accuracy::run_accuracy(
@@ -353,7 +361,7 @@ fn main() -> ExitCode {
             quiet,
             force,
         } => (|| {
-            let scene = Scene::from_file(&scene)?;
+            let scene = load(&scene)?;
             let out_dir = out
                 .unwrap_or_else(|| PathBuf::from("out").join(format!("{}_converge", scene.name)));
             let summary = run_convergence(

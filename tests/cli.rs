@@ -168,7 +168,7 @@ fn simd_level_does_not_change_results() {
             .to_string();
         let widest = SimdLevel::widest_here();
         let expected = match level {
-            None => roughlub::backend::cpu::simd_level(),
+            None => roughlub::backend::cpu::simd_level(None),
             Some("avx2") => widest.min(SimdLevel::Avx2Fma).name(),
             Some(_) => "portable",
         };
@@ -218,7 +218,7 @@ fn small_scene_end_to_end() {
         ["avx512", "avx2+fma", "portable"].contains(&simd),
         "cpu_simd {simd:?}"
     );
-    assert_eq!(simd, roughlub::backend::cpu::simd_level());
+    assert_eq!(simd, roughlub::backend::cpu::simd_level(None));
     assert_eq!(m["particles"], N as u64);
     assert_eq!(m["grid"], GRID as u64);
     assert_eq!(m["scene"]["name"], "small");

@@ -5,6 +5,7 @@ mod common;
 use common::reference::{dense_reference_step, rk4_reference};
 use common::{plan_for, random_chain, run_all, Rng};
 use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, StepBuffers, Terms};
+use roughlub::backend::cpu::SimdLevel;
 use roughlub::backend::BatchSolver;
 use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
@@ -110,6 +111,8 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
                 bonded: with_clusters.then_some(bonded.as_slice()),
                 forcing: Some(&forcing),
                 forcing_params: [&[]; L],
+                simd: SimdLevel::widest_here(),
+                partition: true,
             };
             let mut gaps_out = vec![0.0; gaps.len()];
             let mut vel_out = vec![0.0; vel.len()];

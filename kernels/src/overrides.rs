@@ -1,10 +1,11 @@
-//! Every environment variable roughlub itself reads, read once into [`Overrides`]: the command
-//! line reads them first thing (`main`, before any thread starts), library users on first use.
+//! Every environment variable roughlub itself reads, read once into [`Overrides`] by the command
+//! line (`main`, before any thread starts) and passed down in the plan (`Plan::overrides`): the
+//! CPU step gets its instruction set and partition choice through `Terms`, the GPU backend the
+//! rest. Library users pass [`Overrides::from_env`] or a value of their own; the default
+//! overrides nothing.
 //! They compare code paths whose results are the same (`ROUGHLUB_CPU_SIMD`,
 //! `ROUGHLUB_CPU_PARTITION`, `ROUGHLUB_GPU_PARTITION`, `ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH`) or
 //! restrict the adapters (`WGPU_ADAPTER_NAME`). wgpu reads its own (`WGPU_BACKEND`, ...).
-
-use std::sync::OnceLock;
 
 use crate::SimdLevel;
 
@@ -41,11 +42,5 @@ impl Overrides {
                 .filter(|k| (1..=4096).contains(k)),
             adapter_name: var("WGPU_ADAPTER_NAME"),
         }
-    }
-
-    /// The process's overrides, read from the environment the first time.
-    pub fn get() -> &'static Overrides {
-        static OVERRIDES: OnceLock<Overrides> = OnceLock::new();
-        OVERRIDES.get_or_init(Overrides::from_env)
     }
 }

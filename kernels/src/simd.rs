@@ -16,16 +16,11 @@ pub enum SimdLevel {
 }
 
 impl SimdLevel {
-    /// The widest level this CPU runs; `ROUGHLUB_CPU_SIMD=portable` or `=avx2` caps it (to
-    /// compare levels: the results are the same).
-    pub fn detect() -> SimdLevel {
-        static LEVEL: std::sync::OnceLock<SimdLevel> = std::sync::OnceLock::new();
-        *LEVEL.get_or_init(|| {
-            let cap = crate::overrides::Overrides::get()
-                .cpu_simd_cap
-                .unwrap_or(SimdLevel::Avx512);
-            SimdLevel::widest_here().min(cap)
-        })
+    /// The widest level this CPU runs, at most `cap` (`ROUGHLUB_CPU_SIMD=portable` or `=avx2`,
+    /// through [`Overrides`](crate::overrides::Overrides), to compare levels: the results are
+    /// the same).
+    pub fn capped(cap: Option<SimdLevel>) -> SimdLevel {
+        SimdLevel::widest_here().min(cap.unwrap_or(SimdLevel::Avx512))
     }
 
     /// The widest level the CPU supports, whatever the environment says.

@@ -166,6 +166,11 @@ pub struct Terms<'a, const L: usize, T: Real = f64> {
     pub forcing: Option<&'a dyn Forcing>,
     /// Each lane's values of the forcing's symbolic parameters (empty without).
     pub forcing_params: [&'a [f64]; L],
+    /// The instruction set of the lane loops (at most [`SimdLevel::widest_here`]).
+    pub simd: SimdLevel,
+    /// Whether a one-member block with a long chain may take the partitioned solve
+    /// (`ROUGHLUB_CPU_PARTITION=off` says no, through [`Overrides`](crate::overrides::Overrides)).
+    pub partition: bool,
 }
 
 /// gamma for a block: uniform across lanes (integer → multiplications), or per lane.
@@ -665,8 +670,8 @@ pub fn euler_step<T: Real, const L: usize>(
     io: StepBuffers<'_, T>,
 ) -> [StepReport; L] {
     euler_step_as(
-        SimdLevel::detect(),
-        default_layout::<L>(particles),
+        terms.simd,
+        default_layout::<L>(particles, terms.partition),
         terms,
         particles,
         t,
@@ -679,8 +684,8 @@ pub fn euler_step<T: Real, const L: usize>(
 /// chain the partitioned one (the sequential sweep would be bound by its row-to-row latency),
 /// else the sequential sweep (`None`). The same rule in f64 and f32 ([`Layout::for_chain`]: it
 /// depends on the chain's length only).
-pub(crate) fn default_layout<const L: usize>(particles: usize) -> Option<Layout> {
-    if L == 1 {
+pub(crate) fn default_layout<const L: usize>(particles: usize, partition: bool) -> Option<Layout> {
+    if L == 1 && partition {
         Layout::for_chain(particles)
     } else {
         None
@@ -1274,17 +1279,7 @@ pub fn conclude<T: Real, const L: usize>(
         T,
         terms,
         conclude_simd,
-        (
-            SimdLevel::detect(),
-            terms,
-            n,
-            h,
-            total,
-            gaps,
-            vel,
-            None,
-            report
-        )
+        (terms.simd, terms, n, h, total, gaps, vel, None, report)
     )
 }
 

@@ -61,7 +61,12 @@ impl BackendRecord {
         }
     }
 
-    fn cpu(requested: Backend, precision: Precision, fallback_reason: Option<String>) -> Self {
+    fn cpu(
+        requested: Backend,
+        precision: Precision,
+        simd_cap: Option<crate::backend::cpu::SimdLevel>,
+        fallback_reason: Option<String>,
+    ) -> Self {
         let threads = rayon::current_num_threads();
         BackendRecord {
             backend: RunsOn::Cpu,
@@ -77,7 +82,7 @@ impl BackendRecord {
                     supports_f64: true,
                 },
                 threads: Some(threads),
-                cpu_simd: Some(super::cpu::simd_level().into()),
+                cpu_simd: Some(super::cpu::simd_level(simd_cap).into()),
                 fallback_reason,
             },
         }
@@ -201,13 +206,16 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
     let cpu = |fallback: Option<String>| -> Result<Engine> {
         Ok(Engine {
             gpu: None,
-            record: BackendRecord::cpu(requested, precision, fallback),
+            record: BackendRecord::cpu(requested, precision, plan.overrides.cpu_simd_cap, fallback),
         })
     };
     if requested == Backend::Cpu {
         return cpu(None);
     }
-    let ctx = match GpuContext::acquire(precision == Precision::F64) {
+    let ctx = match GpuContext::acquire_among(
+        precision == Precision::F64,
+        plan.overrides.adapter_name.as_deref(),
+    ) {
         Ok(ctx) => ctx,
         Err(e) if requested == Backend::Auto => return cpu(Some(fallback_reason(&e))),
         Err(e) => return Err(gpu_acquire_error(e, precision)),

@@ -5,6 +5,7 @@
 use crate::expr::Expr;
 use crate::model::params::{MemberParams, Order, OutputFields, Stepping};
 use crate::model::quadrature::GaussLegendre;
+use roughlub_kernels::overrides::Overrides;
 
 pub use roughlub_kernels::power::{powi_by_squaring, Power, MAX_INTEGER_GAMMA};
 
@@ -52,6 +53,10 @@ pub struct Plan {
     /// Order 1 with fixed steps: estimate the error with a companion run (see
     /// [`crate::backend::companion`]).
     pub companion_estimate: bool,
+    /// What the environment overrides (read once by the command line, passed down from the
+    /// scene): the CPU step's instruction set and partition choice, the GPU's adapter,
+    /// partition and attempts per dispatch. The default overrides nothing.
+    pub overrides: Overrides,
 }
 
 #[derive(Debug, Clone, serde::Serialize)]

@@ -84,6 +84,10 @@ pub struct Scene {
     pub parameters: Vec<(String, f64)>,
     /// `[sweep]` of an ensemble (or its `[batch]` lists as a grid); `None`: one point.
     pub sweep: Option<SweepSpec>,
+    /// Not from the file: what the environment overrides, set by the command line after loading
+    /// (`Overrides::from_env`, read once in `main`) and passed on to every plan built from the
+    /// scene. The default overrides nothing.
+    pub overrides: crate::backend::overrides::Overrides,
 }
 
 pub const MAX_PARTICLES: i64 = 100_000_000;
@@ -162,6 +166,7 @@ impl Scene {
             ensemble,
             parameters,
             sweep,
+            overrides: Default::default(),
         })
     }
 

@@ -222,8 +222,9 @@ impl FieldBand {
     /// study's statistics. Fails, adding nothing, if a row's length is not G or a point would
     /// hold more than `u32::MAX` values.
     pub fn push_rows(&mut self, rows: &[&[f64]]) -> Result<(), StatsError> {
-        // The step's instruction set (chosen once per process, `ROUGHLUB_CPU_SIMD` caps it).
-        self.push_rows_at(SimdLevel::detect(), rows)
+        // The widest instruction set here (every level gives the same bits; `ROUGHLUB_CPU_SIMD`
+        // caps the step's, not this).
+        self.push_rows_at(SimdLevel::widest_here(), rows)
     }
 
     /// [`push_rows`](Self::push_rows) at a given instruction set (at most what the CPU runs,

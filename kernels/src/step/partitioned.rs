@@ -281,11 +281,9 @@ impl Layout {
     }
 
     /// The layout a step of a one-member block with n particles uses, None for the sequential
-    /// sweep: below PARTITION_MIN_PARTICLES, or with `ROUGHLUB_CPU_PARTITION=off`. Depends on n
-    /// only (never on the thread count).
+    /// sweep: below PARTITION_MIN_PARTICLES. Depends on n only (never on the thread count).
     pub(crate) fn for_chain(n: usize) -> Option<Layout> {
-        let off = crate::overrides::Overrides::get().cpu_partition_off;
-        if off || n < PARTITION_MIN_PARTICLES {
+        if n < PARTITION_MIN_PARTICLES {
             return None;
         }
         let groups = ((n - 1) / (SEGMENT_LANES * SEGMENT_ROWS)).max(1);

@@ -98,6 +98,8 @@ fn step<T: Real, const M: usize>(
         bonded: clusters.then_some(bonded.as_slice()),
         forcing: forcing.map(|f| f as &dyn Forcing),
         forcing_params: [&[]; M],
+        simd: SimdLevel::widest_here(),
+        partition: true,
     };
     let h = lanes.map(|l| T::c(c.h[l]));
     let t = [0.25; M];
@@ -106,7 +108,7 @@ fn step<T: Real, const M: usize>(
     let mut scratch = Scratch::new(N, M);
     let report = euler_step_as(
         simd,
-        default_layout::<M>(N),
+        default_layout::<M>(N, true),
         &terms,
         N,
         &t,
@@ -213,7 +215,7 @@ fn lanes_independent<T: Real>() {
         let c = case(clusters, false);
         let all = std::array::from_fn(|l| l);
         let block = step::<T, L>(
-            SimdLevel::detect(),
+            SimdLevel::widest_here(),
             &c,
             all,
             gamma,

@@ -8,6 +8,7 @@ mod tableau;
 
 use super::real::{energy_rtol, Real};
 use super::step::{stored_ln, Gamma, HardFailure, Scratch, StepBuffers, StepReport, Terms};
+use super::SimdLevel;
 use crate::backend::layout::interleave;
 use crate::backend::report::{
     error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
@@ -109,6 +110,8 @@ impl<T: Real, const L: usize> LaneModel<T, L> {
                     _ => &[],
                 }
             }),
+            simd: SimdLevel::capped(plan.overrides.cpu_simd_cap),
+            partition: !plan.overrides.cpu_partition_off,
         }
     }
 }

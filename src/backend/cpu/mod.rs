@@ -19,10 +19,10 @@ use crate::model::plan::Plan;
 use block::Block;
 use roughlub_kernels::BlockKernels;
 
-/// The name of the instruction set the CPU step uses here ("avx512", "avx2+fma" or "portable"),
-/// for the manifest.
-pub fn simd_level() -> &'static str {
-    SimdLevel::detect().name()
+/// The name of the instruction set the CPU step uses here ("avx512", "avx2+fma" or "portable")
+/// at most `cap` (`ROUGHLUB_CPU_SIMD`, [`Plan::overrides`]), for the manifest.
+pub fn simd_level(cap: Option<SimdLevel>) -> &'static str {
+    SimdLevel::capped(cap).name()
 }
 
 /// Blocks as wide as the batch allows: 16 f64 lanes (four AVX2 registers) keep several

@@ -48,9 +48,14 @@ fn loops_per_attempt(scheme: SchemeSpec) -> u64 {
 /// Trial steps per member per `advance` dispatch: [`MAX_ATTEMPTS_PER_DISPATCH`], or on lavapipe
 /// as many as fit its loop budget (measured: past the budget the invocation stops silently and
 /// the state is wrong; within it the GPU matches the CPU bit for bit).
-/// `ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH` (1..=4096) overrides it.
-pub fn attempts_per_dispatch(ctx: &GpuContext, n: usize, scheme: SchemeSpec) -> u32 {
-    if let Some(k) = crate::backend::overrides::Overrides::get().gpu_attempts_per_dispatch {
+/// `forced` (`ROUGHLUB_GPU_ATTEMPTS_PER_DISPATCH`, 1..=4096) overrides it.
+pub fn attempts_per_dispatch(
+    ctx: &GpuContext,
+    n: usize,
+    scheme: SchemeSpec,
+    forced: Option<u32>,
+) -> u32 {
+    if let Some(k) = forced {
         return k;
     }
     if is_lavapipe(ctx) {

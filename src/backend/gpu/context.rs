@@ -149,23 +149,34 @@ pub struct GpuContext {
 impl GpuContext {
     /// Picks an adapter and creates a device.
     ///
-    /// Adapters are ranked discrete > integrated > virtual > CPU (software, e.g. lavapipe), and
-    /// the environment variable `WGPU_ADAPTER_NAME` (a case-insensitive substring) restricts the
-    /// choice. With `want_f64`, only adapters with `SHADER_F64` are eligible, and
+    /// Adapters are ranked discrete > integrated > virtual > CPU (software, e.g. lavapipe)
+    /// ([`GpuContext::acquire_among`] restricts the choice by name). With `want_f64`, only adapters with `SHADER_F64` are eligible, and
     /// [`GpuError::NoF64`] names the best adapter when none has it; without it, `SHADER_F64` is
     /// still enabled when the adapter has it (see [`GpuContext::f64`]).
     ///
     /// The device gets wgpu's default limits, except for the buffer-size, storage-buffer-count
     /// and compute-dispatch limits, which are the adapter's own maxima.
     pub fn acquire(want_f64: bool) -> Result<GpuContext, GpuError> {
-        pollster::block_on(Self::acquire_async(want_f64))
+        Self::acquire_among(want_f64, None)
     }
 
-    /// Async version of [`GpuContext::acquire`].
-    pub async fn acquire_async(want_f64: bool) -> Result<GpuContext, GpuError> {
+    /// [`GpuContext::acquire`] among the adapters whose name contains `adapter_name`
+    /// (case-insensitive; `WGPU_ADAPTER_NAME`, [`Overrides`](crate::backend::overrides::Overrides)).
+    pub fn acquire_among(
+        want_f64: bool,
+        adapter_name: Option<&str>,
+    ) -> Result<GpuContext, GpuError> {
+        pollster::block_on(Self::acquire_async(want_f64, adapter_name))
+    }
+
+    /// Async version of [`GpuContext::acquire_among`].
+    pub async fn acquire_async(
+        want_f64: bool,
+        adapter_name: Option<&str>,
+    ) -> Result<GpuContext, GpuError> {
         let instance = new_instance();
         let mut adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
-        if let Some(wanted) = &crate::backend::overrides::Overrides::get().adapter_name {
+        if let Some(wanted) = adapter_name {
             let wanted = wanted.to_lowercase();
             adapters.retain(|a| a.get_info().name.to_lowercase().contains(&wanted));
         }

@@ -117,17 +117,18 @@ impl From<Segments> for PartsUniform {
 /// as `partition` says, or for [`GpuPartition::Auto`] when there are fewer than
 /// [`PARTITION_MAX_MEMBERS`] members and N >= [`PARTITION_MIN_PARTICLES`], or when one
 /// invocation per member would exceed the device's loop budget (`sequential_fits` false).
+/// `off` (`ROUGHLUB_GPU_PARTITION=off`) keeps one invocation per member wherever it fits.
 pub fn choose(
     partition: GpuPartition,
     members: usize,
     n: usize,
     sequential_fits: bool,
+    off: bool,
 ) -> Option<Segments> {
     match partition {
         GpuPartition::Off => None,
         GpuPartition::SegmentRows(r) => Some(Segments::new(n, r)),
         GpuPartition::Auto => {
-            let off = crate::backend::overrides::Overrides::get().gpu_partition_off;
             let wanted = members < PARTITION_MAX_MEMBERS && n >= PARTITION_MIN_PARTICLES;
             (!sequential_fits || (wanted && !off)).then(|| Segments::default_for(n))
         }

@@ -302,9 +302,17 @@ impl<'a> GpuSolver<'a> {
             )));
         }
         BufferSizes::of(n, bsz, scheme, precision).check(ctx)?;
-        let max_attempts = attempts_per_dispatch(ctx, n, scheme);
+        let overrides = &plan.overrides;
+        let max_attempts =
+            attempts_per_dispatch(ctx, n, scheme, overrides.gpu_attempts_per_dispatch);
         let sequential = check_loop_budget(ctx, n, scheme, max_attempts);
-        let segments = choose(partition, bsz, n, sequential.is_ok());
+        let segments = choose(
+            partition,
+            bsz,
+            n,
+            sequential.is_ok(),
+            overrides.gpu_partition_off,
+        );
         match segments {
             Some(s) => check_budget(ctx, n, scheme, s)?,
             None => sequential?,

@@ -90,6 +90,8 @@ fn step_as<T: Real>(
         bonded: model.clusters.then_some(c.bonded.as_slice()),
         forcing: forcing.as_ref().map(|f| f as &dyn super::super::Forcing),
         forcing_params: [&[]],
+        simd: SimdLevel::widest_here(),
+        partition: true,
     };
     let mut gaps_out = vec![T::ZERO; n];
     let mut vel_out = vec![T::ZERO; n - 1];
@@ -265,8 +267,8 @@ fn equals_sequential<T: Real>(tol: Tol) -> MaxDiff {
             );
             for h in [1e-4, 3e-3] {
                 let label = format!("{model:?}, groups {groups}, h {h}");
-                let seq = step_as::<T>(&c, model, h, None, SimdLevel::detect());
-                let part = step_as::<T>(&c, model, h, Some(layout), SimdLevel::detect());
+                let seq = step_as::<T>(&c, model, h, None, SimdLevel::widest_here());
+                let part = step_as::<T>(&c, model, h, Some(layout), SimdLevel::widest_here());
                 max = max.max(assert_close(&label, &part, &seq, tol));
             }
         }
@@ -303,8 +305,8 @@ fn near_contact<T: Real>(tol: Tol) -> MaxDiff {
         let c = chain(n, 3, &near, if model.clusters { &bonds } else { &[] });
         for h in [1e-5, 1e-3] {
             let label = format!("near contact, {model:?}, h {h}");
-            let seq = step_as::<T>(&c, model, h, None, SimdLevel::detect());
-            let part = step_as::<T>(&c, model, h, Some(layout), SimdLevel::detect());
+            let seq = step_as::<T>(&c, model, h, None, SimdLevel::widest_here());
+            let part = step_as::<T>(&c, model, h, Some(layout), SimdLevel::widest_here());
             // The case took the log form (the gaps stay below GAP_FLOOR).
             assert!(seq.0[near[3]] < 0.0, "{label}: not log-stored");
             max = max.max(assert_close(&label, &part, &seq, tol));
@@ -331,7 +333,7 @@ fn f32_default_layout_just_above_threshold() {
 
 fn just_above_threshold<T: Real>(tol: Tol) -> MaxDiff {
     assert_eq!(Layout::for_chain(PARTITION_MIN_PARTICLES - 1), None);
-    assert_eq!(default_layout::<1>(PARTITION_MIN_PARTICLES - 1), None);
+    assert_eq!(default_layout::<1>(PARTITION_MIN_PARTICLES - 1, true), None);
     let mut max = MaxDiff::default();
     for n in [PARTITION_MIN_PARTICLES, PARTITION_MIN_PARTICLES + 37] {
         let layout = Layout::for_chain(n).expect("partitioned above the threshold");
@@ -341,16 +343,18 @@ fn just_above_threshold<T: Real>(tol: Tol) -> MaxDiff {
         );
         // What `euler_step` takes for one member in either precision (and a block of
         // several keeps the sequential sweep).
-        assert_eq!(default_layout::<1>(n), Some(layout));
-        assert_eq!(default_layout::<8>(n), None);
+        assert_eq!(default_layout::<1>(n, true), Some(layout));
+        assert_eq!(default_layout::<8>(n, true), None);
+        // `ROUGHLUB_CPU_PARTITION=off` (Terms::partition false) keeps the sequential sweep.
+        assert_eq!(default_layout::<1>(n, false), None);
         let model = Model {
             gamma: Some(2.0),
             clusters: true,
             forced: false,
         };
         let c = chain(n, 11, &[n / 2], &[n / 3, n / 3 + 1]);
-        let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::detect());
-        let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+        let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::widest_here());
+        let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::widest_here());
         max = max.max(assert_close(&format!("n {n}"), &part, &seq, tol));
     }
     max
@@ -381,8 +385,8 @@ fn long_chain<T: Real>(tol: Tol) -> MaxDiff {
         forced: false,
     };
     let c = chain(n, 21, &[], &[]);
-    let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::detect());
-    let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+    let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::widest_here());
+    let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::widest_here());
     assert_close("N = 2^18 + 1000", &part, &seq, tol)
 }
 
@@ -424,8 +428,8 @@ fn bitwise_equal<T: Real>() {
         pool.install(|| bits(&step_as::<T>(&c, model, 1e-3, Some(layout), simd)))
     };
     let p = T::NAME;
-    let one = run(1, SimdLevel::detect());
-    assert_eq!(one, run(2, SimdLevel::detect()), "{p}: 1 vs 2 threads");
+    let one = run(1, SimdLevel::widest_here());
+    assert_eq!(one, run(2, SimdLevel::widest_here()), "{p}: 1 vs 2 threads");
     assert_eq!(
         one,
         run(2, SimdLevel::Portable),
@@ -441,7 +445,13 @@ fn bitwise_equal<T: Real>() {
     // And it is not the sequential sweep's result (the partitioned solve ran).
     assert_ne!(
         one,
-        bits(&step_as::<T>(&c, model, 1e-3, None, SimdLevel::detect())),
+        bits(&step_as::<T>(
+            &c,
+            model,
+            1e-3,
+            None,
+            SimdLevel::widest_here()
+        )),
         "{p}: partitioned equals sequential bit for bit"
     );
 }
@@ -469,8 +479,8 @@ fn hard_failure<T: Real>(dstar: f64, gamma: f64) {
         clusters: false,
         forced: false,
     };
-    let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::detect());
-    let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::detect());
+    let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::widest_here());
+    let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::widest_here());
     assert!(matches!(
         seq.2.hard,
         Some(HardFailure::Repulsion { gap: 901, .. })
