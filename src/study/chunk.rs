@@ -621,59 +621,16 @@ fn solve_pass(
         return Ok(Pass::Undo);
     }
 
-    // Statistics of the members that completed (a member that failed at any time enters none),
-    // per sweep point. The scalars at each output time went into the chunk's summaries beside
-    // the solve (`push_output_scalars`); a point with a member that failed after some outputs
-    // has them summed again, without it. The moments are merged into the total below, so their
-    // rounding does not depend on the chunking of earlier runs, and so are the sketches' counts
-    // (exact either way).
+    let responses = Responses {
+        peak,
+        min_gap,
+        final_energy,
+        first_hit,
+    };
     let started = Instant::now();
-    let mut summed_again: Vec<u64> = Vec::new();
-    for &(i, j) in groups {
-        let point = inputs[i].point;
-        if !header.is_detailed(point) || (i..j).all(|m| ok_member[m]) {
-            continue;
-        }
-        if !summed_again.contains(&point) {
-            summed_again.push(point);
-            state.point_mut(point, header).scalars =
-                super::state::PointStats::without_bands(header, point).scalars;
-        }
-    }
-    // Only the points summed again copy their members' observables, the failed ones left out.
-    // Each (scalar, time) summary still receives its point's groups in order, members in order.
-    for &(i, j) in groups {
-        if !summed_again.contains(&inputs[i].point) {
-            continue;
-        }
-        let completed: Vec<Vec<Option<RecordedObservables>>> = (i..j)
-            .map(|m| match ok_member[m] {
-                true => recorded[m].clone(),
-                false => vec![None; recorded[m].len()],
-            })
-            .collect();
-        for k in 0..t_count {
-            push_output_scalars(&mut state, header, &inputs[i..j], k, &completed);
-        }
-    }
-    for &(i, j) in groups {
-        let stats = state.point_mut(inputs[i].point, header);
-        for m in i..j {
-            if !ok_member[m] {
-                stats.failed += 1;
-                continue;
-            }
-            stats.completed += 1;
-            stats.peak_density.push(peak[m].0);
-            stats.min_gap.push(min_gap[m]);
-            stats.final_energy.push(final_energy[m]);
-            if first_hit[m].is_nan() {
-                stats.never_hit += 1;
-            } else {
-                stats.first_hit.push(first_hit[m]);
-            }
-        }
-    }
+    settle_points(
+        &mut state, header, inputs, groups, &ok_member, &recorded, &responses,
+    );
     for (i, r) in reports.iter().enumerate() {
         if r.status == MemberStatus::Ok {
             state.completed += 1;
@@ -738,14 +695,71 @@ fn solve_pass(
         )?;
     }
 
-    let responses = Responses {
-        peak,
-        min_gap,
-        final_energy,
-        first_hit,
-    };
     let rows = member_rows(first, header, inputs, &reports, &responses, &dstar_summary);
     Ok(Pass::Done(rows))
+}
+
+/// Statistics of the members that completed (a member that failed at any time enters none),
+/// per sweep point, into the chunk's `state`. The scalars at each output time went into the
+/// chunk's summaries beside the solve (`push_output_scalars`); a point with a member that failed
+/// after some outputs has them summed again, without it. The chunk's state is then merged into
+/// the total, so the moments' rounding does not depend on the chunking of earlier runs, and
+/// neither do the sketches' counts (exact either way).
+fn settle_points(
+    state: &mut StudyState,
+    header: &StudyHeader,
+    inputs: &[MemberInputs],
+    groups: &[(usize, usize)],
+    ok_member: &[bool],
+    recorded: &[Vec<Option<RecordedObservables>>],
+    responses: &Responses,
+) {
+    let mut summed_again: Vec<u64> = Vec::new();
+    for &(i, j) in groups {
+        let point = inputs[i].point;
+        if !header.is_detailed(point) || (i..j).all(|m| ok_member[m]) {
+            continue;
+        }
+        if !summed_again.contains(&point) {
+            summed_again.push(point);
+            state.point_mut(point, header).scalars =
+                super::state::PointStats::without_bands(header, point).scalars;
+        }
+    }
+    // Only the points summed again copy their members' observables, the failed ones left out.
+    // Each (scalar, time) summary still receives its point's groups in order, members in order.
+    for &(i, j) in groups {
+        if !summed_again.contains(&inputs[i].point) {
+            continue;
+        }
+        let completed: Vec<Vec<Option<RecordedObservables>>> = (i..j)
+            .map(|m| match ok_member[m] {
+                true => recorded[m].clone(),
+                false => vec![None; recorded[m].len()],
+            })
+            .collect();
+        for k in 0..header.times.len() {
+            push_output_scalars(state, header, &inputs[i..j], k, &completed);
+        }
+    }
+    for &(i, j) in groups {
+        let stats = state.point_mut(inputs[i].point, header);
+        for m in i..j {
+            if !ok_member[m] {
+                stats.failed += 1;
+                continue;
+            }
+            stats.completed += 1;
+            stats.peak_density.push(responses.peak[m].0);
+            stats.min_gap.push(responses.min_gap[m]);
+            stats.final_energy.push(responses.final_energy[m]);
+            if responses.first_hit[m].is_nan() {
+                stats.never_hit += 1;
+            } else {
+                stats.first_hit.push(responses.first_hit[m]);
+            }
+        }
+    }
 }
 
 /// Each member's scalar responses over the chunk's output times (its peak density with its time,
