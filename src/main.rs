@@ -31,12 +31,8 @@ enum Command {
         /// Output directory [default: out/<scene name>].
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Override the scene's backend.
-        #[arg(long, value_enum)]
-        backend: Option<Backend>,
-        /// Override the scene's precision.
-        #[arg(long, value_enum)]
-        precision: Option<Precision>,
+        #[command(flatten)]
+        overrides: BackendArgs,
         /// No progress bar and no summary line.
         #[arg(long)]
         quiet: bool,
@@ -50,9 +46,8 @@ enum Command {
         /// interrupted run can lose; 0 = after every chunk).
         #[arg(long, value_name = "SECONDS", default_value_t = roughlub::study::DEFAULT_CHECKPOINT_SECONDS)]
         checkpoint_every: f64,
-        /// Replace an --out directory that holds files that are not a roughlub run.
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        replace: ReplaceArgs,
         /// Write outputs larger than 21.5 GB, sweep more than 100000 points, or run a study whose memory estimate exceeds half the machine's memory (refused otherwise).
         #[arg(long)]
         allow_large: bool,
@@ -83,9 +78,8 @@ enum Command {
         /// No progress lines.
         #[arg(long)]
         quiet: bool,
-        /// Replace an --out directory that holds files that are not a roughlub run.
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        replace: ReplaceArgs,
     },
     /// Merge the partial statistics of ensemble shards into the statistics of the whole study.
     Merge {
@@ -101,9 +95,8 @@ enum Command {
         /// Merge even when shards are missing (stderr and the manifest name the missing members).
         #[arg(long)]
         allow_partial: bool,
-        /// Replace an --out directory that holds files that are not a roughlub run.
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        replace: ReplaceArgs,
     },
     /// Convergence in N: the scene at each particle number N (Prop. 3.1 initial data), the
     /// differences between successive N, observed rates and an extrapolated limit.
@@ -117,19 +110,33 @@ enum Command {
         /// Output directory [default: out/<scene name>_converge].
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Override the scene's backend.
-        #[arg(long, value_enum)]
-        backend: Option<Backend>,
-        /// Override the scene's precision.
-        #[arg(long, value_enum)]
-        precision: Option<Precision>,
+        #[command(flatten)]
+        overrides: BackendArgs,
         /// No progress bar and no summary (warnings are still printed).
         #[arg(long)]
         quiet: bool,
-        /// Replace an --out directory that holds files that are not a roughlub run.
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        replace: ReplaceArgs,
     },
+}
+
+/// The scene's backend and precision, overridden (`run`, `converge`).
+#[derive(clap::Args)]
+struct BackendArgs {
+    /// Override the scene's backend.
+    #[arg(long, value_enum)]
+    backend: Option<Backend>,
+    /// Override the scene's precision.
+    #[arg(long, value_enum)]
+    precision: Option<Precision>,
+}
+
+/// What a command that writes an --out directory does with one that is not a roughlub run.
+#[derive(clap::Args)]
+struct ReplaceArgs {
+    /// Replace an --out directory that holds files that are not a roughlub run.
+    #[arg(long)]
+    force: bool,
 }
 
 /// `--backends cpu,gpu,gpu-f32` or `available`.
@@ -242,13 +249,12 @@ fn main() -> ExitCode {
         Command::Run {
             scene,
             out,
-            backend,
-            precision,
+            overrides: BackendArgs { backend, precision },
             quiet,
             shard,
             resume,
             checkpoint_every,
-            force,
+            replace: ReplaceArgs { force },
             allow_large,
         } => (|| {
             let scene = load(&scene)?;
@@ -325,7 +331,7 @@ fn main() -> ExitCode {
             members,
             backends,
             quiet,
-            force,
+            replace: ReplaceArgs { force },
         } => (|| {
             let scene = load(&scene)?;
             let backends = parse_backends(&backends, overrides.adapter_name.as_deref())?;
@@ -349,17 +355,16 @@ fn main() -> ExitCode {
             out,
             no_plots,
             allow_partial,
-            force,
+            replace: ReplaceArgs { force },
         } => merge_studies(&dirs, &out, !no_plots, allow_partial, force)
             .map(|s| report_study(&s, false)),
         Command::Converge {
             scene,
             particles,
             out,
-            backend,
-            precision,
+            overrides: BackendArgs { backend, precision },
             quiet,
-            force,
+            replace: ReplaceArgs { force },
         } => (|| {
             let scene = load(&scene)?;
             let out_dir = out
