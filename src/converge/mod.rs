@@ -155,119 +155,20 @@ fn scene_at(scene: &Scene, n: usize) -> Scene {
     s
 }
 
-/// Output indices shown in the profile figures: up to [`PLOTTED_TIMES`], evenly spaced, the
-/// last one included.
-fn shown_times(count: usize) -> Vec<usize> {
-    crate::plot::thinned_indices(count, PLOTTED_TIMES)
-}
-
-/// An output time in a message, to 7 significant digits (0.15, not 0.15000000000000002).
-fn time_text(t: f64) -> String {
-    let rounded: f64 = format!("{t:.6e}").parse().unwrap_or(t);
-    crate::scene::number_text(rounded)
-}
-
-/// Text of a number in the CSV: the shortest text that reads back to the same f64 (exponent
-/// form for small and large values); `NaN`, `inf`, `-inf`.
-fn csv_number(x: f64) -> String {
-    format!("{x:?}")
-}
-
-pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<ConvergeSummary> {
-    let started = Instant::now();
-    check_particles(&options.particles)?;
-    check_scene(scene)?;
-    let requested = options.backend.unwrap_or(scene.backend);
-    let precision = options.precision.unwrap_or(scene.precision);
-    let ns = &options.particles;
+/// The differences between successive N, per field: L1/L2/Linf differences and rates at each
+/// output time (written to `dir/convergence.csv`), their verdicts, the extrapolated limits and
+/// each field's summary, with a warning for each field that is not asymptotic.
+fn analyse(
+    dir: &Path,
+    scene: &Scene,
+    (ns, precision): (&[usize], Precision),
+    fields: &FieldStack,
+    warnings: &mut Vec<String>,
+) -> Result<Analysis> {
     let k_count = ns.len();
-    let mut warnings = Vec::new();
-    let batch_note = (scene.mu.len() > 1 || scene.gamma.len() > 1).then(|| {
-        format!(
-            "the scene's [batch] has {} members; the study uses its first (mu = {}, gamma = {})",
-            scene.mu.len() * scene.gamma.len(),
-            scene.mu[0],
-            scene.gamma[0]
-        )
-    });
-    if let Some(note) = &batch_note {
-        if !options.quiet {
-            eprintln!("note: {note}");
-        }
-    }
-
-    // The initial data and the backend at the smallest N are checked before anything is
-    // written (a bad profile, a repulsion that overflows, a missing adapter).
-    {
-        let s = scene_at(scene, ns[0]);
-        let chain = s.initial_chain()?;
-        select(requested, precision, &s.plan(&chain))?;
-    }
-
-    // Every field of every N is held in memory (and written): refuse what would not fit.
-    let bytes = 8
-        * FIELDS.len() as u64
-        * k_count as u64
-        * scene.output_times.len() as u64
-        * scene.grid as u64;
-    if bytes > crate::run::OUTPUT_SIZE_LIMIT {
-        return Err(Error::invalid(
-            "output.grid",
-            scene.grid,
-            format!(
-                "the fields of {k_count} values of N x {} output times x {} grid points take {:.1} GB, held in memory",
-                scene.output_times.len(),
-                scene.grid,
-                bytes as f64 / 1e9
-            ),
-            format!(
-                "at most {:.1} GB: a coarser [output] grid, fewer [time] outputs or fewer N",
-                crate::run::OUTPUT_SIZE_LIMIT as f64 / 1e9
-            ),
-        ));
-    }
-
-    let staged = StagedDir::begin(&options.out_dir, options.force)?;
-    let dir = staged.staging.clone();
     let t_count = scene.output_times.len();
-    let grid = crate::model::observables::grid_points(scene.grid);
-    let g = grid.len();
-    let repulsion = matches!(
-        &scene.initial,
-        InitialSpec::Profiles {
-            rho_star: Some(_),
-            ..
-        }
-    );
-
-    // fields[f][k][t] = G values
-    let mut fields: FieldStack = vec![Vec::with_capacity(k_count); FIELDS.len()];
-    let mut runs = Vec::with_capacity(k_count);
-    let mut record: Option<BackendRecord> = None;
-    let total: u64 = ns.iter().map(|&n| n as u64).sum::<u64>() * t_count as u64;
-    let progress = ProgressReporter::new(total, "particle-intervals", options.quiet);
-    for &n in ns {
-        let RunAtN {
-            run,
-            backend,
-            fields: per_field,
-        } = run_at_n(scene, n, requested, precision, &grid, &progress)?;
-        if run.member.status != MemberStatus::Ok {
-            warnings.push(format!(
-                "the run at N = {n} failed ({}); its fields after the failure are NaN, and every rate involving it is NaN",
-                serde_json::to_string(&run.member.status).unwrap_or_default()
-            ));
-        }
-        runs.push(run);
-        record = Some(backend);
-        for (f, rows) in per_field.into_iter().enumerate() {
-            fields[f].push(rows);
-        }
-    }
-    progress.finish();
-    let record = record.expect("at least two N");
-
-    // Differences, rates, verdicts and limits.
+    let g = crate::model::observables::grid_points(scene.grid).len();
+    let repulsion = has_repulsion(scene);
     let ratios: Vec<f64> = ns.windows(2).map(|w| w[1] as f64 / w[0] as f64).collect();
     let ratios_equal = ratios
         .windows(2)
@@ -309,7 +210,6 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
     let mut limits: Vec<Vec<f64>> = vec![Vec::with_capacity(t_count * g); FIELDS.len()];
     let mut per_time: BTreeMap<&'static str, Vec<TimeRecord>> = BTreeMap::new();
     let mut summaries = Vec::new();
-    let mut files = vec![PathBuf::from("convergence.csv")];
     for (f, name) in FIELDS.iter().enumerate() {
         if !field_on(f) {
             continue;
@@ -404,6 +304,147 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
     csv.flush()
         .map_err(|e| Error::io(dir.join("convergence.csv"), e))?;
     drop(csv);
+    Ok(Analysis {
+        ratios_equal,
+        limits,
+        per_time,
+        summaries,
+    })
+}
+
+/// What [`analyse`] finds.
+struct Analysis {
+    ratios_equal: bool,
+    limits: Vec<Vec<f64>>,
+    per_time: BTreeMap<&'static str, Vec<TimeRecord>>,
+    summaries: Vec<FieldSummary>,
+}
+
+/// Whether the scene's profiles give rho* (roughness), so that the rho* field is compared.
+fn has_repulsion(scene: &Scene) -> bool {
+    matches!(
+        &scene.initial,
+        InitialSpec::Profiles {
+            rho_star: Some(_),
+            ..
+        }
+    )
+}
+
+/// Output indices shown in the profile figures: up to [`PLOTTED_TIMES`], evenly spaced, the
+/// last one included.
+fn shown_times(count: usize) -> Vec<usize> {
+    crate::plot::thinned_indices(count, PLOTTED_TIMES)
+}
+
+/// An output time in a message, to 7 significant digits (0.15, not 0.15000000000000002).
+fn time_text(t: f64) -> String {
+    let rounded: f64 = format!("{t:.6e}").parse().unwrap_or(t);
+    crate::scene::number_text(rounded)
+}
+
+/// Text of a number in the CSV: the shortest text that reads back to the same f64 (exponent
+/// form for small and large values); `NaN`, `inf`, `-inf`.
+fn csv_number(x: f64) -> String {
+    format!("{x:?}")
+}
+
+pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<ConvergeSummary> {
+    let started = Instant::now();
+    check_particles(&options.particles)?;
+    check_scene(scene)?;
+    let requested = options.backend.unwrap_or(scene.backend);
+    let precision = options.precision.unwrap_or(scene.precision);
+    let ns = &options.particles;
+    let k_count = ns.len();
+    let mut warnings = Vec::new();
+    let batch_note = (scene.mu.len() > 1 || scene.gamma.len() > 1).then(|| {
+        format!(
+            "the scene's [batch] has {} members; the study uses its first (mu = {}, gamma = {})",
+            scene.mu.len() * scene.gamma.len(),
+            scene.mu[0],
+            scene.gamma[0]
+        )
+    });
+    if let Some(note) = &batch_note {
+        if !options.quiet {
+            eprintln!("note: {note}");
+        }
+    }
+
+    // The initial data and the backend at the smallest N are checked before anything is
+    // written (a bad profile, a repulsion that overflows, a missing adapter).
+    {
+        let s = scene_at(scene, ns[0]);
+        let chain = s.initial_chain()?;
+        select(requested, precision, &s.plan(&chain))?;
+    }
+
+    // Every field of every N is held in memory (and written): refuse what would not fit.
+    let bytes = 8
+        * FIELDS.len() as u64
+        * k_count as u64
+        * scene.output_times.len() as u64
+        * scene.grid as u64;
+    if bytes > crate::run::OUTPUT_SIZE_LIMIT {
+        return Err(Error::invalid(
+            "output.grid",
+            scene.grid,
+            format!(
+                "the fields of {k_count} values of N x {} output times x {} grid points take {:.1} GB, held in memory",
+                scene.output_times.len(),
+                scene.grid,
+                bytes as f64 / 1e9
+            ),
+            format!(
+                "at most {:.1} GB: a coarser [output] grid, fewer [time] outputs or fewer N",
+                crate::run::OUTPUT_SIZE_LIMIT as f64 / 1e9
+            ),
+        ));
+    }
+
+    let staged = StagedDir::begin(&options.out_dir, options.force)?;
+    let dir = staged.staging.clone();
+    let t_count = scene.output_times.len();
+    let grid = crate::model::observables::grid_points(scene.grid);
+    let g = grid.len();
+    let repulsion = has_repulsion(scene);
+
+    // fields[f][k][t] = G values
+    let mut fields: FieldStack = vec![Vec::with_capacity(k_count); FIELDS.len()];
+    let mut runs = Vec::with_capacity(k_count);
+    let mut record: Option<BackendRecord> = None;
+    let total: u64 = ns.iter().map(|&n| n as u64).sum::<u64>() * t_count as u64;
+    let progress = ProgressReporter::new(total, "particle-intervals", options.quiet);
+    for &n in ns {
+        let RunAtN {
+            run,
+            backend,
+            fields: per_field,
+        } = run_at_n(scene, n, requested, precision, &grid, &progress)?;
+        if run.member.status != MemberStatus::Ok {
+            warnings.push(format!(
+                "the run at N = {n} failed ({}); its fields after the failure are NaN, and every rate involving it is NaN",
+                serde_json::to_string(&run.member.status).unwrap_or_default()
+            ));
+        }
+        runs.push(run);
+        record = Some(backend);
+        for (f, rows) in per_field.into_iter().enumerate() {
+            fields[f].push(rows);
+        }
+    }
+    progress.finish();
+    let record = record.expect("at least two N");
+
+    // Differences, rates, verdicts and limits.
+    let Analysis {
+        ratios_equal,
+        limits,
+        per_time,
+        summaries,
+    } = analyse(&dir, scene, (ns, precision), &fields, &mut warnings)?;
+    let mut files = vec![PathBuf::from("convergence.csv")];
     let asymptotic = summaries.iter().all(|s| s.asymptotic_all_times);
     if k_count == 2 {
         warnings.push(
