@@ -1,9 +1,10 @@
 //! Which instruction set the CPU step's lane loops run in.
 
 /// The instruction set of the CPU step's lane loops, chosen at run time from what the CPU has
-/// (the build targets baseline x86-64) and passed to the step in `Terms::simd`. Every level runs the same operations in the same order (Rust
-/// never contracts a·b + c into an fma, and IEEE add, multiply, divide, min and max round the same
-/// at any width), so their results are bitwise equal; only speed differs.
+/// (the build targets baseline x86-64) and passed to the step in `Terms::simd`. Every level runs
+/// the same operations in the same order (Rust never contracts a·b + c into an fma, and IEEE add,
+/// multiply, divide, min and max round the same at any width), so their results are bitwise
+/// equal; only speed differs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum SimdLevel {
     /// Whatever the build targets (SSE2 on x86-64).

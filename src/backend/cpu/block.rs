@@ -89,6 +89,8 @@ struct LaneModel<T: Real, const L: usize> {
     contact_repulsion: [f64; L],
     /// Each lane's member (for its forcing parameters).
     members: [Option<usize>; L],
+    /// The step's instruction set, chosen once from the CPU and `Plan::overrides`.
+    simd: SimdLevel,
 }
 
 impl<T: Real, const L: usize> LaneModel<T, L> {
@@ -110,7 +112,7 @@ impl<T: Real, const L: usize> LaneModel<T, L> {
                     _ => &[],
                 }
             }),
-            simd: SimdLevel::capped(plan.overrides.cpu_simd_cap),
+            simd: self.simd,
             partition: !plan.overrides.cpu_partition_off,
         }
     }
@@ -214,6 +216,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                 total_gap,
                 contact_repulsion,
                 members,
+                simd: SimdLevel::capped(plan.overrides.cpu_simd_cap),
             },
             cand_gaps: gaps.clone(),
             cand_vel: vel.clone(),

@@ -150,9 +150,10 @@ impl GpuContext {
     /// Picks an adapter and creates a device.
     ///
     /// Adapters are ranked discrete > integrated > virtual > CPU (software, e.g. lavapipe)
-    /// ([`GpuContext::acquire_among`] restricts the choice by name). With `want_f64`, only adapters with `SHADER_F64` are eligible, and
-    /// [`GpuError::NoF64`] names the best adapter when none has it; without it, `SHADER_F64` is
-    /// still enabled when the adapter has it (see [`GpuContext::f64`]).
+    /// ([`GpuContext::acquire_among`] restricts the choice by name). With `want_f64`, only
+    /// adapters with `SHADER_F64` are eligible, and [`GpuError::NoF64`] names the best adapter
+    /// when none has it; without it, `SHADER_F64` is still enabled when the adapter has it (see
+    /// [`GpuContext::f64`]).
     ///
     /// The device gets wgpu's default limits, except for the buffer-size, storage-buffer-count
     /// and compute-dispatch limits, which are the adapter's own maxima.

@@ -38,6 +38,8 @@ pub(super) fn member_rows(
             MemberStatus::Failed { time, .. } => ("failed".to_string(), *time),
         };
         let failed = r.status != MemberStatus::Ok;
+        // A failed member's responses are not numbers of its run.
+        let if_ok = |v: f64| if failed { f64::NAN } else { v };
         let point = inputs[i].point;
         rows.push(MemberRow {
             member: m,
@@ -52,26 +54,10 @@ pub(super) fn member_rows(
             velocity_phase: inputs[i].velocity_phase,
             mean_dstar: dstar_summary[i].0,
             min_rho_star: dstar_summary[i].1,
-            peak_density: if failed {
-                f64::NAN
-            } else {
-                responses.peak[i].0
-            },
-            peak_time: if failed {
-                f64::NAN
-            } else {
-                responses.peak[i].1
-            },
-            min_gap: if failed {
-                f64::NAN
-            } else {
-                responses.min_gap[i]
-            },
-            final_energy: if failed {
-                f64::NAN
-            } else {
-                responses.final_energy[i]
-            },
+            peak_density: if_ok(responses.peak[i].0),
+            peak_time: if_ok(responses.peak[i].1),
+            min_gap: if_ok(responses.min_gap[i]),
+            final_energy: if_ok(responses.final_energy[i]),
             first_hit_time: responses.first_hit[i],
             steps_accepted: r.steps_accepted,
             steps_rejected: r.steps_rejected,
