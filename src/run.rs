@@ -63,7 +63,7 @@ pub struct RunSummary {
     pub members: usize,
     pub failed: usize,
     pub wall_seconds: f64,
-    /// The largest completed member's error estimate at the end.
+    /// The largest error estimate of a completed member at any output time.
     pub largest_error_estimate: Option<f64>,
     /// Whether the scheme estimates its error at all (order 1 with fixed steps does not).
     pub error_estimate_available: bool,
@@ -267,7 +267,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let largest_error_estimate = reports
         .iter()
         .filter(|r| r.status == MemberStatus::Ok)
-        .filter_map(|r| r.error_estimate.as_ref()?.last().copied())
+        .filter_map(|r| r.largest_error_estimate())
         .reduce(f64::max);
     let manifest = RunManifest {
         roughlub_version: VERSION,

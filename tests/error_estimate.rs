@@ -279,3 +279,75 @@ fn output_status_is_what_the_reports_say() {
         "no member failed: the failing case does not test failures"
     );
 }
+
+/// The smallest gap's ln d at each output time and the members' reports, for the scene `text`.
+fn smallest_log_gaps(text: &str) -> (Vec<f64>, Vec<roughlub::backend::MemberReport>) {
+    let scene = Scene::from_toml(text, Path::new("estimate.toml")).expect("valid scene");
+    let chain = scene.initial_chain().expect("initial chain");
+    let plan = scene.plan(&chain);
+    let engine = select(Backend::Cpu, Precision::F64, &plan).unwrap();
+    let mut solver = engine.solver(plan, vec![chain]).unwrap();
+    let mut smallest = Vec::new();
+    while let Some(s) = solver.next_output(&|_| {}).unwrap() {
+        smallest.push(s[0].log_min_gap);
+    }
+    (smallest, solver.reports())
+}
+
+/// A collision that both the run (dt = 1e-3) and its companion (4e-3) step over: the extremes
+/// matrix's near-contact chain (N = 200, rho0 = 0.99, mu = 1e-4, gamma = 1), whose smallest gap
+/// reaches ln d = -1326 at t = 0.01, below the float range, where the run has -734 and the
+/// companion -124. The estimate must be of the size of the error (issue 22, item 3: within a
+/// factor 10 of the smallest gap's error in ln d at each output, 591 and 300 here, against a
+/// reference at tolerance 1e-6 that agrees with 1e-10 to 2e-5), and the manifest's largest
+/// estimate must be that of the worst output time, not of the last.
+#[test]
+fn a_collision_stepped_over_gets_an_estimate_of_its_size() {
+    let text = |stepping: &str, order: &str| {
+        format!(
+            r#"
+name = "stepped_over"
+[model]
+particles = 200
+mu = 1e-4
+gamma = 1.0
+[initial]
+rho = "0.99"
+velocity = "0.5*sin(2*pi*x)"
+rho_star = "0.995"
+[time]
+end = 0.02
+outputs = 3
+{stepping}
+[solver]
+order = {order}
+backend = "cpu"
+[output]
+fields = ["gaps", "velocities", "energy"]
+plots = false
+"#
+        )
+    };
+    let (run, reports) = smallest_log_gaps(&text("dt = 1e-3", "1"));
+    let (reference, _) = smallest_log_gaps(&text("tolerance = 1e-6", "\"auto\""));
+    let estimates = reports[0]
+        .error_estimate
+        .clone()
+        .expect("a companion estimate");
+    for k in 1..run.len() {
+        let error = (run[k] - reference[k]).abs();
+        let estimate = estimates[k];
+        eprintln!(
+            "t index {k}: smallest ln d {:.1} against {:.1}: error {error:.1}, estimate {estimate:.1}",
+            run[k], reference[k]
+        );
+        assert!(error > 100.0, "not stepped over: error {error}");
+        assert!(
+            (error / 10.0..=error * 10.0).contains(&estimate),
+            "output {k}: estimate {estimate:e} against error {error:e}"
+        );
+    }
+    let largest = reports[0].largest_error_estimate().unwrap();
+    assert_eq!(largest, estimates.iter().copied().fold(0.0, f64::max));
+    assert!(largest > *estimates.last().unwrap());
+}

@@ -20,8 +20,10 @@ pub const COARSENING: f64 = 4.0;
 
 /// How the estimate is made (the manifest's `error_estimate.method`).
 pub const COMPANION_METHOD: &str = "global error of order 1 with fixed steps from a companion run \
-     at 4 dt: |y(dt) - y(4 dt)| / 3, as a max-norm: relative on gaps (the error of ln d), \
-     |du|/(1 + |u|) on velocities; infinite where the companion failed and the run did not";
+     at 4 dt: |y(dt) - y(4 dt)| / 3, as a max-norm: relative on gaps (the error of ln d; the \
+     smallest gaps compared in ln d also below the float range, other gaps below it on one side \
+     only at the range's edge, a lower bound), |du|/(1 + |u|) on velocities; infinite where the \
+     companion failed and the run did not";
 
 /// Whether a plan runs order 1 with fixed steps (the runs that need a companion for an estimate).
 pub fn needs_companion(plan: &Plan) -> bool {
@@ -94,7 +96,17 @@ fn difference(fine: &Snapshot, coarse: &Snapshot) -> f64 {
     {
         return f64::NAN;
     }
-    let gaps = largest_log_ratio(&fine.gaps, &coarse.gaps);
+    let mut gaps = largest_log_ratio(&fine.gaps, &coarse.gaps);
+    // Where a smallest gap is below the normal range, also those two in ln d, which the
+    // snapshot keeps there (a collision stepped over by both runs leaves both gaps at 0 in d).
+    // |min ln a - min ln b| is at most max |ln a_i - ln b_i|, so it only completes the gaps'
+    // term; elsewhere the term is left as it is, bit for bit.
+    if fine.min_gap.min(coarse.min_gap) < f64::MIN_POSITIVE {
+        let smallest = (fine.log_min_gap - coarse.log_min_gap).abs();
+        if !smallest.is_nan() {
+            gaps = gaps.max(smallest);
+        }
+    }
     let velocities = largest_of(&fine.velocities, &coarse.velocities, 0.0, |a, b| {
         (a - b).abs() / (1.0 + a.abs())
     });
@@ -126,8 +138,8 @@ fn largest_of(fine: &[f64], coarse: &[f64], start: f64, term: impl Fn(f64, f64) 
     worst
 }
 
-/// max_i |ln a_i − ln b_i| over pairs of gaps; infinite where one gap is below the float range
-/// (0) and the other is not.
+/// max_i |ln a_i − ln b_i| over pairs of gaps; where one gap is below the float range (0) and
+/// the other is not, |ln b − ln(smallest subnormal)|, which the true difference exceeds.
 fn largest_log_ratio(fine: &[f64], coarse: &[f64]) -> f64 {
     // Where every gap of both is positive (nearly always), two logarithms: ln is monotone, so
     // the largest |ln(a/b)| is that of the largest or the smallest ratio, the same value as
@@ -151,13 +163,17 @@ fn largest_log_ratio(fine: &[f64], coarse: &[f64]) -> f64 {
         } else if a == b {
             0.0
         } else {
-            // One gap below the float range and not the other: no finite bound.
-            f64::INFINITY
+            // One gap below the float range and not the other: at least as far as the range's
+            // edge.
+            a.max(b).ln() - SMALLEST_SUBNORMAL.ln()
         };
         worst = worst.max(e);
     }
     worst
 }
+
+/// The smallest positive f64: a gap stored as 0 is below it.
+const SMALLEST_SUBNORMAL: f64 = f64::from_bits(1);
 
 impl BatchSolver for CompanionEstimate<'_> {
     fn next_output(&mut self, progress: super::Progress) -> Result<Option<Vec<Snapshot>>> {
@@ -260,10 +276,12 @@ mod tests {
             );
         }
         assert_eq!(largest_log_ratio(&[0.0, 1.0], &[0.0, 0.5]), 2f64.ln());
-        assert_eq!(
-            largest_log_ratio(&[1e-3, 0.0], &[1e-3, 1e-300]),
-            f64::INFINITY
-        );
+        // 1e-300 against a gap below 4.94e-324: at least ln(1e-300 / 4.94e-324) = 53.66; 0.5
+        // against one: ln 0.5 + 744.44.
+        let one_sided = largest_log_ratio(&[1e-3, 0.0], &[1e-3, 1e-300]);
+        assert!((one_sided - 53.664).abs() < 1e-3, "{one_sided}");
+        let far = largest_log_ratio(&[0.5], &[0.0]);
+        assert!((far - 743.747).abs() < 1e-3, "{far}");
         assert_eq!(largest_log_ratio(&[], &[]), 0.0);
     }
 }

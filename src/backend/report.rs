@@ -29,6 +29,19 @@ pub struct MemberReport {
     pub error_estimate: Option<Vec<f64>>,
 }
 
+impl MemberReport {
+    /// The member's largest error estimate over its output times: the last one where the
+    /// estimates are sums of local ones (the tableau's), the worst of the output times where
+    /// they are global errors that may shrink again after a collision (the companion's).
+    pub fn largest_error_estimate(&self) -> Option<f64> {
+        self.error_estimate
+            .as_ref()?
+            .iter()
+            .copied()
+            .reduce(f64::max)
+    }
+}
+
 /// How the error estimates of a run with this plan are made, or `None` when it has none.
 pub fn error_estimate_method(
     order: crate::model::params::Order,

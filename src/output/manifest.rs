@@ -24,11 +24,13 @@ pub struct SceneRecord {
 }
 
 /// How the members' error estimates (`error_estimate` per member and output time, in a single
-/// run's members; the last one in members.csv of a study) are made, and the largest.
+/// run's members; each member's largest over its output times in members.csv of a study) are
+/// made, and the largest.
 #[derive(Debug, Clone, Serialize)]
 pub struct ErrorEstimateRecord {
     pub method: &'static str,
-    /// The largest estimate over the members that completed (null where unavailable).
+    /// The largest estimate over the members that completed and their output times (null where
+    /// unavailable).
     pub largest: Option<f64>,
     /// Set where the largest estimate is above
     /// [`LARGE_ERROR_ESTIMATE`](crate::backend::report::LARGE_ERROR_ESTIMATE).

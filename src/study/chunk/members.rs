@@ -62,7 +62,7 @@ pub(super) fn member_rows(
             steps_accepted: r.steps_accepted,
             steps_rejected: r.steps_rejected,
             error_estimate: match (&r.error_estimate, failed) {
-                (Some(e), false) => e.last().copied().unwrap_or(f64::NAN),
+                (Some(_), false) => r.largest_error_estimate().unwrap_or(f64::NAN),
                 _ => f64::NAN,
             },
         });
