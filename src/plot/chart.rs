@@ -23,13 +23,32 @@ pub(super) fn msg<E: Display>(e: E) -> String {
     e.to_string()
 }
 
-/// A white [`PLOT_SIZE`] canvas writing to `path` and, below `title`, the area for the panels.
-/// Draw on the second and call `present()` on the first to write the file.
-pub(super) fn figure<'a>(path: &'a Path, title: &str) -> Result<(Area<'a>, Area<'a>), String> {
-    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
+/// Fills `root` white and titles it: the area below `title` is for the panels.
+pub(super) fn figure<'a>(root: &Area<'a>, title: &str) -> Result<Area<'a>, String> {
     root.fill(&WHITE).map_err(msg)?;
-    let body = root.titled(&shorten(title, 90), (FONT, 26)).map_err(msg)?;
-    Ok((root, body))
+    root.titled(&shorten(title, 90), (FONT, 26)).map_err(msg)
+}
+
+/// Draws a [`PLOT_SIZE`] figure with `draw` in memory and writes it to `path` as a PNG (RGB,
+/// 8 bits), only once it is drawn: a figure that fails leaves no file.
+pub(super) fn draw_png(
+    path: &Path,
+    draw: impl FnOnce(&Area) -> Result<(), String>,
+) -> Result<(), String> {
+    let (width, height) = PLOT_SIZE;
+    let mut pixels = vec![0u8; width as usize * height as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, PLOT_SIZE).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(msg)?;
+    }
+    let file = std::fs::File::create(path).map_err(msg)?;
+    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header().map_err(msg)?;
+    writer.write_image_data(&pixels).map_err(msg)?;
+    writer.finish().map_err(msg)
 }
 
 /// A panel on `area` with axis titles, a light grid and at most 10 tick labels per axis.

@@ -6,12 +6,12 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::chart::{build_chart, draw_line, msg};
+use super::chart::{build_chart, draw_line, draw_png, msg};
 use super::legend::{draw_legend, draw_note, legend_indices, LegendEntry, LegendMark};
 use super::ranges::{finite_min_max, padded_range, range_including};
 use super::response::{coord, sweep_chart, titled};
 use super::style::{format_number, indexed_color};
-use super::{ConvergenceProfilesPlot, ConvergenceRatePlot, PLOT_SIZE};
+use super::{ConvergenceProfilesPlot, ConvergenceRatePlot};
 
 /// Draws the figure of [`plot_convergence_profiles`](super::plot_convergence_profiles).
 pub(super) fn draw_profiles(path: &Path, plot: &ConvergenceProfilesPlot) -> Result<(), String> {
@@ -25,51 +25,53 @@ pub(super) fn draw_profiles(path: &Path, plot: &ConvergenceProfilesPlot) -> Resu
         .chain(plot.limit.into_iter().flatten().flatten());
     let y_range = padded_range(finite_min_max(values), plot.y_label)?;
 
-    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
-    let body = titled(&root, plot.title)?;
-    let legend_width = 170;
-    let (panels, legend_area) =
-        body.split_horizontally(body.dim_in_pixel().0 as i32 - legend_width);
-    let cells = match plot.times.len() {
-        1 => panels.split_evenly((1, 1)),
-        2 => panels.split_evenly((2, 1)),
-        _ => panels.split_evenly((2, 2)),
-    };
-    let color = |i: usize| indexed_color(i, k);
-    for ((cell, &t), rows) in cells.iter().zip(plot.times).zip(plot.values) {
-        let cell = cell
-            .titled(
-                &format!("t = {}", format_number(t)),
-                (super::style::FONT, 18),
-            )
-            .map_err(msg)?;
-        let mut chart = build_chart(&cell, x_range.clone(), y_range.clone(), "x", plot.y_label)?;
-        for (i, row) in rows.iter().enumerate() {
-            draw_line(&mut chart, plot.x, row, color(i), false)?;
+    draw_png(path, |root| {
+        let body = titled(root, plot.title)?;
+        let legend_width = 170;
+        let (panels, legend_area) =
+            body.split_horizontally(body.dim_in_pixel().0 as i32 - legend_width);
+        let cells = match plot.times.len() {
+            1 => panels.split_evenly((1, 1)),
+            2 => panels.split_evenly((2, 1)),
+            _ => panels.split_evenly((2, 2)),
+        };
+        let color = |i: usize| indexed_color(i, k);
+        for ((cell, &t), rows) in cells.iter().zip(plot.times).zip(plot.values) {
+            let cell = cell
+                .titled(
+                    &format!("t = {}", format_number(t)),
+                    (super::style::FONT, 18),
+                )
+                .map_err(msg)?;
+            let mut chart =
+                build_chart(&cell, x_range.clone(), y_range.clone(), "x", plot.y_label)?;
+            for (i, row) in rows.iter().enumerate() {
+                draw_line(&mut chart, plot.x, row, color(i), false)?;
+            }
+            if let Some(limit) = plot.limit {
+                let j = plot.times.iter().position(|&s| s == t).unwrap_or(0);
+                draw_line(&mut chart, plot.x, &limit[j], RGBColor(0, 0, 0), true)?;
+            }
         }
-        if let Some(limit) = plot.limit {
-            let j = plot.times.iter().position(|&s| s == t).unwrap_or(0);
-            draw_line(&mut chart, plot.x, &limit[j], RGBColor(0, 0, 0), true)?;
+        let indices = legend_indices(k, 14);
+        let mut entries: Vec<LegendEntry> = indices
+            .iter()
+            .map(|&i| LegendEntry {
+                label: plot.labels[i].clone(),
+                color: color(i),
+                mark: LegendMark::Line,
+            })
+            .collect();
+        if plot.limit.is_some() {
+            entries.push(LegendEntry {
+                label: "extrapolated".to_string(),
+                color: RGBColor(0, 0, 0),
+                mark: LegendMark::Dashed,
+            });
         }
-    }
-    let indices = legend_indices(k, 14);
-    let mut entries: Vec<LegendEntry> = indices
-        .iter()
-        .map(|&i| LegendEntry {
-            label: plot.labels[i].clone(),
-            color: color(i),
-            mark: LegendMark::Line,
-        })
-        .collect();
-    if plot.limit.is_some() {
-        entries.push(LegendEntry {
-            label: "extrapolated".to_string(),
-            color: RGBColor(0, 0, 0),
-            mark: LegendMark::Dashed,
-        });
-    }
-    draw_legend(&legend_area, 22, "N", &entries)?;
-    root.present().map_err(msg)
+        draw_legend(&legend_area, 22, "N", &entries)?;
+        Ok(())
+    })
 }
 
 /// Draws the figure of [`plot_convergence_rate`](super::plot_convergence_rate).
@@ -90,38 +92,39 @@ pub(super) fn draw_rate(path: &Path, plot: &ConvergenceRatePlot) -> Result<(), S
     let x_range = padded_range(finite_min_max(&xs), "N")?;
     let y_range = padded_range(finite_min_max(&all_y), plot.y_label)?;
 
-    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
-    let body = titled(&root, plot.title)?;
-    let mut chart = sweep_chart(
-        &body,
-        (x_range, true),
-        (y_range, true),
-        "N (finer of each successive pair)",
-        plot.y_label,
-        true,
-    )?;
-    let blue = RGBColor(31, 119, 180);
-    draw_line(&mut chart, &xs, &ys, blue, false)?;
-    chart
-        .draw_series(
-            xs.iter()
-                .zip(&ys)
-                .filter(|(x, y)| x.is_finite() && y.is_finite())
-                .map(|(&x, &y)| Circle::new((x, y), 5, blue.filled())),
-        )
-        .map_err(msg)?;
-    if let Some(line) = &fit_line {
+    draw_png(path, |root| {
+        let body = titled(root, plot.title)?;
+        let mut chart = sweep_chart(
+            &body,
+            (x_range, true),
+            (y_range, true),
+            "N (finer of each successive pair)",
+            plot.y_label,
+            true,
+        )?;
+        let blue = RGBColor(31, 119, 180);
+        draw_line(&mut chart, &xs, &ys, blue, false)?;
         chart
-            .draw_series(DashedLineSeries::new(
-                line.clone(),
-                8,
-                5,
-                RGBColor(214, 39, 40).stroke_width(2),
-            ))
+            .draw_series(
+                xs.iter()
+                    .zip(&ys)
+                    .filter(|(x, y)| x.is_finite() && y.is_finite())
+                    .map(|(&x, &y)| Circle::new((x, y), 5, blue.filled())),
+            )
             .map_err(msg)?;
-    }
-    if !plot.note.is_empty() {
-        draw_note(&body, plot.note, false)?;
-    }
-    root.present().map_err(msg)
+        if let Some(line) = &fit_line {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    line.clone(),
+                    8,
+                    5,
+                    RGBColor(214, 39, 40).stroke_width(2),
+                ))
+                .map_err(msg)?;
+        }
+        if !plot.note.is_empty() {
+            draw_note(&body, plot.note, false)?;
+        }
+        Ok(())
+    })
 }

@@ -4,7 +4,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::chart::{build_chart_with_y_labels, figure, msg};
+use super::chart::{build_chart_with_y_labels, draw_png, figure, msg};
 use super::legend::draw_note;
 use super::style::TAB10;
 
@@ -35,41 +35,43 @@ pub(super) fn draw(
     // Whole-number ticks: at most one label per unit of count.
     let y_labels = (y_top.floor().min(10.0) as usize + 1).clamp(2, 10);
 
-    let (root, body) = figure(path, title)?;
-    let mut chart =
-        build_chart_with_y_labels(&body, lo..hi, 0.0..y_top, x_label, "count", y_labels)?;
+    draw_png(path, |root| {
+        let body = figure(root, title)?;
+        let mut chart =
+            build_chart_with_y_labels(&body, lo..hi, 0.0..y_top, x_label, "count", y_labels)?;
 
-    let (r, g, b) = TAB10[0];
-    let fill = RGBColor(r, g, b);
-    let edge = RGBColor(r / 2, g / 2, b / 2);
-    for (w, &c) in edges.windows(2).zip(counts) {
-        if c == 0 {
-            continue;
+        let (r, g, b) = TAB10[0];
+        let fill = RGBColor(r, g, b);
+        let edge = RGBColor(r / 2, g / 2, b / 2);
+        for (w, &c) in edges.windows(2).zip(counts) {
+            if c == 0 {
+                continue;
+            }
+            let corners = [(w[0], 0.0), (w[1], c as f64)];
+            chart
+                .draw_series([
+                    Rectangle::new(corners, fill.mix(0.75).filled()),
+                    Rectangle::new(corners, edge.stroke_width(1)),
+                ])
+                .map_err(msg)?;
         }
-        let corners = [(w[0], 0.0), (w[1], c as f64)];
-        chart
-            .draw_series([
-                Rectangle::new(corners, fill.mix(0.75).filled()),
-                Rectangle::new(corners, edge.stroke_width(1)),
-            ])
-            .map_err(msg)?;
-    }
 
-    if let Some(note) = note {
-        // In the top corner above the lower bars.
-        let mid = 0.5 * (lo + hi);
-        let half_max = |left: bool| {
-            edges
-                .windows(2)
-                .zip(counts)
-                .filter(|(w, _)| (0.5 * (w[0] + w[1]) < mid) == left)
-                .map(|(_, &c)| c)
-                .max()
-                .unwrap_or(0)
-        };
-        let left = half_max(true) < half_max(false);
-        draw_note(&chart.plotting_area().strip_coord_spec(), note, left)?;
-    }
+        if let Some(note) = note {
+            // In the top corner above the lower bars.
+            let mid = 0.5 * (lo + hi);
+            let half_max = |left: bool| {
+                edges
+                    .windows(2)
+                    .zip(counts)
+                    .filter(|(w, _)| (0.5 * (w[0] + w[1]) < mid) == left)
+                    .map(|(_, &c)| c)
+                    .max()
+                    .unwrap_or(0)
+            };
+            let left = half_max(true) < half_max(false);
+            draw_note(&chart.plotting_area().strip_coord_spec(), note, left)?;
+        }
 
-    root.present().map_err(msg)
+        Ok(())
+    })
 }

@@ -11,37 +11,31 @@ use std::path::Path;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::chart::{draw_band_area, draw_line, msg, Area, Chart};
+use super::chart::{draw_band_area, draw_line, draw_png, msg, Area, Chart};
 use super::legend::{draw_legend, draw_note, legend_width, LegendEntry, LegendMark};
 use super::ranges::{finite_min_max, padded_range};
 use super::style::{format_number, format_tick, indexed_color, shorten, FONT, TAB10};
-use super::{HeatmapPlot, ResponsePlot, ScatterPlot, PLOT_SIZE};
+use super::{HeatmapPlot, ResponsePlot, ScatterPlot};
 
-// Each figure computes what it draws (and every error about the data) before the PNG backend is
-// created: a backend dropped unsaved writes its (blank) image.
+// Each figure computes what it draws (and every error about the data) before it draws, so that
+// a bad input is reported as such rather than as a drawing error.
 
 /// Draws the figure of [`plot_response`](super::plot_response) on input that passed its check.
 pub(super) fn draw_response(path: &Path, plot: &ResponsePlot) -> Result<(), String> {
     let data = ResponseData::new(plot)?;
-    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
-    response_on(&root, plot, &data)?;
-    root.present().map_err(msg)
+    draw_png(path, |root| response_on(root, plot, &data))
 }
 
 /// Draws the figure of [`plot_heatmap`](super::plot_heatmap) on input that passed its check.
 pub(super) fn draw_heatmap(path: &Path, plot: &HeatmapPlot) -> Result<(), String> {
     let data = HeatmapData::new(plot)?;
-    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
-    heatmap_on(&root, plot, &data)?;
-    root.present().map_err(msg)
+    draw_png(path, |root| heatmap_on(root, plot, &data).map(|_| ()))
 }
 
 /// Draws the figure of [`plot_scatter`](super::plot_scatter) on input that passed its check.
 pub(super) fn draw_scatter(path: &Path, plot: &ScatterPlot) -> Result<(), String> {
     let data = ScatterData::new(plot)?;
-    let root = BitMapBackend::new(path, PLOT_SIZE).into_drawing_area();
-    scatter_on(&root, plot, &data)?;
-    root.present().map_err(msg)
+    draw_png(path, |root| scatter_on(root, plot, &data))
 }
 
 /// Plot coordinate of a value: the value itself, or its log10 on a log axis (NaN for values

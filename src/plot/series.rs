@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::chart::{build_chart, draw_line, figure, msg};
+use super::chart::{build_chart, draw_line, draw_png, figure};
 use super::legend::{
     draw_legend, legend_indices, legend_width, LegendEntry, LegendMark, LEGEND_ROW,
 };
@@ -33,28 +33,30 @@ pub(super) fn draw(
         y_label,
     )?;
 
-    let (root, body) = figure(path, title)?;
+    draw_png(path, |root| {
+        let body = figure(root, title)?;
 
-    const MAX_LABEL: usize = 32;
-    let labels: Vec<String> = series.iter().map(|(l, _)| shorten(l, MAX_LABEL)).collect();
-    let width = legend_width(&body, &labels, 120)?;
-    let (panel, legend_area) = body.split_horizontally(body.dim_in_pixel().0 as i32 - width);
+        const MAX_LABEL: usize = 32;
+        let labels: Vec<String> = series.iter().map(|(l, _)| shorten(l, MAX_LABEL)).collect();
+        let width = legend_width(&body, &labels, 120)?;
+        let (panel, legend_area) = body.split_horizontally(body.dim_in_pixel().0 as i32 - width);
 
-    let mut chart = build_chart(&panel, x_range, y_range, "t", y_label)?;
-    for (i, (_, values)) in series.iter().enumerate() {
-        draw_line(&mut chart, times, values, color(i), false)?;
-    }
+        let mut chart = build_chart(&panel, x_range, y_range, "t", y_label)?;
+        for (i, (_, values)) in series.iter().enumerate() {
+            draw_line(&mut chart, times, values, color(i), false)?;
+        }
 
-    let max_entries = ((legend_area.dim_in_pixel().1 as i32 - 40) / LEGEND_ROW).max(2) as usize;
-    let entries: Vec<LegendEntry> = legend_indices(n, max_entries)
-        .into_iter()
-        .map(|i| LegendEntry {
-            label: labels[i].clone(),
-            color: color(i),
-            mark: LegendMark::Line,
-        })
-        .collect();
-    draw_legend(&legend_area, 22, "", &entries)?;
+        let max_entries = ((legend_area.dim_in_pixel().1 as i32 - 40) / LEGEND_ROW).max(2) as usize;
+        let entries: Vec<LegendEntry> = legend_indices(n, max_entries)
+            .into_iter()
+            .map(|i| LegendEntry {
+                label: labels[i].clone(),
+                color: color(i),
+                mark: LegendMark::Line,
+            })
+            .collect();
+        draw_legend(&legend_area, 22, "", &entries)?;
 
-    root.present().map_err(msg)
+        Ok(())
+    })
 }

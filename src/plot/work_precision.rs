@@ -5,7 +5,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::chart::{build_chart, draw_line, figure, msg};
+use super::chart::{build_chart, draw_line, draw_png, figure, msg};
 use super::legend::{draw_legend, legend_width, LegendEntry, LegendMark};
 use super::ranges::{finite_min_max, padded_range};
 use super::style::{series_color, shorten};
@@ -35,52 +35,54 @@ pub(super) fn draw(
     }
     let y_range = padded_range(finite_min_max(y_values.iter()), "the errors")?;
 
-    let (root, body) = figure(path, title)?;
-    let labels: Vec<String> = lines.iter().map(|(l, _)| shorten(l, 32)).collect();
-    let width = legend_width(&body, &labels, 120)?;
-    let (panel, legend_area) = body.split_horizontally(body.dim_in_pixel().0 as i32 - width);
-    let mut chart = build_chart(
-        &panel,
-        x_range.clone(),
-        y_range,
-        "log10 wall time per run [s]",
-        "log10 error",
-    )?;
-    for (i, (x, y)) in xs.iter().zip(&ys).enumerate() {
-        draw_line(&mut chart, x, y, color(i), false)?;
-        chart
-            .draw_series(
-                x.iter()
-                    .zip(y)
-                    .filter(|(a, b)| a.is_finite() && b.is_finite())
-                    .map(|(&a, &b)| Circle::new((a, b), 4, color(i).filled())),
-            )
-            .map_err(msg)?;
-    }
-    let mut entries: Vec<LegendEntry> = labels
-        .iter()
-        .enumerate()
-        .map(|(i, l)| LegendEntry {
-            label: l.clone(),
-            color: color(i),
-            mark: LegendMark::Line,
-        })
-        .collect();
-    if let Some(t) = target {
-        let ty = log(t);
-        draw_line(
-            &mut chart,
-            &[x_range.start, x_range.end],
-            &[ty, ty],
-            RGBColor(120, 120, 120),
-            true,
+    draw_png(path, |root| {
+        let body = figure(root, title)?;
+        let labels: Vec<String> = lines.iter().map(|(l, _)| shorten(l, 32)).collect();
+        let width = legend_width(&body, &labels, 120)?;
+        let (panel, legend_area) = body.split_horizontally(body.dim_in_pixel().0 as i32 - width);
+        let mut chart = build_chart(
+            &panel,
+            x_range.clone(),
+            y_range,
+            "log10 wall time per run [s]",
+            "log10 error",
         )?;
-        entries.push(LegendEntry {
-            label: format!("target {t:e}"),
-            color: RGBColor(120, 120, 120),
-            mark: LegendMark::Line,
-        });
-    }
-    draw_legend(&legend_area, 22, "", &entries)?;
-    root.present().map_err(msg)
+        for (i, (x, y)) in xs.iter().zip(&ys).enumerate() {
+            draw_line(&mut chart, x, y, color(i), false)?;
+            chart
+                .draw_series(
+                    x.iter()
+                        .zip(y)
+                        .filter(|(a, b)| a.is_finite() && b.is_finite())
+                        .map(|(&a, &b)| Circle::new((a, b), 4, color(i).filled())),
+                )
+                .map_err(msg)?;
+        }
+        let mut entries: Vec<LegendEntry> = labels
+            .iter()
+            .enumerate()
+            .map(|(i, l)| LegendEntry {
+                label: l.clone(),
+                color: color(i),
+                mark: LegendMark::Line,
+            })
+            .collect();
+        if let Some(t) = target {
+            let ty = log(t);
+            draw_line(
+                &mut chart,
+                &[x_range.start, x_range.end],
+                &[ty, ty],
+                RGBColor(120, 120, 120),
+                true,
+            )?;
+            entries.push(LegendEntry {
+                label: format!("target {t:e}"),
+                color: RGBColor(120, 120, 120),
+                mark: LegendMark::Line,
+            });
+        }
+        draw_legend(&legend_area, 22, "", &entries)?;
+        Ok(())
+    })
 }

@@ -1,4 +1,4 @@
-use super::super::{plot_heatmap, plot_response, plot_scatter, PlotError};
+use super::super::{plot_heatmap, plot_response, plot_scatter, PlotError, PLOT_SIZE};
 use super::*;
 
 /// (width, height) from the IHDR chunk of a PNG file (after checking the signature).
