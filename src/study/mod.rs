@@ -227,35 +227,13 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     // A fresh study is built in a staging directory and swapped in whole at the end (the target
     // stays the earlier complete run until then); `--resume` continues in the target when it
     // holds the study, or adopts the staging directory an interrupted fresh run left beside it.
-    let target = &options.out_dir;
     let (dir, staged) = study_dir(&header, options)?;
     let dir = &dir;
-    let chunks_dir = dir.join("chunks");
-    let header_path = dir.join("study.json");
-    if options.resume {
-        if dir.join(OLD_PARTIAL).exists() && !dir.join(PARTIAL).exists() {
-            return Err(crate::output::state_file::old_format_error(
-                &dir.join(OLD_PARTIAL),
-            ));
-        }
-        check_resume(&read_json(&header_path)?, &header, &header_path)?;
-        if staged.is_none() && dir.join(MANIFEST).exists() && dir.join(PARTIAL).exists() {
-            // A complete study: its chunks are merged into partial.state; nothing to do.
-            let partial: PartialFile = read_state(&dir.join(PARTIAL))?;
-            if partial.state.ranges.iter().map(|(a, b)| b - a).sum::<u64>()
-                == header.member_range.1 - header.member_range.0
-            {
-                if !options.quiet {
-                    eprintln!(
-                        "{} holds this study complete: nothing to resume",
-                        dir.display()
-                    );
-                }
-                let wall = started.elapsed().as_secs_f64();
-                return Ok(StudySummary::of(target, &partial.state, 0, wall, 0.0));
-            }
-        }
+    if let Some(complete) = complete_study(dir, staged.is_none(), &header, options)? {
+        let wall = started.elapsed().as_secs_f64();
+        return Ok(StudySummary::of(&options.out_dir, &complete, 0, wall, 0.0));
     }
+    let chunks_dir = dir.join("chunks");
     if chunks_dir.is_dir() {
         // Chunk files of roughlub 0.2.0's interrupted runs: this version checkpoints instead.
         if !options.quiet {
@@ -267,8 +245,148 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         std::fs::remove_dir_all(&chunks_dir).map_err(|e| Error::io(&chunks_dir, e))?;
     }
     prepare_dir(dir)?;
-    write_json_atomic(&header_path, &header)?;
+    write_json_atomic(&dir.join("study.json"), &header)?;
 
+    let solved = solve_chunks(dir, spec, &members, &header, &engine, options)?;
+    let SolvedChunks {
+        state,
+        chunks,
+        reused,
+        largest_error_estimate,
+        mut costs,
+    } = solved;
+    let t0 = Instant::now();
+    // The state for merges and the statistics' files read the same state: written side by side.
+    let (partial, stats_files) = rayon::join(
+        || {
+            write_state_atomic(
+                &dir.join(PARTIAL),
+                &PartialFileRef {
+                    header: &header,
+                    state: &state,
+                },
+            )
+        },
+        || finalize(dir, &[header.clone()], &state, scene.plots),
+    );
+    partial?;
+    stats_files?;
+    // partial.state and members.csv hold everything the checkpoint did.
+    let checkpoint_path = dir.join(CHECKPOINT);
+    if checkpoint_path.exists() {
+        std::fs::remove_file(&checkpoint_path).map_err(|e| Error::io(&checkpoint_path, e))?;
+    }
+    costs.statistics_seconds += t0.elapsed().as_secs_f64();
+    let wall = started.elapsed().as_secs_f64();
+    write_json_atomic(
+        &dir.join(MANIFEST),
+        &StudyManifest {
+            roughlub_version: VERSION,
+            kind: "ensemble",
+            scene: StudySceneRecord {
+                name: scene.name.clone(),
+                text: scene.source_text.clone(),
+                hash: header.scene_hash.clone(),
+            },
+            backend: engine.record.clone(),
+            gpu_stats: costs.gpu,
+            shard: (k, n),
+            member_range: header.member_range,
+            members_total: header.members_total,
+            members_completed: state.completed,
+            failed_members: state.failed.clone(),
+            error_estimate: ErrorEstimateRecord::new(
+                scene.order,
+                scene.stepping,
+                scene.error_estimate,
+                largest_error_estimate,
+            ),
+            chunks,
+            chunks_reused: reused,
+            chunks_solved_twice: costs.chunks_solved_twice,
+            wall_seconds: wall,
+            statistics_seconds: costs.statistics_seconds,
+            statistics_share: costs.statistics_seconds / wall.max(1e-12),
+            memory_estimate_bytes: memory.bytes,
+            memory_limit_bytes: memory_limit,
+            detailed_points: header.detailed_count(),
+            band_fields: header.band_fields.clone(),
+            state_format: crate::output::STATE_FORMAT,
+            ensemble: spec.clone(),
+            quantile_method: quantile_method(&header),
+        },
+    )?;
+    if let Some(staged) = staged {
+        staged.commit()?;
+    }
+    Ok(
+        StudySummary::of(&options.out_dir, &state, reused, wall, costs.statistics_seconds)
+            .with_error_estimate(
+                largest_error_estimate,
+                run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate)
+                    .is_some(),
+            ),
+    )
+}
+
+/// With `--resume`: checks that `dir` holds this study (refusing the state format of an older
+/// roughlub), and returns its state when `dir` is the target and already holds the study
+/// complete (nothing to do then).
+fn complete_study(
+    dir: &Path,
+    in_target: bool,
+    header: &StudyHeader,
+    options: &StudyOptions,
+) -> Result<Option<StudyState>> {
+    if !options.resume {
+        return Ok(None);
+    }
+    if dir.join(OLD_PARTIAL).exists() && !dir.join(PARTIAL).exists() {
+        return Err(crate::output::state_file::old_format_error(
+            &dir.join(OLD_PARTIAL),
+        ));
+    }
+    let header_path = dir.join("study.json");
+    check_resume(&read_json(&header_path)?, header, &header_path)?;
+    if !(in_target && dir.join(MANIFEST).exists() && dir.join(PARTIAL).exists()) {
+        return Ok(None);
+    }
+    // A complete study: its chunks are merged into partial.state.
+    let partial: PartialFile = read_state(&dir.join(PARTIAL))?;
+    let held: u64 = partial.state.ranges.iter().map(|(a, b)| b - a).sum();
+    if held != header.member_range.1 - header.member_range.0 {
+        return Ok(None);
+    }
+    if !options.quiet {
+        eprintln!(
+            "{} holds this study complete: nothing to resume",
+            dir.display()
+        );
+    }
+    Ok(Some(partial.state))
+}
+
+/// What [`solve_chunks`] leaves: the merged statistics, the chunk counts, the largest error
+/// estimate of the rows written, and what the statistics cost.
+struct SolvedChunks {
+    state: StudyState,
+    chunks: usize,
+    reused: usize,
+    largest_error_estimate: Option<f64>,
+    costs: StudyCosts,
+}
+
+/// Solves the study's chunks in member order into `dir` (members.csv, and the checkpoint every
+/// `options.checkpoint_seconds`), continuing from the checkpoint of an interrupted run with
+/// `--resume`.
+fn solve_chunks(
+    dir: &Path,
+    spec: &EnsembleSpec,
+    members: &EnsembleMembers,
+    header: &StudyHeader,
+    engine: &Engine,
+    options: &StudyOptions,
+) -> Result<SolvedChunks> {
     let (first, end) = header.member_range;
     let bounds: Vec<(u64, u64)> = (first..end)
         .step_by(spec.chunk)
@@ -312,9 +430,9 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             let rows = solve_chunk(
                 dir,
                 spec,
-                &members,
-                &header,
-                &engine,
+                members,
+                header,
+                engine,
                 (a, b),
                 &mut total,
                 &mut row_buffer,
@@ -349,78 +467,13 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     })?;
     progress.finish();
     csv_out.finish()?;
-    let state = total;
-    let t0 = Instant::now();
-    // The state for merges and the statistics' files read the same state: written side by side.
-    let (partial, stats_files) = rayon::join(
-        || {
-            write_state_atomic(
-                &dir.join(PARTIAL),
-                &PartialFileRef {
-                    header: &header,
-                    state: &state,
-                },
-            )
-        },
-        || finalize(dir, &[header.clone()], &state, scene.plots),
-    );
-    partial?;
-    stats_files?;
-    // partial.state and members.csv hold everything the checkpoint did.
-    if checkpoint_path.exists() {
-        std::fs::remove_file(&checkpoint_path).map_err(|e| Error::io(&checkpoint_path, e))?;
-    }
-    costs.statistics_seconds += t0.elapsed().as_secs_f64();
-    let wall = started.elapsed().as_secs_f64();
-    write_json_atomic(
-        &dir.join(MANIFEST),
-        &StudyManifest {
-            roughlub_version: VERSION,
-            kind: "ensemble",
-            scene: StudySceneRecord {
-                name: scene.name.clone(),
-                text: scene.source_text.clone(),
-                hash: header.scene_hash.clone(),
-            },
-            backend: engine.record.clone(),
-            gpu_stats: costs.gpu,
-            shard: (k, n),
-            member_range: header.member_range,
-            members_total: header.members_total,
-            members_completed: state.completed,
-            failed_members: state.failed.clone(),
-            error_estimate: ErrorEstimateRecord::new(
-                scene.order,
-                scene.stepping,
-                scene.error_estimate,
-                largest_error_estimate,
-            ),
-            chunks: bounds.len(),
-            chunks_reused: reused,
-            chunks_solved_twice: costs.chunks_solved_twice,
-            wall_seconds: wall,
-            statistics_seconds: costs.statistics_seconds,
-            statistics_share: costs.statistics_seconds / wall.max(1e-12),
-            memory_estimate_bytes: memory.bytes,
-            memory_limit_bytes: memory_limit,
-            detailed_points: header.detailed_count(),
-            band_fields: header.band_fields.clone(),
-            state_format: crate::output::STATE_FORMAT,
-            ensemble: spec.clone(),
-            quantile_method: quantile_method(&header),
-        },
-    )?;
-    if let Some(staged) = staged {
-        staged.commit()?;
-    }
-    Ok(
-        StudySummary::of(target, &state, reused, wall, costs.statistics_seconds)
-            .with_error_estimate(
-                largest_error_estimate,
-                run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate)
-                    .is_some(),
-            ),
-    )
+    Ok(SolvedChunks {
+        state: total,
+        chunks: bounds.len(),
+        reused,
+        largest_error_estimate,
+        costs,
+    })
 }
 
 /// Where the study is built, and the staging directory when it is not the target itself: a
