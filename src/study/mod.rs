@@ -319,14 +319,17 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     if let Some(staged) = staged {
         staged.commit()?;
     }
-    Ok(
-        StudySummary::of(&options.out_dir, &state, reused, wall, costs.statistics_seconds)
-            .with_error_estimate(
-                largest_error_estimate,
-                run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate)
-                    .is_some(),
-            ),
+    Ok(StudySummary::of(
+        &options.out_dir,
+        &state,
+        reused,
+        wall,
+        costs.statistics_seconds,
     )
+    .with_error_estimate(
+        largest_error_estimate,
+        run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate).is_some(),
+    ))
 }
 
 /// With `--resume`: checks that `dir` holds this study (refusing the state format of an older
