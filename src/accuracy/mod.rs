@@ -16,6 +16,7 @@
 //! - velocities: max_i |u_i − u_i,ref| / max_i |u_i,ref|;
 //! - rho: the L1 norm on [0, 1] (grid mean) of rho − rho_ref.
 
+use std::ops::Range;
 use std::path::PathBuf;
 
 use crate::backend::{Backend, Precision};
@@ -30,7 +31,7 @@ mod members;
 mod outputs;
 
 pub use members::{errors, DEFAULT_SWEEP_POINTS};
-use members::{errors_of_members, measured_members, member_ranges, solve};
+use members::{errors_of_members, measured_members, member_ranges, solve, MeasuredGroup};
 use outputs::{write_csv, write_reference};
 
 /// Settings of `roughlub accuracy`.
@@ -232,6 +233,175 @@ fn fixed_setting(
 
 const MAX_HALVINGS: u32 = 16;
 
+/// The line `accuracy` starts with: which members it measures.
+fn describe_members(scene: &Scene, groups: &[MeasuredGroup], member_count: usize) -> String {
+    let base = &groups[0].plan;
+    let points: Vec<u64> = groups.iter().filter_map(|g| g.point).collect();
+    if points.is_empty() {
+        format!(
+            "accuracy of {}: the scene's first {} member(s), N = {}, {} output times",
+            scene.name,
+            member_count,
+            base.particles,
+            base.output_times.len()
+        )
+    } else {
+        format!(
+            "accuracy of {}: {} member(s) at sweep points {:?} (N = {}), {} output times; each setting judged by its worst member",
+            scene.name,
+            member_count,
+            points,
+            groups
+                .iter()
+                .map(|g| g.plan.particles.to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            base.output_times.len()
+        )
+    }
+}
+
+/// The reference of an accuracy run: order auto, adaptive, at `tolerance`.
+fn reference_setting(scene: &Scene, tolerance: f64) -> Setting {
+    Setting {
+        order: Order::Auto,
+        stepping: Stepping::Adaptive {
+            tolerance,
+            dt_initial: 1e-6 * scene.end,
+            dt_min: scene.stepping.dt_min().min(1e-14 * scene.end),
+        },
+        backend: Backend::Cpu,
+        precision: Precision::F64,
+    }
+}
+
+/// The reference at `tolerance` and its error against a run ten times tighter (printed, and
+/// warned about when above a tenth of the target); fails when either run fails.
+fn solve_reference(
+    scene: &Scene,
+    groups: &[MeasuredGroup],
+    tolerance: f64,
+    options: &AccuracyOptions,
+) -> Result<(Run, f64)> {
+    let reference = solve(groups, &reference_setting(scene, tolerance))?;
+    let check = solve(groups, &reference_setting(scene, tolerance / 10.0))?;
+    if reference.failed || check.failed {
+        return Err(Error::missing(
+            "accuracy",
+            "the reference run (order auto, adaptive, tight tolerance) failed for a member: the scene itself does not run; see `roughlub run` for the reason",
+        ));
+    }
+    let reference_error = errors(&reference.snapshots, &check.snapshots).worst();
+    if !options.quiet {
+        eprintln!(
+            "reference: order auto, tolerance {tolerance:e} ({} steps, {:.2} s); against tolerance {:e}: error {reference_error:.2e}",
+            reference.accepted,
+            reference.wall,
+            tolerance / 10.0
+        );
+    }
+    if reference_error > options.target / 10.0 {
+        eprintln!(
+            "warning: the reference is only accurate to {reference_error:.1e}, more than a tenth of the target {:e}: errors below about {reference_error:.0e} are not resolved",
+            options.target
+        );
+    }
+    Ok((reference, reference_error))
+}
+
+/// The settings measured so far against the reference, and the cheapest that met the target.
+struct Ladder<'a> {
+    groups: &'a [MeasuredGroup],
+    ranges: &'a [Range<usize>],
+    /// Whether the members lie at several sweep points (the worst one's point is then named).
+    several_points: bool,
+    reference: &'a [Vec<Snapshot>],
+    target: f64,
+    quiet: bool,
+    measurements: Vec<Measurement>,
+    /// Wall time of the cheapest setting so far that meets the target.
+    cheapest: Option<f64>,
+}
+
+impl Ladder<'_> {
+    /// Runs `setting`, records and prints its measurement; returns its error (None where a
+    /// member failed) and whether it took more than [`LINE_BUDGET`] times the cheapest setting
+    /// that met the target.
+    fn measure(&mut self, setting: Setting) -> Result<(Option<f64>, bool)> {
+        let (groups, reference) = (self.groups, self.reference);
+        let run = solve(groups, &setting)?;
+        let errors = (!run.failed).then(|| errors(&run.snapshots, reference));
+        // The point of the worst member (the same largest error as `errors`, found by group).
+        let worst_point = match (&errors, self.several_points) {
+            (Some(_), true) => groups
+                .iter()
+                .zip(self.ranges)
+                .map(|(g, r)| {
+                    let e = errors_of_members(&run.snapshots, reference, r.clone());
+                    (g.point, e.worst())
+                })
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .and_then(|(p, _)| p),
+            _ => None,
+        };
+        let particle_steps: f64 = groups.iter().map(|g| g.plan.particles as f64).sum::<f64>()
+            / groups.len() as f64
+            * run.accepted as f64;
+        // The observed order against the previous rung of the same line (the last measurement
+        // when its scheme is this one): -d ln(error) / d ln(steps). For fixed steps the steps
+        // give the mean step actually taken (a dt that does not divide the output interval is
+        // shortened to fit it), so this is the scheme's order in its asymptotic range.
+        let observed_order = self.measurements.last().and_then(|previous| {
+            let (e0, e1) = (previous.errors?.worst(), errors?.worst());
+            let work_ratio = run.accepted as f64 / previous.steps_accepted as f64;
+            // Below 1.25 more steps the output times, not the tolerance, set the steps: no
+            // order can be read from them.
+            (previous.setting.scheme() == setting.scheme()
+                && work_ratio.is_finite()
+                && work_ratio >= 1.25
+                && e0 > 0.0
+                && e1 > 0.0)
+                .then(|| (e0 / e1).ln() / work_ratio.ln())
+        });
+        let m = Measurement {
+            setting,
+            errors,
+            wall_seconds: run.wall,
+            steps_accepted: run.accepted,
+            steps_rejected: run.rejected,
+            particle_steps_per_second: particle_steps / run.wall.max(1e-9),
+            worst_point,
+            observed_order,
+        };
+        if !self.quiet {
+            eprintln!(
+                "  {:<40} error {:>9}  {:>8.3} s  {:>8} steps  {:>12}{}",
+                setting.label(),
+                m.errors
+                    .map_or("failed".to_string(), |e| format!("{:.2e}", e.worst())),
+                m.wall_seconds,
+                m.steps_accepted,
+                m.observed_order
+                    .map_or(String::new(), |p| format!("order {p:.2}")),
+                m.worst_point
+                    .map_or(String::new(), |p| format!("  (worst: point {p})"))
+            );
+        }
+        let error = errors.map(|e| e.worst());
+        if error.is_some_and(|e| e <= self.target) {
+            self.cheapest = Some(
+                self.cheapest
+                    .map_or(m.wall_seconds, |c: f64| c.min(m.wall_seconds)),
+            );
+        }
+        let over_budget = self
+            .cheapest
+            .is_some_and(|c| m.wall_seconds > LINE_BUDGET * c);
+        self.measurements.push(m);
+        Ok((error, over_budget))
+    }
+}
+
 /// `roughlub accuracy`.
 pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<AccuracySummary> {
     check_options(options)?;
@@ -264,138 +434,25 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
             "the same at every point (accuracy compares them time by time)",
         ));
     }
-    let say = |line: String| {
-        if !options.quiet {
-            eprintln!("{line}");
-        }
-    };
     let points: Vec<u64> = groups.iter().filter_map(|g| g.point).collect();
-    say(if points.is_empty() {
-        format!(
-            "accuracy of {}: the scene's first {} member(s), N = {}, {} output times",
-            scene.name,
-            member_count,
-            base.particles,
-            base.output_times.len()
-        )
-    } else {
-        format!(
-            "accuracy of {}: {} member(s) at sweep points {:?} (N = {}), {} output times; each setting judged by its worst member",
-            scene.name,
-            member_count,
-            points,
-            groups
-                .iter()
-                .map(|g| g.plan.particles.to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
-            base.output_times.len()
-        )
-    });
+    if !options.quiet {
+        eprintln!("{}", describe_members(&scene, &groups, member_count));
+    }
 
-    // The reference, and its own check ten times tighter.
     let reference_tolerance = (options.target * 1e-3).clamp(1e-11, 1e-8);
-    let reference_setting = |tolerance: f64| Setting {
-        order: Order::Auto,
-        stepping: Stepping::Adaptive {
-            tolerance,
-            dt_initial: 1e-6 * scene.end,
-            dt_min: scene.stepping.dt_min().min(1e-14 * scene.end),
-        },
-        backend: Backend::Cpu,
-        precision: Precision::F64,
-    };
-    let reference = solve(&groups, &reference_setting(reference_tolerance))?;
-    let check = solve(&groups, &reference_setting(reference_tolerance / 10.0))?;
-    if reference.failed || check.failed {
-        return Err(Error::missing(
-            "accuracy",
-            "the reference run (order auto, adaptive, tight tolerance) failed for a member: the scene itself does not run; see `roughlub run` for the reason",
-        ));
-    }
-    let reference_error = errors(&reference.snapshots, &check.snapshots).worst();
-    say(format!(
-        "reference: order auto, tolerance {reference_tolerance:e} ({} steps, {:.2} s); against tolerance {:e}: error {reference_error:.2e}",
-        reference.accepted,
-        reference.wall,
-        reference_tolerance / 10.0
-    ));
-    if reference_error > options.target / 10.0 {
-        eprintln!(
-            "warning: the reference is only accurate to {reference_error:.1e}, more than a tenth of the target {:e}: errors below about {reference_error:.0e} are not resolved",
-            options.target
-        );
-    }
-
+    let (reference, reference_error) =
+        solve_reference(&scene, &groups, reference_tolerance, options)?;
     let staged = StagedDir::begin(&options.out_dir, options.force)?;
     let dir = staged.staging.clone();
-    let mut measurements = Vec::new();
-    // Wall time of the cheapest setting so far that meets the target.
-    let mut cheapest: Option<f64> = None;
-    let mut measure = |setting: Setting| -> Result<(Option<f64>, bool)> {
-        let run = solve(&groups, &setting)?;
-        let errors = (!run.failed).then(|| errors(&run.snapshots, &reference.snapshots));
-        // The point of the worst member (the same largest error as `errors`, found by group).
-        let worst_point = match (&errors, points.len() > 1) {
-            (Some(_), true) => groups
-                .iter()
-                .zip(&ranges)
-                .map(|(g, r)| {
-                    let e = errors_of_members(&run.snapshots, &reference.snapshots, r.clone());
-                    (g.point, e.worst())
-                })
-                .max_by(|a, b| a.1.total_cmp(&b.1))
-                .and_then(|(p, _)| p),
-            _ => None,
-        };
-        let particle_steps: f64 = groups.iter().map(|g| g.plan.particles as f64).sum::<f64>()
-            / groups.len() as f64
-            * run.accepted as f64;
-        // The observed order against the previous rung of the same line (the last measurement
-        // when its scheme is this one): -d ln(error) / d ln(steps). For fixed steps the steps
-        // give the mean step actually taken (a dt that does not divide the output interval is
-        // shortened to fit it), so this is the scheme's order in its asymptotic range.
-        let observed_order = measurements.last().and_then(|previous: &Measurement| {
-            let (e0, e1) = (previous.errors?.worst(), errors?.worst());
-            let work_ratio = run.accepted as f64 / previous.steps_accepted as f64;
-            // Below 1.25 more steps the output times, not the tolerance, set the steps: no
-            // order can be read from them.
-            (previous.setting.scheme() == setting.scheme()
-                && work_ratio.is_finite()
-                && work_ratio >= 1.25
-                && e0 > 0.0
-                && e1 > 0.0)
-                .then(|| (e0 / e1).ln() / work_ratio.ln())
-        });
-        let m = Measurement {
-            setting,
-            errors,
-            wall_seconds: run.wall,
-            steps_accepted: run.accepted,
-            steps_rejected: run.rejected,
-            particle_steps_per_second: particle_steps / run.wall.max(1e-9),
-            worst_point,
-            observed_order,
-        };
-        say(format!(
-            "  {:<40} error {:>9}  {:>8.3} s  {:>8} steps  {:>12}{}",
-            setting.label(),
-            m.errors
-                .map_or("failed".to_string(), |e| format!("{:.2e}", e.worst())),
-            m.wall_seconds,
-            m.steps_accepted,
-            m.observed_order
-                .map_or(String::new(), |p| format!("order {p:.2}")),
-            m.worst_point
-                .map_or(String::new(), |p| format!("  (worst: point {p})"))
-        ));
-        let error = errors.map(|e| e.worst());
-        if error.is_some_and(|e| e <= options.target) {
-            cheapest = Some(cheapest.map_or(m.wall_seconds, |c: f64| c.min(m.wall_seconds)));
-        }
-        let over_budget = cheapest.is_some_and(|c| m.wall_seconds > LINE_BUDGET * c);
-        measurements.push(m);
-        Ok((error, over_budget))
+    let mut ladder = Ladder {
+        groups: &groups,
+        ranges: &ranges,
+        several_points: points.len() > 1,
+        reference: &reference.snapshots,
+        target: options.target,
+        quiet: options.quiet,
+        measurements: Vec::new(),
+        cheapest: None,
     };
     for line in adaptive_ladder(
         &scene,
@@ -404,7 +461,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         &options.backends,
     ) {
         for setting in line {
-            if measure(setting)?.1 {
+            if ladder.measure(setting)?.1 {
                 break;
             }
         }
@@ -414,7 +471,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
             let mut previous: Option<f64> = None;
             for k in 0..=MAX_HALVINGS {
                 let (error, over_budget) =
-                    measure(fixed_setting(&scene, order, k, backend, precision))?;
+                    ladder.measure(fixed_setting(&scene, order, k, backend, precision))?;
                 if over_budget || error.is_some_and(|e| e <= options.target / 10.0) {
                     break;
                 }
@@ -429,6 +486,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
             }
         }
     }
+    let measurements = ladder.measurements;
     let recommended = measurements
         .iter()
         .enumerate()
@@ -459,7 +517,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
             "target": options.target,
             "error_definition": "largest over output times and members of: max |ln d - ln d_ref| (gaps), max |u - u_ref| / max |u_ref| (velocities), grid mean of |rho - rho_ref| (L1 of rho)",
             "reference": {
-                "setting": reference_setting(reference_tolerance),
+                "setting": reference_setting(&scene, reference_tolerance),
                 "error_estimate": reference_error,
                 "steps": reference.accepted,
             },
@@ -468,12 +526,12 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         }),
     )?;
     staged.commit()?;
-    say(recommendation(
-        &measurements,
-        recommended,
-        options.target,
-        member_count,
-    ));
+    if !options.quiet {
+        eprintln!(
+            "{}",
+            recommendation(&measurements, recommended, options.target, member_count)
+        );
+    }
     Ok(AccuracySummary {
         out_dir: options.out_dir.clone(),
         measurements,
