@@ -1,21 +1,18 @@
 //! Solving one chunk of members through the [`BatchSolver`](crate::backend::BatchSolver) seam
 //! ([`solve_chunk`]) and turning its snapshots into the chunk's statistics and `members.csv`
-//! rows.
-//!
-//! Over 700 lines on purpose: one chunk's pass is one sequence (the solve, each output's
-//! statistics beside the solve to the next, the undo when a member fails after its rows went
-//! in, the chunk's merge), and why its statistics are the same bits either way reads only as a
-//! whole.
+//! rows. A pass over the chunk ([`solve_pass`]) solves its batches (`batch.rs`: each output's
+//! statistics beside the solve to the next), takes back what it pushed when a member failed
+//! after its rows went in, and merges the chunk into the total; `members.rs` writes what the
+//! chunk leaves per member.
 
 use std::path::Path;
 use std::time::Instant;
 
-use super::centre::{peak_centres, CENTRES_TOGETHER};
 use super::files::{MemberRow, StudyHeader};
 use super::state::StudyState;
 use super::{ERROR_ESTIMATE, SCALARS};
 use crate::backend::report::GpuStats;
-use crate::backend::{Engine, MemberReport, MemberStatus, OutputStatus};
+use crate::backend::{Engine, MemberReport, MemberStatus};
 use crate::error::Result;
 use crate::model::chain::Chain;
 use crate::model::observables::Snapshot;
@@ -27,7 +24,9 @@ use crate::scene::{EnsembleSpec, Scene};
 use crate::stats::{FieldBand, RunningStats};
 use rayon::prelude::*;
 
+mod batch;
 mod members;
+use batch::{solve_batch, PassContext};
 use members::{member_rows, write_kept_members, Responses};
 
 /// The plan of a chunk: the scene's, with these members, and the fields the statistics need
@@ -370,243 +369,61 @@ fn solve_pass(
     for (gi, &(i, j)) in groups.iter().enumerate() {
         group_of[i..j].fill(gi);
     }
-    let is_eager = |m: usize| eager[group_of[m]].is_some();
-    let any_deferred = (0..count).any(|m| !is_eager(m) && header.is_detailed(inputs[m].point));
+    let any_deferred =
+        (0..count).any(|m| eager[group_of[m]].is_none() && header.is_detailed(inputs[m].point));
     let needed = if any_deferred {
         header.band_fields.len() * t_count * shape.1 * grid
     } else {
         0
     };
     // Only rows written for this chunk are read back (`rows_present`).
-    let field_rows = &mut buffer.field_rows;
-    if field_rows.len() < needed {
-        field_rows.resize(needed, f64::NAN);
+    if buffer.field_rows.len() < needed {
+        buffer.field_rows.resize(needed, f64::NAN);
     }
     let mut state = StudyState::new();
     state.ranges.push((first, end));
-    let mut peak = vec![(f64::NEG_INFINITY, f64::NAN); count];
-    let mut min_gap = vec![f64::INFINITY; count];
-    let mut final_energy = vec![f64::NAN; count];
-    let mut first_hit = vec![f64::NAN; count];
-    let dstar_summary: Vec<(f64, f64)> = inputs
-        .iter()
-        .map(|inp| match &inp.chain.dstar {
-            Some(d) => {
-                let c = &inp.chain;
-                let mean = d.iter().sum::<f64>() / d.len() as f64;
-                let max_d = d.iter().fold(0.0f64, |a, &b| a.max(b));
-                (mean, 2.0 * c.eps / (max_d + 2.0 * c.eps))
-            }
-            None => (f64::NAN, f64::NAN),
-        })
-        .collect();
+    let mut responses = Responses {
+        peak: vec![(f64::NEG_INFINITY, f64::NAN); count],
+        min_gap: vec![f64::INFINITY; count],
+        final_energy: vec![f64::NAN; count],
+        first_hit: vec![f64::NAN; count],
+    };
+    let pass = PassContext {
+        dir,
+        spec,
+        members,
+        header,
+        engine,
+        inputs,
+        groups,
+        eager,
+        group_of,
+        any_deferred,
+        shape,
+    };
+    let is_eager = |m: usize| pass.is_eager(m);
 
-    // Full per-member arrays, only when asked for: [member, time, ...] per chunk.
-    let keep = spec.store_members;
     // Per member, per output time (None once failed), in member order.
     let mut recorded: Vec<Vec<Option<RecordedObservables>>> = Vec::with_capacity(count);
+    // Full per-member arrays, only when asked for: [member, time, ...] per chunk.
     let mut kept_snapshots: Vec<Vec<Snapshot>> = Vec::new();
     // Each kept member's error estimate at each output time (NaN once failed, or without one).
     let mut kept_estimates: Vec<Vec<f64>> = Vec::new();
     let mut reports: Vec<MemberReport> = Vec::with_capacity(count);
     for (a, b) in batch_groups(inputs, members)? {
-        let setup = inputs[a].setup.clone();
-        let params: Vec<MemberParams> = inputs[a..b].iter().map(|i| i.params).collect();
-        let chains: Vec<Chain> = inputs[a..b].iter().map(|i| i.chain.clone()).collect();
-        let mut plan = chunk_plan(&setup.scene, &chains[0], params, spec.store_members);
-        if let (Some(expr), Some(forcing)) = (members.symbolic_forcing(), plan.forcing.as_mut()) {
-            forcing.expr = expr.clone();
-            forcing.params = inputs[a..b]
-                .iter()
-                .flat_map(|i| members.forcing_values(i.point))
-                .collect();
-        }
-        let mut group_recorded: Vec<Vec<Option<RecordedObservables>>> =
-            (a..b).map(|_| Vec::with_capacity(t_count)).collect();
-        let mut group_kept: Vec<Vec<Snapshot>> = (a..b).map(|_| Vec::new()).collect();
-        let mut group_estimates: Vec<Vec<f64>> = (a..b).map(|_| Vec::new()).collect();
-        let mut solver = engine.solver(plan, chains)?;
-        let mut k = 0;
-        // An output's statistics beside the solve to the next output time, which has the
-        // threads to itself otherwise only in parts: the rows of groups that push as they go
-        // into their bands, the others' rows copied for after the chunk, and the peak centres.
-        // `recorded[g]`: batch member a + g is recorded at output k.
-        let output_statistics = |snaps: &[Snapshot],
-                                 k: usize,
-                                 recorded: &[bool],
-                                 total: &mut StudyState,
-                                 field_rows: &mut [f64],
-                                 group_recorded: &mut [Vec<Option<RecordedObservables>>]|
-         -> Result<f64> {
-            let busy = std::sync::atomic::AtomicU64::new(0);
-            let fields = header.band_fields.len();
-            // The buffer's rows of this output, member after member (`fields` rows each, at
-            // least one slot so that every member has its chunk; None where not copied).
-            let per_member = fields.max(1);
-            let mut member_rows: Vec<Option<&mut [f64]>> = Vec::new();
-            member_rows.resize_with((b - a) * per_member, || None);
-            if any_deferred && fields > 0 {
-                let mut rest = &mut field_rows[row_offset(0, k, a, shape)..];
-                let mut at = row_offset(0, k, a, shape);
-                for f in 0..fields {
-                    // Fields lie apart in the buffer, in field order.
-                    let (_, from) = rest.split_at_mut(row_offset(f, k, a, shape) - at);
-                    let (these, after) = from.split_at_mut((b - a) * grid);
-                    for (g, row) in these.chunks_mut(grid).enumerate() {
-                        member_rows[g * per_member + f] = Some(row);
-                    }
-                    rest = after;
-                    at = row_offset(f, k, b, shape);
-                }
-            }
-            // Members in fours: their peak centres are summed side by side.
-            let centres: Vec<f64> = snaps
-                .par_chunks(CENTRES_TOGETHER)
-                .zip(member_rows.par_chunks_mut(CENTRES_TOGETHER * per_member))
-                .enumerate()
-                .flat_map_iter(|(c, (together, rows))| {
-                    let started = Instant::now();
-                    let g0 = c * CENTRES_TOGETHER;
-                    for (o, (s, rows)) in
-                        together.iter().zip(rows.chunks_mut(per_member)).enumerate()
-                    {
-                        // Rows pushed as they are observed are read from the snapshot instead.
-                        if !recorded[g0 + o] || is_eager(a + g0 + o) {
-                            continue;
-                        }
-                        for (row, name) in rows.iter_mut().zip(&header.band_fields) {
-                            let from = band_row(s, name);
-                            if let (Some(into), true) = (row, from.len() == grid) {
-                                into.copy_from_slice(from);
-                            }
-                        }
-                    }
-                    // No row (NaN) for a member not recorded.
-                    let rho: Vec<&[f64]> = together
-                        .iter()
-                        .enumerate()
-                        .map(|(o, s)| {
-                            if recorded[g0 + o] {
-                                &s.rho[..]
-                            } else {
-                                &[][..]
-                            }
-                        })
-                        .collect();
-                    let centres = peak_centres(&header.x, &rho);
-                    let nanos = started.elapsed().as_nanos() as u64;
-                    busy.fetch_add(nanos, std::sync::atomic::Ordering::Relaxed);
-                    centres
-                })
-                .collect();
-            for (g, per_time) in group_recorded.iter_mut().enumerate() {
-                if let Some(Some(o)) = per_time.get_mut(k) {
-                    o.scalars[PEAK_CENTRE] = centres[g];
-                }
-            }
-            let pushing =
-                push_as_observed(total, groups, eager, inputs, (a, b), snaps, k, recorded)
-                    .map_err(|e| super::report::stats_error(dir, e))?;
-            Ok(busy.into_inner() as f64 * 1e-9 + pushing)
-        };
-        // The output last reached, with each member's status there, for the statistics beside
-        // the next solve.
-        let mut pending: Option<(Vec<Snapshot>, usize, Vec<OutputStatus>)> = None;
-        loop {
-            let (next, statistics) = rayon::join(
-                || solver.next_output(&|_| {}),
-                || -> Result<f64> {
-                    let Some((snaps, k, status_now)) = pending.take() else {
-                        return Ok(0.0);
-                    };
-                    let started = Instant::now();
-                    let t = header.times[k];
-                    let ok_now = |g: usize| status_now[g].ok;
-                    let recorded_here =
-                        |g: usize| ok_now(g) && header.is_detailed(inputs[a + g].point);
-                    for (g, s) in snaps.iter().enumerate() {
-                        let i = a + g;
-                        // The estimate of the state at this output time (the last one recorded).
-                        let estimate = match ok_now(g) {
-                            true => status_now[g].error_estimate,
-                            false => f64::NAN,
-                        };
-                        if keep {
-                            group_kept[g].push(s.clone());
-                            group_estimates[g].push(estimate);
-                        }
-                        if !ok_now(g) {
-                            group_recorded[g].push(None);
-                            continue;
-                        }
-                        if s.max_density > peak[i].0 {
-                            peak[i] = (s.max_density, t);
-                        }
-                        min_gap[i] = min_gap[i].min(s.min_gap);
-                        final_energy[i] = s.energy;
-                        if first_hit[i].is_nan() && s.max_density >= spec.threshold {
-                            first_hit[i] = t;
-                        }
-                        if !recorded_here(g) {
-                            // Responses only: nothing per time is kept.
-                            continue;
-                        }
-                        let mut rows_present = 0u8;
-                        for (f, name) in header.band_fields.iter().enumerate() {
-                            if band_row(s, name).len() == grid {
-                                rows_present |= 1 << f;
-                            }
-                        }
-                        group_recorded[g].push(Some(RecordedObservables {
-                            scalars: [
-                                s.max_density,
-                                s.min_gap,
-                                s.energy,
-                                s.dissipation,
-                                // Set by `output_statistics` below.
-                                f64::NAN,
-                                estimate,
-                            ],
-                            rows_present,
-                        }));
-                    }
-                    let recorded: Vec<bool> = (0..b - a).map(recorded_here).collect();
-                    let recording = started.elapsed().as_secs_f64();
-                    let busy = output_statistics(
-                        &snaps,
-                        k,
-                        &recorded,
-                        total,
-                        field_rows,
-                        &mut group_recorded,
-                    )?;
-                    let started = Instant::now();
-                    push_output_scalars(&mut state, header, &inputs[a..b], k, &group_recorded);
-                    let scalars = started.elapsed().as_secs_f64();
-                    // Beside the solve, so its cost to the study's wall time is its threads'
-                    // time spread over the threads, not how long it was under way.
-                    Ok((recording + busy + scalars) / rayon::current_num_threads() as f64)
-                },
-            );
-            costs.statistics_seconds += statistics?;
-            let Some(snaps) = next? else {
-                break;
-            };
-            // Each member's status here is the solver's work, not the statistics' (with order 1
-            // and fixed steps it compares the run with its companion: the error estimate).
-            pending = Some((snaps, k, solver.output_status()));
-            k += 1;
-        }
-        reports.extend(solver.reports());
-        if let Some(work) = solver.gpu_stats() {
-            costs
-                .gpu
-                .get_or_insert_with(Default::default)
-                .accumulate(&work);
-        }
-        recorded.extend(group_recorded);
-        kept_snapshots.extend(group_kept);
-        kept_estimates.extend(group_estimates);
+        let batch = solve_batch(
+            &pass,
+            (a, b),
+            total,
+            &mut buffer.field_rows,
+            &mut state,
+            &mut responses,
+            costs,
+        )?;
+        reports.extend(batch.reports);
+        recorded.extend(batch.recorded);
+        kept_snapshots.extend(batch.kept);
+        kept_estimates.extend(batch.estimates);
     }
     let ok_member: Vec<bool> = reports
         .iter()
@@ -624,12 +441,6 @@ fn solve_pass(
         return Ok(Pass::Undo);
     }
 
-    let responses = Responses {
-        peak,
-        min_gap,
-        final_energy,
-        first_hit,
-    };
     let started = Instant::now();
     settle_points(
         &mut state, header, inputs, groups, &ok_member, &recorded, &responses,
@@ -671,7 +482,7 @@ fn solve_pass(
                 .filter(|&m| pushed(m, f, k))
                 .map(|m| {
                     let at = row_offset(f, k, m, shape);
-                    &field_rows[at..at + grid]
+                    &buffer.field_rows[at..at + grid]
                 })
                 .collect()
         };
@@ -687,7 +498,7 @@ fn solve_pass(
             .map_err(|e| super::report::stats_error(dir, e))?;
     }
     costs.statistics_seconds += started.elapsed().as_secs_f64();
-    if keep {
+    if spec.store_members {
         write_kept_members(
             dir,
             (first, end),
@@ -698,8 +509,32 @@ fn solve_pass(
         )?;
     }
 
-    let rows = member_rows(first, header, inputs, &reports, &responses, &dstar_summary);
+    let rows = member_rows(
+        first,
+        header,
+        inputs,
+        &reports,
+        &responses,
+        &dstar_summaries(inputs),
+    );
     Ok(Pass::Done(rows))
+}
+
+/// Per member, the mean critical gap d* and the smallest critical density rho* (NaN without
+/// roughness), for members.csv.
+fn dstar_summaries(inputs: &[MemberInputs]) -> Vec<(f64, f64)> {
+    inputs
+        .iter()
+        .map(|inp| match &inp.chain.dstar {
+            Some(d) => {
+                let c = &inp.chain;
+                let mean = d.iter().sum::<f64>() / d.len() as f64;
+                let max_d = d.iter().fold(0.0f64, |a, &b| a.max(b));
+                (mean, 2.0 * c.eps / (max_d + 2.0 * c.eps))
+            }
+            None => (f64::NAN, f64::NAN),
+        })
+        .collect()
 }
 
 /// Statistics of the members that completed (a member that failed at any time enters none),
