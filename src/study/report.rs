@@ -68,6 +68,44 @@ pub(super) fn finalize(
         &detailed.iter().map(|&p| p as f64).collect::<Vec<_>>(),
     )?;
 
+    write_scalars_per_time(&stats, header, &detailed, &point)?;
+    write_responses(&stats, header, &points, &point)?;
+    write_bands(&stats, header, &detailed, &point)?;
+    super::sensitivity::write_sensitivity(dir, header, state, plots)?;
+    if plots {
+        let plots_dir = dir.join("plots");
+        std::fs::create_dir_all(&plots_dir).map_err(|e| Error::io(&plots_dir, e))?;
+        if p_count == 1 {
+            if d_count == 1 {
+                write_point_plots(&plots_dir, "", header, point(0))?;
+            }
+        } else {
+            write_response_plots(dir, &plots_dir, header, &point)?;
+            for &p in detailed.iter().take(MAX_POINT_PLOTS) {
+                if state.points.contains_key(&p) {
+                    write_point_plots(&plots_dir, &format!("point{p}_"), header, point(p))?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Statistics of a study's points, by point index (every point has them, empty where no member
+/// reached it).
+type PointOf<'a> = dyn Fn(u64) -> &'a PointStats + 'a;
+
+/// The scalars at every output time of the detailed points: `stats/{scalar}_{count,mean,var,
+/// min,max}.npy` [D, T], `_quantiles.npy` [D, T, Q] and the histograms.
+fn write_scalars_per_time<'a>(
+    stats: &Path,
+    header: &StudyHeader,
+    detailed: &[u64],
+    point: &PointOf<'a>,
+) -> Result<()> {
+    let (d_count, t) = (detailed.len() as u64, header.times.len() as u64);
+    let qs = &header.quantiles;
+    let nq = qs.len() as u64;
     for name in SCALARS {
         let per_point = |f: &dyn Fn(&ScalarSummary) -> f64| -> Vec<f64> {
             detailed
@@ -112,8 +150,8 @@ pub(super) fn finalize(
             &quant,
         )?;
         let (mut edges, mut counts) = (Vec::new(), Vec::new());
-        for &p in &detailed {
-            let (e, c) = scalar_histograms(&point(p).scalars[name], &stats)?;
+        for &p in detailed {
+            let (e, c) = scalar_histograms(&point(p).scalars[name], stats)?;
             edges.extend(e);
             counts.extend(c);
         }
@@ -128,9 +166,23 @@ pub(super) fn finalize(
             &counts,
         )?;
     }
+    Ok(())
+}
+
+/// Each member's responses summarised per point (every point): `stats/first_hit.npy` [P, 6],
+/// `stats/{peak_density,smallest_gap,final_energy}.npy` [P, 5] and their `_quantiles.npy` [P, Q].
+fn write_responses<'a>(
+    stats: &Path,
+    header: &StudyHeader,
+    points: &[u64],
+    point: &PointOf<'a>,
+) -> Result<()> {
+    let p_count = points.len() as u64;
+    let qs = &header.quantiles;
+    let nq = qs.len() as u64;
     let mut first_hit = Vec::with_capacity(points.len() * 6);
     let mut first_hit_q = Vec::with_capacity(points.len() * qs.len());
-    for &p in &points {
+    for &p in points {
         let ps = point(p);
         let fh = &ps.first_hit;
         first_hit.extend([
@@ -154,7 +206,7 @@ pub(super) fn finalize(
     for (file, summary) in responses {
         let mut moments = Vec::with_capacity(points.len() * 5);
         let mut quant = Vec::with_capacity(points.len() * qs.len());
-        for &p in &points {
+        for &p in points {
             let s = summary(point(p));
             moments.extend([
                 s.stats().count() as f64,
@@ -177,11 +229,29 @@ pub(super) fn finalize(
         &[p_count, nq],
         &first_hit_q,
     )?;
+    Ok(())
+}
+
+/// The field bands of the detailed points: `stats/{field}_{mean,var}.npy` [D, T, G] and
+/// `_quantiles.npy` [D, T, Q, G].
+fn write_bands<'a>(
+    stats: &Path,
+    header: &StudyHeader,
+    detailed: &[u64],
+    point: &PointOf<'a>,
+) -> Result<()> {
+    let (d_count, t, g) = (
+        detailed.len() as u64,
+        header.times.len() as u64,
+        header.x.len() as u64,
+    );
+    let qs = &header.quantiles;
+    let nq = qs.len() as u64;
     for name in &header.band_fields {
         let mut mean: Vec<f64> = Vec::new();
         let mut var: Vec<f64> = Vec::new();
         let mut quant: Vec<f64> = Vec::new();
-        for &p in &detailed {
+        for &p in detailed {
             // The bands of one point, each read on its own (in parallel), written in time order.
             let rows: Vec<_> = point(p).fields[name.as_str()]
                 .par_iter()
@@ -193,7 +263,7 @@ pub(super) fn finalize(
             for (band_mean, band_var, band_quantiles) in rows {
                 mean.extend(band_mean);
                 var.extend(band_var);
-                for row in band_quantiles.map_err(|e| stats_error(&stats, e))? {
+                for row in band_quantiles.map_err(|e| stats_error(stats, e))? {
                     quant.extend(row);
                 }
             }
@@ -213,23 +283,6 @@ pub(super) fn finalize(
             &[d_count, t, nq, g],
             &quant,
         )?;
-    }
-    super::sensitivity::write_sensitivity(dir, header, state, plots)?;
-    if plots {
-        let plots_dir = dir.join("plots");
-        std::fs::create_dir_all(&plots_dir).map_err(|e| Error::io(&plots_dir, e))?;
-        if p_count == 1 {
-            if d_count == 1 {
-                write_point_plots(&plots_dir, "", header, point(0))?;
-            }
-        } else {
-            write_response_plots(dir, &plots_dir, header, &point)?;
-            for &p in detailed.iter().take(MAX_POINT_PLOTS) {
-                if state.points.contains_key(&p) {
-                    write_point_plots(&plots_dir, &format!("point{p}_"), header, point(p))?;
-                }
-            }
-        }
     }
     Ok(())
 }
