@@ -224,45 +224,10 @@ pub(super) fn validate_sweep(
     };
     let Some(table) = table else {
         // [batch] in an ensemble: a grid over its lists, gamma slowest (as in a single run).
-        let Some(b) = batch else {
-            return Ok(None);
+        return match batch {
+            Some(b) => batch_sweep(b, ensemble),
+            None => Ok(None),
         };
-        let mut targets = Vec::new();
-        let mut axes = Vec::new();
-        let mut names = Vec::new();
-        if let Some(g) = &b.gamma {
-            targets.push(SweepTarget::Gamma);
-            axes.push(Axis::Values(g.clone()));
-            names.push("gamma".to_string());
-        }
-        if let Some(m) = &b.mu {
-            targets.push(SweepTarget::Mu);
-            axes.push(Axis::Values(m.clone()));
-            names.push("mu".to_string());
-        }
-        if targets.is_empty() {
-            return Ok(None);
-        }
-        for (name, axis) in names.iter().zip(&axes) {
-            if let Axis::Values(v) = axis {
-                for (j, x) in v.iter().enumerate() {
-                    if let Some(k) = v[..j].iter().position(|y| y == x) {
-                        return Err(Error::invalid(
-                            format!("batch.{name}[{j}]"),
-                            x,
-                            format!("the same value as batch.{name}[{k}]: in an ensemble each value is a sweep point"),
-                            "distinct values",
-                        ));
-                    }
-                }
-            }
-        }
-        let design = Design::new("batch", DesignKind::Grid, names, axes, None, ensemble.seed)?;
-        return Ok(Some(SweepSpec {
-            design,
-            targets,
-            independent_draws: false,
-        }));
     };
     if batch.is_some_and(|b| b.mu.is_some() || b.gamma.is_some()) {
         return Err(Error::missing(
@@ -270,158 +235,255 @@ pub(super) fn validate_sweep(
             "an ensemble with [sweep] takes its mu and gamma lists in [sweep] too: move them there",
         ));
     }
-    let mut kind = DesignKind::Grid;
-    let mut points: Option<u64> = None;
-    let mut seed = ensemble.seed;
-    let mut independent_draws: Option<bool> = None;
-    let mut names = Vec::new();
-    let mut targets = Vec::new();
-    let mut axes = Vec::new();
-    for (key, value) in table {
-        let field = format!("sweep.{key}");
-        match key.as_str() {
-            "design" => {
-                kind = match value.as_str() {
-                    Some("grid") => DesignKind::Grid,
-                    Some("random") => DesignKind::Random,
-                    Some("latin_hypercube") => DesignKind::LatinHypercube,
-                    Some("sobol") => DesignKind::Sobol,
-                    Some("saltelli") => DesignKind::Saltelli,
-                    _ => return Err(Error::invalid(
-                        field,
-                        value,
-                        "unknown design",
-                        "\"grid\" (lists), \"random\", \"latin_hypercube\", \"sobol\" or \"saltelli\" (ranges)",
-                    )),
-                }
-            }
-            "points" => {
-                let p = value.as_integer().filter(|&p| p >= 1).ok_or_else(|| {
-                    Error::invalid(
-                        &field,
-                        value,
-                        "the number of sampled points",
-                        "a whole number >= 1",
-                    )
-                })?;
-                points = Some(p as u64);
-            }
-            "seed" => {
-                let s = value.as_integer().filter(|&s| s >= 0).ok_or_else(|| {
-                    Error::invalid(&field, value, "the design's seed", "a whole number >= 0")
-                })?;
-                seed = s as u64;
-            }
-            "independent_draws" => {
-                independent_draws =
-                    Some(value.as_bool().ok_or_else(|| {
-                        Error::invalid(&field, value, "a switch", "true or false")
-                    })?);
-            }
-            name => {
-                let target = SweepTarget::of(name, parameters).ok_or_else(|| {
-                    let params: Vec<&str> = parameters.iter().map(|(p, _)| p.as_str()).collect();
-                    Error::invalid(
-                        &field,
-                        value,
-                        format!("'{name}' is neither a setting a sweep can vary nor a name in [parameters]"),
-                        format!(
-                            "design, points, seed, independent_draws, the settings {}{}",
-                            SWEEPABLE_SETTINGS.join(", "),
-                            if params.is_empty() {
-                                String::new()
-                            } else {
-                                format!(", or the parameters {}", params.join(", "))
-                            }
-                        ),
-                    )
-                })?;
-                axes.push(axis(&field, value, &target)?);
-                names.push(name.to_string());
-                targets.push(target);
-            }
-        }
-    }
-    if targets.is_empty() {
-        return Err(Error::missing(
-            "sweep",
-            "no parameter to sweep: give at least one setting or parameter with its values",
-        ));
-    }
-    let grid = kind == DesignKind::Grid;
-    for (name, a) in names.iter().zip(&axes) {
-        let is_list = matches!(a, Axis::Values(_));
-        if grid != is_list {
-            return Err(Error::invalid(
-                format!("sweep.{name}"),
-                if is_list { "a list" } else { "a range" },
-                if grid {
-                    "a grid design takes a list of values per key"
-                } else {
-                    "a sampled design takes a range { min, max } per key"
-                },
-                if grid {
-                    "[v1, v2, ...], or design = \"random\" / \"latin_hypercube\" / \"sobol\" for ranges"
-                } else {
-                    "{ min = a, max = b } with optional scale = \"log\""
-                },
-            ));
-        }
-    }
-    if grid && points.is_some() {
-        return Err(Error::missing(
-            "sweep.points",
-            "a grid has as many points as its lists make; points is for sampled designs",
-        ));
-    }
-    if !grid && points.is_none() {
-        return Err(Error::missing(
-            "sweep.points",
-            "a sampled design needs the number of points (a whole number >= 1)",
-        ));
-    }
-    for t in &targets {
-        let needs = match t {
-            SweepTarget::RoughnessSpread => ensemble
-                .roughness
-                .as_ref()
-                .filter(|r| !matches!(r.kind, RoughnessKind::Constant | RoughnessKind::File(_)))
-                .map(|_| ())
-                .ok_or("ensemble.roughness of a random kind (uniform, lognormal, twopoint, correlated)"),
-            SweepTarget::CorrelationLength => ensemble
-                .roughness
-                .as_ref()
-                .filter(|r| matches!(r.kind, RoughnessKind::Correlated { .. }))
-                .map(|_| ())
-                .ok_or("ensemble.roughness with kind = \"correlated\""),
-            _ => Ok(()),
-        };
-        if let Err(what) = needs {
-            return Err(Error::missing(
-                format!("sweep.{}", target_name(t)),
-                format!("sweeping it needs {what}"),
-            ));
-        }
-    }
-    if targets.contains(&SweepTarget::Particles) && matches!(initial, InitialSpec::Particles { .. })
-    {
-        return Err(Error::missing(
-            "sweep.particles",
-            "a particle file fixes N (its rows); sweeping N needs profile initial data (initial.rho, ...)",
-        ));
-    }
-    if ensemble.store_members && targets.contains(&SweepTarget::Particles) {
-        return Err(Error::missing(
-            "ensemble.store_members",
-            "per-member arrays of a chunk share one N; with particles swept, use members.csv and the statistics instead",
-        ));
-    }
+    let keys = SweepKeys::parse(table, parameters, ensemble.seed)?;
+    keys.check(ensemble, initial)?;
+    let SweepKeys {
+        kind,
+        points,
+        seed,
+        independent_draws,
+        names,
+        targets,
+        axes,
+    } = keys;
     let design = Design::new("sweep", kind, names, axes, points, seed)?;
     Ok(Some(SweepSpec {
         design,
         targets,
         independent_draws: independent_draws.unwrap_or(false),
     }))
+}
+
+/// The sweep of an ensemble with a `[batch]` section and no `[sweep]`: a grid over its mu and
+/// gamma lists (None without either).
+fn batch_sweep(b: &BatchSection, ensemble: &EnsembleSpec) -> Result<Option<SweepSpec>> {
+    let mut targets = Vec::new();
+    let mut axes = Vec::new();
+    let mut names = Vec::new();
+    if let Some(g) = &b.gamma {
+        targets.push(SweepTarget::Gamma);
+        axes.push(Axis::Values(g.clone()));
+        names.push("gamma".to_string());
+    }
+    if let Some(m) = &b.mu {
+        targets.push(SweepTarget::Mu);
+        axes.push(Axis::Values(m.clone()));
+        names.push("mu".to_string());
+    }
+    if targets.is_empty() {
+        return Ok(None);
+    }
+    for (name, axis) in names.iter().zip(&axes) {
+        if let Axis::Values(v) = axis {
+            for (j, x) in v.iter().enumerate() {
+                if let Some(k) = v[..j].iter().position(|y| y == x) {
+                    return Err(Error::invalid(
+                        format!("batch.{name}[{j}]"),
+                        x,
+                        format!("the same value as batch.{name}[{k}]: in an ensemble each value is a sweep point"),
+                        "distinct values",
+                    ));
+                }
+            }
+        }
+    }
+    let design = Design::new("batch", DesignKind::Grid, names, axes, None, ensemble.seed)?;
+    Ok(Some(SweepSpec {
+        design,
+        targets,
+        independent_draws: false,
+    }))
+}
+
+/// The keys of a `[sweep]` table as read, before the design is built.
+struct SweepKeys {
+    kind: DesignKind,
+    points: Option<u64>,
+    seed: u64,
+    independent_draws: Option<bool>,
+    names: Vec<String>,
+    targets: Vec<SweepTarget>,
+    axes: Vec<Axis>,
+}
+
+impl SweepKeys {
+    /// Reads each key of `table` (design, points, seed, independent_draws, and the settings or
+    /// parameters swept with their values); the seed defaults to the ensemble's.
+    fn parse(
+        table: &toml::Table,
+        parameters: &[(String, f64)],
+        ensemble_seed: u64,
+    ) -> Result<SweepKeys> {
+        let mut kind = DesignKind::Grid;
+        let mut points: Option<u64> = None;
+        let mut seed = ensemble_seed;
+        let mut independent_draws: Option<bool> = None;
+        let mut names = Vec::new();
+        let mut targets = Vec::new();
+        let mut axes = Vec::new();
+        for (key, value) in table {
+            let field = format!("sweep.{key}");
+            match key.as_str() {
+                "design" => {
+                    kind = match value.as_str() {
+                        Some("grid") => DesignKind::Grid,
+                        Some("random") => DesignKind::Random,
+                        Some("latin_hypercube") => DesignKind::LatinHypercube,
+                        Some("sobol") => DesignKind::Sobol,
+                        Some("saltelli") => DesignKind::Saltelli,
+                        _ => return Err(Error::invalid(
+                            field,
+                            value,
+                            "unknown design",
+                            "\"grid\" (lists), \"random\", \"latin_hypercube\", \"sobol\" or \"saltelli\" (ranges)",
+                        )),
+                    }
+                }
+                "points" => {
+                    let p = value.as_integer().filter(|&p| p >= 1).ok_or_else(|| {
+                        Error::invalid(
+                            &field,
+                            value,
+                            "the number of sampled points",
+                            "a whole number >= 1",
+                        )
+                    })?;
+                    points = Some(p as u64);
+                }
+                "seed" => {
+                    let s = value.as_integer().filter(|&s| s >= 0).ok_or_else(|| {
+                        Error::invalid(&field, value, "the design's seed", "a whole number >= 0")
+                    })?;
+                    seed = s as u64;
+                }
+                "independent_draws" => {
+                    independent_draws =
+                        Some(value.as_bool().ok_or_else(|| {
+                            Error::invalid(&field, value, "a switch", "true or false")
+                        })?);
+                }
+                name => {
+                    let target = SweepTarget::of(name, parameters).ok_or_else(|| {
+                        let params: Vec<&str> = parameters.iter().map(|(p, _)| p.as_str()).collect();
+                        Error::invalid(
+                            &field,
+                            value,
+                            format!("'{name}' is neither a setting a sweep can vary nor a name in [parameters]"),
+                            format!(
+                                "design, points, seed, independent_draws, the settings {}{}",
+                                SWEEPABLE_SETTINGS.join(", "),
+                                if params.is_empty() {
+                                    String::new()
+                                } else {
+                                    format!(", or the parameters {}", params.join(", "))
+                                }
+                            ),
+                        )
+                    })?;
+                    axes.push(axis(&field, value, &target)?);
+                    names.push(name.to_string());
+                    targets.push(target);
+                }
+            }
+        }
+        Ok(SweepKeys {
+            kind,
+            points,
+            seed,
+            independent_draws,
+            names,
+            targets,
+            axes,
+        })
+    }
+
+    /// That the keys make a design: at least one key swept, lists for a grid and ranges with a
+    /// number of points for a sampled design, and each swept key's needs met by the scene.
+    fn check(&self, ensemble: &EnsembleSpec, initial: &InitialSpec) -> Result<()> {
+        let (kind, points, names, targets, axes) = (
+            self.kind,
+            self.points,
+            &self.names,
+            &self.targets,
+            &self.axes,
+        );
+        if targets.is_empty() {
+            return Err(Error::missing(
+                "sweep",
+                "no parameter to sweep: give at least one setting or parameter with its values",
+            ));
+        }
+        let grid = kind == DesignKind::Grid;
+        for (name, a) in names.iter().zip(axes) {
+            let is_list = matches!(a, Axis::Values(_));
+            if grid != is_list {
+                return Err(Error::invalid(
+                    format!("sweep.{name}"),
+                    if is_list { "a list" } else { "a range" },
+                    if grid {
+                        "a grid design takes a list of values per key"
+                    } else {
+                        "a sampled design takes a range { min, max } per key"
+                    },
+                    if grid {
+                        "[v1, v2, ...], or design = \"random\" / \"latin_hypercube\" / \"sobol\" for ranges"
+                    } else {
+                        "{ min = a, max = b } with optional scale = \"log\""
+                    },
+                ));
+            }
+        }
+        if grid && points.is_some() {
+            return Err(Error::missing(
+                "sweep.points",
+                "a grid has as many points as its lists make; points is for sampled designs",
+            ));
+        }
+        if !grid && points.is_none() {
+            return Err(Error::missing(
+                "sweep.points",
+                "a sampled design needs the number of points (a whole number >= 1)",
+            ));
+        }
+        for t in targets {
+            let needs = match t {
+                SweepTarget::RoughnessSpread => ensemble
+                    .roughness
+                    .as_ref()
+                    .filter(|r| !matches!(r.kind, RoughnessKind::Constant | RoughnessKind::File(_)))
+                    .map(|_| ())
+                    .ok_or("ensemble.roughness of a random kind (uniform, lognormal, twopoint, correlated)"),
+                SweepTarget::CorrelationLength => ensemble
+                    .roughness
+                    .as_ref()
+                    .filter(|r| matches!(r.kind, RoughnessKind::Correlated { .. }))
+                    .map(|_| ())
+                    .ok_or("ensemble.roughness with kind = \"correlated\""),
+                _ => Ok(()),
+            };
+            if let Err(what) = needs {
+                return Err(Error::missing(
+                    format!("sweep.{}", target_name(t)),
+                    format!("sweeping it needs {what}"),
+                ));
+            }
+        }
+        if targets.contains(&SweepTarget::Particles)
+            && matches!(initial, InitialSpec::Particles { .. })
+        {
+            return Err(Error::missing(
+                "sweep.particles",
+                "a particle file fixes N (its rows); sweeping N needs profile initial data (initial.rho, ...)",
+            ));
+        }
+        if ensemble.store_members && targets.contains(&SweepTarget::Particles) {
+            return Err(Error::missing(
+                "ensemble.store_members",
+                "per-member arrays of a chunk share one N; with particles swept, use members.csv and the statistics instead",
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Scene {
