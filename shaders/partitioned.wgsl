@@ -35,9 +35,6 @@
 //
 // Bindings 12 (parts, uniform), 13 (pstate), 14 (segs), 15 (glued, clusters only) are this
 // file's; the rest are step.wgsl's.
-//
-// Over 700 lines on purpose: WGSL has no modules (one source string per pipeline), and this
-// file mirrors kernels/src/step/partitioned.rs pass for pass.
 
 // Keep in sync with `PartsUniform` in src/backend/gpu/partitioned.rs.
 struct Parts {

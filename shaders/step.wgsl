@@ -8,9 +8,11 @@
 // Gaps are stored as in `crate::model::chain::stored_gap`: d, or ln d (< 0) below GAP_FLOOR, or 0
 // when bonded.
 //
-// Over 700 lines on purpose: WGSL has no modules, and the kernel is generated from this one
-// template (one pass over its marker blocks); its functions follow kernels/src/step.rs and
-// src/backend/cpu/block.rs in the same order, to be read side by side.
+// Over 700 lines on purpose: WGSL has no modules (one source string per pipeline), and the
+// kernel is generated from this one template (one pass over its marker blocks); its functions
+// follow kernels/src/step.rs, src/backend/cpu/block.rs and shared/control.rs in the same order,
+// to be read side by side. The f64 math it shares with partitioned.wgsl is in f64_math.wgsl,
+// prepended at generation.
 //
 // Entry points: `begin_interval` (StepControl::begin_interval), `advance` (up to
 // config.max_attempts trial steps per member per dispatch, as the lane loop of Block::advance:
@@ -45,10 +47,6 @@
 // keep their signatures in step with it.
 // The host uploads and reads back Config, Param and Control (src/backend/gpu/wgsl_types.rs and
 // src/backend/gpu/buffers.rs): keep their layouts in sync.
-//
-// Over 700 lines on purpose: WGSL has no modules (one source string per pipeline), and this
-// file mirrors kernels/src/step.rs, block.rs and shared/control.rs function for function;
-// the f64 math it shares with partitioned.wgsl is in f64_math.wgsl, prepended at generation.
 
 alias real = f64;
 

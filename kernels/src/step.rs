@@ -38,18 +38,13 @@
 //! the velocity exactly and sets bodies glued to the left wall to exactly 0, and the stored 0 of a
 //! bonded gap is never updated.
 //!
-//! Over 700 lines on purpose: this file and `shaders/step.wgsl` are one kernel written twice,
-//! function for function and loop for loop (the GPU must take the same steps to the bit), and a
-//! change to one is a change to the other; split further, the side-by-side reading that keeps
-//! them in sync would span files that the WGSL side cannot mirror. Its unit tests are in
-//! `step/tests.rs`; what both backends share (constants, step control, f64 math) is in
-//! `crate::shared`.
-//!
 //! Over 700 lines on purpose: the step is one fused sweep (forward rows, back sweep with the gap
-//! update, fix-ups, projection, energy, conclusion), and its functions follow `shaders/step.wgsl`
-//! loop for loop, so the twins are reviewed side by side. What stands alone is elsewhere: the
-//! element types (`real.rs`), the step control both backends share (`shared/`), the partitioned
-//! solve (`step/partitioned.rs`), the tests (`step/tests.rs`).
+//! update, fix-ups, projection, energy, conclusion), and this file and `shaders/step.wgsl` are
+//! that kernel written twice, function for function and loop for loop (the GPU must take the
+//! same steps to the bit), so a change to one is a change to the other and the twins are
+//! reviewed side by side. What stands alone is elsewhere: the element types (`real.rs`), what
+//! both backends share (constants, step control, f64 math: `shared/`), the partitioned solve
+//! (`step/partitioned.rs`), the tests (`step/tests.rs`).
 
 use self::partitioned::euler_partitioned;
 pub use self::partitioned::Layout;

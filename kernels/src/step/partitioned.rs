@@ -66,12 +66,9 @@
 //!
 //! Over 700 lines on purpose: the CPU twin of `shaders/partitioned.wgsl`, pass for pass (the
 //! segments' forward and back sweeps, the interfaces' reduced system, the per-segment parts of
-//! the projection and energy); it reads only beside its twin. Its unit tests are in
-//! `partitioned/tests.rs`.
-//!
-//! Over 700 lines on purpose: the segments' forward and back sweeps, their interface system and
-//! the tile transposes that feed the lanes are one algorithm whose loops mirror
-//! `shaders/partitioned.wgsl`; split apart, neither twin would read against the other.
+//! the projection and energy, and the tile transposes that feed the lanes): one algorithm whose
+//! loops mirror its twin, and split apart neither would read against the other. Its unit tests
+//! are in `partitioned/tests.rs`.
 
 use rayon::prelude::*;
 
