@@ -5,9 +5,9 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use roughlub::backend::{Backend, Precision};
-use roughlub::converge::{run_convergence, ConvergeOptions};
+use roughlub::converge::{run_convergence, ConvergeOptions, ConvergeSummary};
 use roughlub::error::Error;
-use roughlub::run::{run_scene, RunOptions};
+use roughlub::run::{run_scene, RunOptions, RunSummary};
 use roughlub::scene::Scene;
 use roughlub::study::{merge_studies, run_study, StudyOptions, StudySummary};
 
@@ -219,9 +219,9 @@ fn report_study(summary: &StudySummary, quiet: bool) {
             summary.wall_seconds,
             100.0 * summary.statistics_seconds / summary.wall_seconds.max(1e-12),
             estimate_text(
-                        summary.largest_error_estimate,
-                        summary.error_estimate_available,
-                    ),
+                summary.largest_error_estimate,
+                summary.error_estimate_available,
+            ),
             summary.out_dir.display()
         );
     }
@@ -229,6 +229,64 @@ fn report_study(summary: &StudySummary, quiet: bool) {
     if summary.failed > 0 {
         eprintln!(
             "warning: {} member(s) failed; they are counted and listed (\"failed_members\" in the manifest, status in members.csv), never averaged in",
+            summary.failed
+        );
+    }
+}
+
+/// The end of a convergence run on stderr: per field its differences, rates and verdict.
+fn report_convergence(summary: &ConvergeSummary, quiet: bool) {
+    if !quiet {
+        for f in &summary.fields {
+            eprintln!(
+                "{}: L1 differences at the last output time {:?}, rates {:?}, rate at the largest pair {:.3} ({}), limit error estimate {:.3e}",
+                f.field,
+                f.diff_l1.iter().map(|e| format!("{e:.3e}")).collect::<Vec<_>>(),
+                f.rates_l1.iter().map(|p| format!("{p:.3}")).collect::<Vec<_>>(),
+                f.rate,
+                f.verdict.name(),
+                f.limit_error_l1
+            );
+        }
+        eprintln!(
+            "N = {:?} on {} ({}) in {:.2} s; {}; outputs in {}",
+            summary.particles,
+            summary.backend,
+            summary.adapter,
+            summary.wall_seconds,
+            if summary.asymptotic {
+                "rates asymptotic at every output time"
+            } else {
+                "NOT asymptotic everywhere (see the warnings)"
+            },
+            summary.out_dir.display()
+        );
+    }
+}
+
+/// The end of a single run on stderr: members, failures, the largest error estimate (and the
+/// warnings, even with --quiet).
+fn report_scene(summary: &RunSummary, quiet: bool) {
+    if !quiet {
+        eprintln!(
+            "{} members ({} failed) on {} ({}) in {:.2} s; largest error estimate {}; outputs in {}",
+            summary.members,
+            summary.failed,
+            summary.backend,
+            summary.adapter,
+            summary.wall_seconds,
+            estimate_text(
+                summary.largest_error_estimate,
+                summary.error_estimate_available,
+            ),
+            summary.out_dir.display()
+        );
+    }
+    warn_if_large(summary.largest_error_estimate);
+    if summary.failed > 0 {
+        // The run itself succeeded; failed members are data, listed in the manifest.
+        eprintln!(
+            "warning: {} member(s) failed; see \"failed_members\" in the manifest",
             summary.failed
         );
     }
@@ -299,29 +357,7 @@ fn main() -> ExitCode {
                     allow_large,
                 },
             )?;
-            if !quiet {
-                eprintln!(
-                    "{} members ({} failed) on {} ({}) in {:.2} s; largest error estimate {}; outputs in {}",
-                    summary.members,
-                    summary.failed,
-                    summary.backend,
-                    summary.adapter,
-                    summary.wall_seconds,
-                    estimate_text(
-                summary.largest_error_estimate,
-                summary.error_estimate_available,
-            ),
-                    summary.out_dir.display()
-                );
-            }
-            warn_if_large(summary.largest_error_estimate);
-            if summary.failed > 0 {
-                // The run itself succeeded; failed members are data, listed in the manifest.
-                eprintln!(
-                    "warning: {} member(s) failed; see \"failed_members\" in the manifest",
-                    summary.failed
-                );
-            }
+            report_scene(&summary, quiet);
             Ok(())
         })(),
         Command::Accuracy {
@@ -380,32 +416,7 @@ fn main() -> ExitCode {
                     force,
                 },
             )?;
-            if !quiet {
-                for f in &summary.fields {
-                    eprintln!(
-                        "{}: L1 differences at the last output time {:?}, rates {:?}, rate at the largest pair {:.3} ({}), limit error estimate {:.3e}",
-                        f.field,
-                        f.diff_l1.iter().map(|e| format!("{e:.3e}")).collect::<Vec<_>>(),
-                        f.rates_l1.iter().map(|p| format!("{p:.3}")).collect::<Vec<_>>(),
-                        f.rate,
-                        f.verdict.name(),
-                        f.limit_error_l1
-                    );
-                }
-                eprintln!(
-                    "N = {:?} on {} ({}) in {:.2} s; {}; outputs in {}",
-                    summary.particles,
-                    summary.backend,
-                    summary.adapter,
-                    summary.wall_seconds,
-                    if summary.asymptotic {
-                        "rates asymptotic at every output time"
-                    } else {
-                        "NOT asymptotic everywhere (see the warnings)"
-                    },
-                    summary.out_dir.display()
-                );
-            }
+            report_convergence(&summary, quiet);
             Ok(())
         })(),
     };

@@ -2,11 +2,12 @@
 //! observables → output directory.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::backend::report::run_error_estimate_method;
-use crate::backend::{select, Backend, MemberStatus, Precision};
+use crate::backend::report::{run_error_estimate_method, GpuStats};
+use crate::backend::select::BackendRecord;
+use crate::backend::{select, Backend, MemberReport, MemberStatus, Precision};
 use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
 use crate::model::plan::Plan;
@@ -177,11 +178,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let t_count = plan.output_times.len() as u64;
     let g = plan.grid as u64;
     let mut streams = FieldStreams::open(dir, &plan)?;
-    let mut energy = Vec::with_capacity((t_count * b) as usize);
-    let mut dissipation = Vec::with_capacity((t_count * b) as usize);
-    let mut min_gap = Vec::with_capacity((t_count * b) as usize);
-    let mut log_min_gap = Vec::with_capacity((t_count * b) as usize);
-    let mut max_density = Vec::with_capacity((t_count * b) as usize);
+    let mut series = ScalarSeries::with_capacity((t_count * b) as usize);
     let plotted = if scene.plots {
         scene.plot_members.min(members)
     } else {
@@ -200,11 +197,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         time_index += 1;
         for (m, s) in snaps.iter().enumerate() {
             streams.push(s)?;
-            energy.push(s.energy);
-            dissipation.push(s.dissipation);
-            min_gap.push(s.min_gap);
-            log_min_gap.push(s.log_min_gap);
-            max_density.push(s.max_density);
+            series.push(s);
             if m < plotted && drawn {
                 profiles[m].profiles.record(s, plan.grid);
             }
@@ -222,25 +215,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         &plan.output_times,
     )?);
     files.push(write_npy(dir.join("x.npy"), &[g], solver.grid())?);
-    if plan.fields.energy {
-        files.push(write_npy(dir.join("energy.npy"), &[t_count, b], &energy)?);
-        files.push(write_npy(
-            dir.join("dissipation.npy"),
-            &[t_count, b],
-            &dissipation,
-        )?);
-    }
-    files.push(write_npy(dir.join("min_gap.npy"), &[t_count, b], &min_gap)?);
-    files.push(write_npy(
-        dir.join("log_min_gap.npy"),
-        &[t_count, b],
-        &log_min_gap,
-    )?);
-    files.push(write_npy(
-        dir.join("max_density.npy"),
-        &[t_count, b],
-        &max_density,
-    )?);
+    series.write(dir, &[t_count, b], plan.fields.energy, &mut files)?;
 
     if plotted > 0 {
         files.extend(write_plots(
@@ -252,7 +227,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
                 profiles: &profiles,
                 drawn_times: &drawn_times,
                 map_times: &map_times,
-                max_density: &max_density,
+                max_density: &series.max_density,
             },
         )?);
     }
@@ -269,45 +244,16 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         .filter(|r| r.status == MemberStatus::Ok)
         .filter_map(|r| r.largest_error_estimate())
         .reduce(f64::max);
-    let manifest = RunManifest {
-        roughlub_version: VERSION,
-        scene: SceneRecord {
-            name: scene.name.clone(),
-            description: scene.description.clone(),
-            path: scene.source_path.display().to_string(),
-            text: scene.source_text.clone(),
-        },
-        backend: engine.record.clone(),
-        gpu_stats: solver.gpu_stats(),
-        wall_seconds: wall,
-        particles: plan.particles,
-        eps: plan.eps,
-        order: plan.order,
-        stepping: plan.stepping,
-        plan: plan.summary(),
-        output_times: plan.output_times.clone(),
-        grid: plan.grid,
-        error_estimate: ErrorEstimateRecord::new(
-            plan.order,
-            plan.stepping,
-            plan.companion_estimate,
-            largest_error_estimate,
-        ),
-        steps_accepted_total: reports.iter().map(|r| r.steps_accepted).sum(),
-        steps_rejected_total: reports.iter().map(|r| r.steps_rejected).sum(),
-        failed_members: failed_members.clone(),
-        members: reports,
-        files: files
-            .iter()
-            .map(|p| p.strip_prefix(dir).unwrap_or(p).display().to_string())
-            .collect(),
-        conventions: BTreeMap::from([
-            ("failed_members", "rows of a member after it failed are NaN; its status gives the reason and time"),
-            ("gaps", "d_i = q_i - q_{i-1} - 2 eps, i = 1..N (index i-1)"),
-            ("velocities", "u_i, i = 1..N-1 (index i-1); u_0 = u_N = 0"),
-            ("fields", "sampled at x.npy; rho and rho_star piecewise constant on [q_{i-1}, q_i), u piecewise linear"),
-        ]),
-    };
+    let manifest = run_manifest(
+        scene,
+        &plan,
+        &engine.record,
+        solver.gpu_stats(),
+        wall,
+        reports,
+        largest_error_estimate,
+        files.iter().map(|p| p.strip_prefix(dir).unwrap_or(p)),
+    );
     write_json_atomic(&dir.join(MANIFEST), &manifest)?;
     staged.commit()?;
     Ok(RunSummary {
@@ -328,6 +274,121 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         )
         .is_some(),
     })
+}
+
+/// Each member's scalars at each output time, [T, B] in time order.
+struct ScalarSeries {
+    energy: Vec<f64>,
+    dissipation: Vec<f64>,
+    min_gap: Vec<f64>,
+    log_min_gap: Vec<f64>,
+    max_density: Vec<f64>,
+}
+
+impl ScalarSeries {
+    fn with_capacity(n: usize) -> ScalarSeries {
+        ScalarSeries {
+            energy: Vec::with_capacity(n),
+            dissipation: Vec::with_capacity(n),
+            min_gap: Vec::with_capacity(n),
+            log_min_gap: Vec::with_capacity(n),
+            max_density: Vec::with_capacity(n),
+        }
+    }
+
+    fn push(&mut self, s: &Snapshot) {
+        self.energy.push(s.energy);
+        self.dissipation.push(s.dissipation);
+        self.min_gap.push(s.min_gap);
+        self.log_min_gap.push(s.log_min_gap);
+        self.max_density.push(s.max_density);
+    }
+
+    /// `{energy,dissipation}.npy` (when the energy is an output), `min_gap.npy`,
+    /// `log_min_gap.npy` and `max_density.npy`, of `shape` [T, B], each added to `files`.
+    fn write(
+        &self,
+        dir: &Path,
+        shape: &[u64; 2],
+        energy: bool,
+        files: &mut Vec<PathBuf>,
+    ) -> Result<()> {
+        if energy {
+            files.push(write_npy(dir.join("energy.npy"), shape, &self.energy)?);
+            files.push(write_npy(
+                dir.join("dissipation.npy"),
+                shape,
+                &self.dissipation,
+            )?);
+        }
+        files.push(write_npy(dir.join("min_gap.npy"), shape, &self.min_gap)?);
+        files.push(write_npy(
+            dir.join("log_min_gap.npy"),
+            shape,
+            &self.log_min_gap,
+        )?);
+        files.push(write_npy(
+            dir.join("max_density.npy"),
+            shape,
+            &self.max_density,
+        )?);
+        Ok(())
+    }
+}
+
+/// The manifest of a single run: everything that determines its result, each member's report
+/// and the files written (relative to the run's directory).
+#[allow(clippy::too_many_arguments)]
+fn run_manifest<'a>(
+    scene: &Scene,
+    plan: &Plan,
+    record: &BackendRecord,
+    gpu_stats: Option<GpuStats>,
+    wall: f64,
+    reports: Vec<MemberReport>,
+    largest_error_estimate: Option<f64>,
+    files: impl Iterator<Item = &'a Path>,
+) -> RunManifest {
+    RunManifest {
+        roughlub_version: VERSION,
+        scene: SceneRecord {
+            name: scene.name.clone(),
+            description: scene.description.clone(),
+            path: scene.source_path.display().to_string(),
+            text: scene.source_text.clone(),
+        },
+        backend: record.clone(),
+        gpu_stats,
+        wall_seconds: wall,
+        particles: plan.particles,
+        eps: plan.eps,
+        order: plan.order,
+        stepping: plan.stepping,
+        plan: plan.summary(),
+        output_times: plan.output_times.clone(),
+        grid: plan.grid,
+        error_estimate: ErrorEstimateRecord::new(
+            plan.order,
+            plan.stepping,
+            plan.companion_estimate,
+            largest_error_estimate,
+        ),
+        steps_accepted_total: reports.iter().map(|r| r.steps_accepted).sum(),
+        steps_rejected_total: reports.iter().map(|r| r.steps_rejected).sum(),
+        failed_members: reports
+            .iter()
+            .filter(|r| r.status != MemberStatus::Ok)
+            .map(|r| r.index)
+            .collect(),
+        members: reports,
+        files: files.map(|p| p.display().to_string()).collect(),
+        conventions: BTreeMap::from([
+            ("failed_members", "rows of a member after it failed are NaN; its status gives the reason and time"),
+            ("gaps", "d_i = q_i - q_{i-1} - 2 eps, i = 1..N (index i-1)"),
+            ("velocities", "u_i, i = 1..N-1 (index i-1); u_0 = u_N = 0"),
+            ("fields", "sampled at x.npy; rho and rho_star piecewise constant on [q_{i-1}, q_i), u piecewise linear"),
+        ]),
+    }
 }
 
 /// Refuses a run whose outputs would exceed [`OUTPUT_SIZE_LIMIT`], naming what drives their
