@@ -380,28 +380,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         select(requested, precision, &s.plan(&chain))?;
     }
 
-    // Every field of every N is held in memory (and written): refuse what would not fit.
-    let bytes = 8
-        * FIELDS.len() as u64
-        * k_count as u64
-        * scene.output_times.len() as u64
-        * scene.grid as u64;
-    if bytes > crate::run::OUTPUT_SIZE_LIMIT {
-        return Err(Error::invalid(
-            "output.grid",
-            scene.grid,
-            format!(
-                "the fields of {k_count} values of N x {} output times x {} grid points take {:.1} GB, held in memory",
-                scene.output_times.len(),
-                scene.grid,
-                bytes as f64 / 1e9
-            ),
-            format!(
-                "at most {:.1} GB: a coarser [output] grid, fewer [time] outputs or fewer N",
-                crate::run::OUTPUT_SIZE_LIMIT as f64 / 1e9
-            ),
-        ));
-    }
+    check_memory(scene, k_count)?;
 
     let staged = StagedDir::begin(&options.out_dir, options.force)?;
     let dir = staged.staging.clone();
@@ -497,15 +476,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         runs,
         warnings: warnings.clone(),
         files: files.iter().map(|p| rel(p)).collect(),
-        conventions: BTreeMap::from([
-            ("fields_*.npy", "[K, T, G]: each N (particles.npy) at each output time (times.npy) on the grid x.npy"),
-            ("limit_*.npy", "[T, G]: Richardson extrapolation from the two largest N with the L1 rate at the largest pair, f_K + (f_K - f_{K-1})/(r^p - 1); the field itself where every difference is rounding (verdict exact); NaN where the rate is not finite and positive; absent with 2 values of N"),
-            ("sampling", "cubic interpolation through the 4 nearest nodes: rho and rho_star from the cell values at the cell centres, u from the particle velocities (O(h^4) for smooth profiles; the run's piecewise-constant / piecewise-linear sampling is O(h) / O(h^2) with a factor oscillating from point to point, which hides the particle system's convergence and defeats pointwise extrapolation)"),
-            ("time_steps", "every N runs with the scene's time stepping: the limit is N -> infinity at those steps, and the time-step error (common to all N) is not in the differences"),
-            ("norms", "L1 and L2 as means over the grid points, Linf the largest difference"),
-            ("rates", "ln(e_{k-1}/e_k)/ln(N_k/N_{k-1}) between the differences of successive pairs: log2 of the ratio when N doubles; exact for e = C N^-p only when the ratios are equal (ratios_equal)"),
-            ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 max(N_K eps_f64, eps) max(1, max|f_K|) with eps that of the precision (exact), or the difference at the largest pair within 100 times that level (rounding_limited: converged as far as the precision resolves)"),
-        ]),
+        conventions: conventions(),
     };
     write_json_atomic(&dir.join(MANIFEST), &manifest)?;
     staged.commit()?;
@@ -522,6 +493,45 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
         warnings,
         wall_seconds: wall,
     })
+}
+
+/// Every field of every N is held in memory (and written): refuses what would not fit.
+fn check_memory(scene: &Scene, k_count: usize) -> Result<()> {
+    let bytes = 8
+        * FIELDS.len() as u64
+        * k_count as u64
+        * scene.output_times.len() as u64
+        * scene.grid as u64;
+    if bytes > crate::run::OUTPUT_SIZE_LIMIT {
+        return Err(Error::invalid(
+            "output.grid",
+            scene.grid,
+            format!(
+                "the fields of {k_count} values of N x {} output times x {} grid points take {:.1} GB, held in memory",
+                scene.output_times.len(),
+                scene.grid,
+                bytes as f64 / 1e9
+            ),
+            format!(
+                "at most {:.1} GB: a coarser [output] grid, fewer [time] outputs or fewer N",
+                crate::run::OUTPUT_SIZE_LIMIT as f64 / 1e9
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// What the convergence run's files and numbers mean (the manifest's `conventions`).
+fn conventions() -> BTreeMap<&'static str, &'static str> {
+    BTreeMap::from([
+        ("fields_*.npy", "[K, T, G]: each N (particles.npy) at each output time (times.npy) on the grid x.npy"),
+        ("limit_*.npy", "[T, G]: Richardson extrapolation from the two largest N with the L1 rate at the largest pair, f_K + (f_K - f_{K-1})/(r^p - 1); the field itself where every difference is rounding (verdict exact); NaN where the rate is not finite and positive; absent with 2 values of N"),
+        ("sampling", "cubic interpolation through the 4 nearest nodes: rho and rho_star from the cell values at the cell centres, u from the particle velocities (O(h^4) for smooth profiles; the run's piecewise-constant / piecewise-linear sampling is O(h) / O(h^2) with a factor oscillating from point to point, which hides the particle system's convergence and defeats pointwise extrapolation)"),
+        ("time_steps", "every N runs with the scene's time stepping: the limit is N -> infinity at those steps, and the time-step error (common to all N) is not in the differences"),
+        ("norms", "L1 and L2 as means over the grid points, Linf the largest difference"),
+        ("rates", "ln(e_{k-1}/e_k)/ln(N_k/N_{k-1}) between the differences of successive pairs: log2 of the ratio when N doubles; exact for e = C N^-p only when the ratios are equal (ratios_equal)"),
+        ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 max(N_K eps_f64, eps) max(1, max|f_K|) with eps that of the precision (exact), or the difference at the largest pair within 100 times that level (rounding_limited: converged as far as the precision resolves)"),
+    ])
 }
 
 /// What [`run_at_n`] gives: the run's record, the backend's, and each field's rows on the grid
