@@ -234,11 +234,6 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
 
     let reports = solver.reports();
     let wall = started.elapsed().as_secs_f64();
-    let failed_members: Vec<usize> = reports
-        .iter()
-        .filter(|r| r.status != MemberStatus::Ok)
-        .map(|r| r.index)
-        .collect();
     let largest_error_estimate = reports
         .iter()
         .filter(|r| r.status == MemberStatus::Ok)
@@ -264,7 +259,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         },
         adapter: engine.record.short(),
         members,
-        failed: failed_members.len(),
+        failed: manifest.failed_members.len(),
         wall_seconds: wall,
         largest_error_estimate,
         error_estimate_available: run_error_estimate_method(

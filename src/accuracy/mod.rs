@@ -233,10 +233,15 @@ fn fixed_setting(
 
 const MAX_HALVINGS: u32 = 16;
 
-/// The line `accuracy` starts with: which members it measures.
-fn describe_members(scene: &Scene, groups: &[MeasuredGroup], member_count: usize) -> String {
+/// The line `accuracy` starts with: which members it measures (`points`: the groups' sweep
+/// points, empty without a sweep).
+fn describe_members(
+    scene: &Scene,
+    groups: &[MeasuredGroup],
+    points: &[u64],
+    member_count: usize,
+) -> String {
     let base = &groups[0].plan;
-    let points: Vec<u64> = groups.iter().filter_map(|g| g.point).collect();
     if points.is_empty() {
         format!(
             "accuracy of {}: the scene's first {} member(s), N = {}, {} output times",
@@ -436,7 +441,10 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     }
     let points: Vec<u64> = groups.iter().filter_map(|g| g.point).collect();
     if !options.quiet {
-        eprintln!("{}", describe_members(&scene, &groups, member_count));
+        eprintln!(
+            "{}",
+            describe_members(&scene, &groups, &points, member_count)
+        );
     }
 
     let reference_tolerance = (options.target * 1e-3).clamp(1e-11, 1e-8);
