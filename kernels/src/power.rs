@@ -27,6 +27,14 @@ impl Power {
         }
     }
 
+    /// The gamma this power raises to (`Power::of` of it gives back `self`).
+    pub fn exponent(self) -> f64 {
+        match self {
+            Power::Integer(k) => k as f64,
+            Power::Real(g) => g,
+        }
+    }
+
     #[inline(always)]
     pub fn apply(self, ratio: f64) -> f64 {
         match self {
@@ -54,3 +62,22 @@ pub fn powi_by_squaring<T: Real>(ratio: T, n: u32) -> T {
     }
     result
 }
+
+/// [`powi_by_squaring`] for n <= [`MAX_INTEGER_GAMMA`] (what [`Power::Integer`] holds) in a fixed
+/// number of rounds with selects, as the GPU's per-member power: the step's lane loops stay
+/// packed with an n known only at run time, where the loop over n's bits kept them scalar. The
+/// selects skip the multiplications the loop skips, so the same bits.
+#[inline(always)]
+pub fn powi_in_rounds<T: Real>(ratio: T, n: u32) -> T {
+    debug_assert!(n <= MAX_INTEGER_GAMMA);
+    let (mut result, mut base, mut e) = (T::ONE, ratio, n);
+    for _ in 0..INTEGER_GAMMA_BITS {
+        result = if e & 1 == 1 { result * base } else { result };
+        e >>= 1;
+        base = if e > 0 { base * base } else { base };
+    }
+    result
+}
+
+/// Bits of the largest integer gamma evaluated by multiplications (10 for 1000).
+pub const INTEGER_GAMMA_BITS: u32 = u32::BITS - MAX_INTEGER_GAMMA.leading_zeros();

@@ -49,7 +49,7 @@
 use self::partitioned::euler_partitioned;
 pub use self::partitioned::Layout;
 pub(crate) use self::partitioned::PartitionedReal;
-use crate::power::Power;
+use crate::power::{powi_in_rounds, Power};
 use crate::real::Real;
 use crate::shared::f64_math;
 pub use crate::shared::gaps::{
@@ -436,11 +436,12 @@ macro_rules! specialised {
             // (measured: the clusters' seven doubled the step kernels' build).
             match terms.repulsion.map(|r| r.1) {
                 None => with_flags!(false, true, no_repulsion),
-                Some(Gamma::Uniform(p)) => per_lane_law!(true, [match p {
-                    Power::Integer(k) => k as f64,
-                    Power::Real(g) => g,
-                }; L]),
-                Some(Gamma::PerLane(gs)) => per_lane_law!(true, gs),
+                // One expansion of the per-lane law for both (each expansion is a closure type
+                // of its own, so every kernel would be compiled once more).
+                Some(law) => per_lane_law!(true, match law {
+                    Gamma::Uniform(p) => [p.exponent(); L],
+                    Gamma::PerLane(gs) => gs,
+                }),
             }
         } else {
         match terms.repulsion.map(|r| r.1) {
@@ -451,27 +452,14 @@ macro_rules! specialised {
             Some(Gamma::Uniform(Power::Integer(2))) => {
                 with_flags!(true, false, Law { power: |_l: usize, r: $t| r * r, gamma: |_l: usize| <$t as Real>::c(2.0) })
             }
-            Some(Gamma::Uniform(Power::Integer(3))) => with_flags!(
-                true,
-                false,
-                Law { power: |_l: usize, r: $t| r * r * r, gamma: |_l: usize| <$t as Real>::c(3.0) }
-            ),
-            Some(Gamma::Uniform(Power::Integer(4))) => with_flags!(
-                true,
-                false,
-                Law {
-                    power: |_l: usize, r: $t| {
-                        let r2 = r * r;
-                        r2 * r2
-                    },
-                    gamma: |_l: usize| <$t as Real>::c(4.0)
-                }
-            ),
-            Some(Gamma::Uniform(p)) => {
-                let g = <$t as Real>::c(match p {
-                    Power::Integer(k) => k as f64,
-                    Power::Real(g) => g,
-                });
+            Some(Gamma::Uniform(Power::Integer(n))) => {
+                // Gamma 3, 4 and above in a fixed number of rounds (packed over the lanes, n
+                // known at run time): the same products as written out, so the same bits.
+                let g = <$t as Real>::c(n as f64);
+                with_flags!(true, false, Law { power: move |_l: usize, r: $t| powi_in_rounds(r, n), gamma: move |_l: usize| g })
+            }
+            Some(Gamma::Uniform(Power::Real(gamma))) => {
+                let (p, g) = (Power::Real(gamma), <$t as Real>::c(gamma));
                 with_flags!(true, false, Law { power: move |_l: usize, r: $t| <$t as Real>::power(p, r), gamma: move |_l: usize| g })
             }
             Some(Gamma::PerLane(gs)) => per_lane_law!(false, gs),

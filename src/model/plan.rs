@@ -150,4 +150,19 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn integer_power_in_rounds_takes_the_same_products() {
+        // The step's uniform integer law (`powi_in_rounds`, a fixed number of rounds) against
+        // the loop over the exponent's bits, which the GPU twin follows: bit for bit, every n.
+        use roughlub_kernels::power::powi_in_rounds;
+        for n in 0..=MAX_INTEGER_GAMMA {
+            for r in [1.001, 0.999, 1.000_000_1, 0.5, 2.0, 1.0e-3, f64::NAN] {
+                let (rounds, looped) = (powi_in_rounds(r, n), powi_by_squaring(r, n));
+                assert_eq!(rounds.to_bits(), looped.to_bits(), "{r}^{n}");
+                let (rounds, looped) = (powi_in_rounds(r as f32, n), powi_by_squaring(r as f32, n));
+                assert_eq!(rounds.to_bits(), looped.to_bits(), "{r}^{n} in f32");
+            }
+        }
+    }
 }

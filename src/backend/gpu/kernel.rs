@@ -17,6 +17,7 @@ use crate::backend::Precision;
 use crate::expr::{Expr, WgslFloat};
 use crate::model::params::Order;
 use crate::model::plan::MAX_INTEGER_GAMMA;
+use roughlub_kernels::power::INTEGER_GAMMA_BITS;
 
 /// The template (`shaders/step.wgsl`).
 pub const STEP_TEMPLATE_WGSL: &str = include_str!("../../../shaders/step.wgsl");
@@ -167,9 +168,6 @@ fn integer_power_body(n: u32, out: &mut String) {
     }
     out.push_str("    return result;\n");
 }
-
-/// Bits of the largest integer gamma evaluated by multiplications (10 for 1000).
-const INTEGER_GAMMA_BITS: u32 = u32::BITS - MAX_INTEGER_GAMMA.leading_zeros();
 
 /// The WGSL functions `power(r, gamma)` (G = r^gamma, evaluated as
 /// `crate::model::plan::Power::of(gamma).apply(r)` does on the CPU) and `gamma_of(gamma)` for
