@@ -184,6 +184,12 @@ impl<const L: usize> Gamma<L> {
             Gamma::PerLane(g) => g[l],
         }
     }
+
+    /// Every lane's gamma.
+    #[inline(always)]
+    pub fn per_lane(&self) -> [f64; L] {
+        std::array::from_fn(|l| self.gamma(l))
+    }
 }
 
 /// Thomas sweep scratch, length (N-1)·L each: the rows u_i = d_{i+1} ys_i + w_i u_{i+1} with
@@ -414,21 +420,18 @@ macro_rules! specialised {
             }};
         }
         // A law evaluated per lane (any gamma, integer or not, with the same operations as the
-        // uniform laws below: `Power::of` gives back the plan's `Power`, so the same bits).
-        macro_rules! per_lane_law {
-            ($clu:literal, $gs:expr) => {{
-                let gs: [f64; L] = $gs;
-                let gt: [$t; L] = gs.map(<$t as Real>::c);
-                with_flags!(
-                    true,
-                    $clu,
-                    Law {
-                        power: move |l: usize, r: $t| <$t as Real>::power(Power::of(gs[l]), r),
-                        gamma: move |l: usize| gt[l]
-                    }
-                )
-            }};
-        }
+        // uniform laws below: `Power::of` gives back the plan's `Power`, so the same bits). One
+        // closure makes it, so it is one type wherever it is taken (with and without clusters,
+        // uniform non-integer gamma or gamma per lane): each written-out law is a type of its
+        // own, and every function generic over it is compiled once more.
+        let per_lane_law = |gamma: Gamma<L>| {
+            let gs = gamma.per_lane();
+            let gt: [$t; L] = gs.map(<$t as Real>::c);
+            Law {
+                power: move |l: usize, r: $t| <$t as Real>::power(Power::of(gs[l]), r),
+                gamma: move |l: usize| gt[l],
+            }
+        };
         let no_repulsion = Law { power: |_l: usize, _r: $t| <$t as Real>::ZERO, gamma: |_l: usize| <$t as Real>::ONE };
         if terms.bonded.is_some() {
             // Clusters (touching particles of a particle file) are rare, so with them every
@@ -436,12 +439,7 @@ macro_rules! specialised {
             // (measured: the clusters' seven doubled the step kernels' build).
             match terms.repulsion.map(|r| r.1) {
                 None => with_flags!(false, true, no_repulsion),
-                // One expansion of the per-lane law for both (each expansion is a closure type
-                // of its own, so every kernel would be compiled once more).
-                Some(law) => per_lane_law!(true, match law {
-                    Gamma::Uniform(p) => [p.exponent(); L],
-                    Gamma::PerLane(gs) => gs,
-                }),
+                Some(gamma) => with_flags!(true, true, per_lane_law(gamma)),
             }
         } else {
         match terms.repulsion.map(|r| r.1) {
@@ -458,11 +456,9 @@ macro_rules! specialised {
                 let g = <$t as Real>::c(n as f64);
                 with_flags!(true, false, Law { power: move |_l: usize, r: $t| powi_in_rounds(r, n), gamma: move |_l: usize| g })
             }
-            Some(Gamma::Uniform(Power::Real(gamma))) => {
-                let (p, g) = (Power::Real(gamma), <$t as Real>::c(gamma));
-                with_flags!(true, false, Law { power: move |_l: usize, r: $t| <$t as Real>::power(p, r), gamma: move |_l: usize| g })
-            }
-            Some(Gamma::PerLane(gs)) => per_lane_law!(false, gs),
+            // A non-integer gamma costs its pow per lane either way (not packed), so it takes
+            // the per-lane law.
+            Some(gamma) => with_flags!(true, false, per_lane_law(gamma)),
         }
         }
     }};
