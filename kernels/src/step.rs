@@ -435,8 +435,8 @@ macro_rules! specialised {
         let no_repulsion = Law { power: |_l: usize, _r: $t| <$t as Real>::ZERO, gamma: |_l: usize| <$t as Real>::ONE };
         if terms.bonded.is_some() {
             // Clusters (touching particles of a particle file) are rare, so with them every
-            // gamma takes the per-lane law: two instances of each kernel instead of seven
-            // (measured: the clusters' seven doubled the step kernels' build).
+            // gamma takes the per-lane law: two instances of each kernel instead of one per law
+            // (measured: a law each doubled the step kernels' build).
             match terms.repulsion.map(|r| r.1) {
                 None => with_flags!(false, true, no_repulsion),
                 Some(gamma) => with_flags!(true, true, per_lane_law(gamma)),
