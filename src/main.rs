@@ -201,11 +201,14 @@ fn estimate_text(largest: Option<f64>, available: bool) -> String {
     }
 }
 
-/// The warning for a largest error estimate that says the run is not converged (printed even
-/// with --quiet).
-fn warn_if_large(largest: Option<f64>) {
+/// The warnings at the end of a run or study, printed even with --quiet: a largest error
+/// estimate that says it is not converged, and failed members (`where_listed` says where).
+fn warn_at_end(largest: Option<f64>, failed: u64, where_listed: &str) {
     if let Some(w) = roughlub::output::manifest::large_error_warning(largest) {
         eprintln!("warning: {w}");
+    }
+    if failed > 0 {
+        eprintln!("warning: {failed} member(s) failed; {where_listed}");
     }
 }
 
@@ -225,13 +228,11 @@ fn report_study(summary: &StudySummary, quiet: bool) {
             summary.out_dir.display()
         );
     }
-    warn_if_large(summary.largest_error_estimate);
-    if summary.failed > 0 {
-        eprintln!(
-            "warning: {} member(s) failed; they are counted and listed (\"failed_members\" in the manifest, status in members.csv), never averaged in",
-            summary.failed
-        );
-    }
+    warn_at_end(
+        summary.largest_error_estimate,
+        summary.failed,
+        "they are counted and listed (\"failed_members\" in the manifest, status in members.csv), never averaged in",
+    );
 }
 
 /// The end of a convergence run on stderr: per field its differences, rates and verdict.
@@ -282,14 +283,12 @@ fn report_scene(summary: &RunSummary, quiet: bool) {
             summary.out_dir.display()
         );
     }
-    warn_if_large(summary.largest_error_estimate);
-    if summary.failed > 0 {
-        // The run itself succeeded; failed members are data, listed in the manifest.
-        eprintln!(
-            "warning: {} member(s) failed; see \"failed_members\" in the manifest",
-            summary.failed
-        );
-    }
+    // The run itself succeeded; failed members are data, listed in the manifest.
+    warn_at_end(
+        summary.largest_error_estimate,
+        summary.failed as u64,
+        "see \"failed_members\" in the manifest",
+    );
 }
 
 fn main() -> ExitCode {
