@@ -28,6 +28,7 @@ impl Power {
     }
 
     /// The gamma this power raises to (`Power::of` of it gives back `self`).
+    #[inline(always)]
     pub fn exponent(self) -> f64 {
         match self {
             Power::Integer(k) => k as f64,

@@ -179,8 +179,7 @@ impl<const L: usize> Gamma<L> {
     #[inline(always)]
     pub fn gamma(&self, l: usize) -> f64 {
         match self {
-            Gamma::Uniform(Power::Integer(n)) => *n as f64,
-            Gamma::Uniform(Power::Real(g)) => *g,
+            Gamma::Uniform(p) => p.exponent(),
             Gamma::PerLane(g) => g[l],
         }
     }
