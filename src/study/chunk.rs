@@ -64,9 +64,10 @@ struct RecordedObservables {
 /// Where the peak centre is in [`RecordedObservables::scalars`].
 const PEAK_CENTRE: usize = 4;
 
-/// Where the row of band field `f` at output time `k` of the chunk's member `i` starts in the
-/// chunk's `field_rows`: laid out [field][time][member][grid point], so that the rows one band
-/// reads are consecutive in memory (streamed, not gathered from rows a whole member apart).
+/// Where the row of band field `f` at output time `k` of the chunk's deferred member `i` (its
+/// [`PassContext::row_slot`](batch::PassContext)) starts in the chunk's `field_rows`: laid out
+/// [field][time][member][grid point], so that the rows one band reads are consecutive in memory
+/// (streamed, not gathered from rows a whole member apart).
 fn row_offset(f: usize, k: usize, i: usize, (times, count, grid): (usize, usize, usize)) -> usize {
     ((f * times + k) * count + i) * grid
 }
@@ -363,19 +364,25 @@ fn solve_pass(
 ) -> Result<Pass> {
     let t_count = header.times.len();
     let grid = header.x.len();
-    let shape = (t_count, (end - first) as usize, grid);
     let count = (end - first) as usize;
     let mut group_of = vec![0usize; count];
     for (gi, &(i, j)) in groups.iter().enumerate() {
         group_of[i..j].fill(gi);
     }
-    let any_deferred =
-        (0..count).any(|m| eager[group_of[m]].is_none() && header.is_detailed(inputs[m].point));
-    let needed = if any_deferred {
-        header.band_fields.len() * t_count * shape.1 * grid
-    } else {
-        0
-    };
+    // Rows are kept for the deferred members only (detailed, in a group that does not push as
+    // it goes): a design's chunk holds a few detailed members among hundreds, and a buffer for
+    // all of them was most of a small design's statistics (its pages first touched).
+    let mut row_slot = Vec::with_capacity(count + 1);
+    let mut deferred = 0;
+    for m in 0..count {
+        row_slot.push(deferred);
+        if eager[group_of[m]].is_none() && header.is_detailed(inputs[m].point) {
+            deferred += 1;
+        }
+    }
+    row_slot.push(deferred);
+    let shape = (t_count, deferred, grid);
+    let needed = header.band_fields.len() * t_count * deferred * grid;
     // Only rows written for this chunk are read back (`rows_present`).
     if buffer.field_rows.len() < needed {
         buffer.field_rows.resize(needed, f64::NAN);
@@ -398,7 +405,7 @@ fn solve_pass(
         groups,
         eager,
         group_of,
-        any_deferred,
+        row_slot,
         shape,
     };
     let is_eager = |m: usize| pass.is_eager(m);
@@ -481,7 +488,7 @@ fn solve_pass(
                 .filter(|&m| ok_member[m] || !completed_only)
                 .filter(|&m| pushed(m, f, k))
                 .map(|m| {
-                    let at = row_offset(f, k, m, shape);
+                    let at = row_offset(f, k, pass.row_slot[m], shape);
                     &buffer.field_rows[at..at + grid]
                 })
                 .collect()

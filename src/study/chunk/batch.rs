@@ -35,9 +35,11 @@ pub(super) struct PassContext<'a> {
     pub(super) eager: &'a MomentsBefore,
     /// The group of each member of the chunk.
     pub(super) group_of: Vec<usize>,
-    /// Whether a detailed member's rows wait for the end of the chunk (in `field_rows`).
-    pub(super) any_deferred: bool,
-    /// (output times, members of the chunk, grid points) of `field_rows`.
+    /// Per member of the chunk, how many before it are deferred (their rows wait for the end
+    /// of the chunk in `field_rows`): a deferred member's row index there; one more entry, the
+    /// count of all.
+    pub(super) row_slot: Vec<usize>,
+    /// (output times, deferred members, grid points) of `field_rows`.
     pub(super) shape: (usize, usize, usize),
 }
 
@@ -78,7 +80,7 @@ pub(super) fn solve_batch(
         inputs,
         groups,
         eager,
-        any_deferred,
+        ref row_slot,
         shape,
         ..
     } = *pass;
@@ -126,18 +128,22 @@ pub(super) fn solve_batch(
         let per_member = fields.max(1);
         let mut member_rows: Vec<Option<&mut [f64]>> = Vec::new();
         member_rows.resize_with((b - a) * per_member, || None);
-        if any_deferred && fields > 0 {
-            let mut rest = &mut field_rows[row_offset(0, k, a, shape)..];
-            let mut at = row_offset(0, k, a, shape);
+        let (first_slot, end_slot) = (row_slot[a], row_slot[b]);
+        if end_slot > first_slot && fields > 0 {
+            let deferred: Vec<usize> = (0..b - a)
+                .filter(|&g| row_slot[a + g + 1] > row_slot[a + g])
+                .collect();
+            let mut rest = &mut field_rows[row_offset(0, k, first_slot, shape)..];
+            let mut at = row_offset(0, k, first_slot, shape);
             for f in 0..fields {
                 // Fields lie apart in the buffer, in field order.
-                let (_, from) = rest.split_at_mut(row_offset(f, k, a, shape) - at);
-                let (these, after) = from.split_at_mut((b - a) * grid);
-                for (g, row) in these.chunks_mut(grid).enumerate() {
+                let (_, from) = rest.split_at_mut(row_offset(f, k, first_slot, shape) - at);
+                let (these, after) = from.split_at_mut((end_slot - first_slot) * grid);
+                for (&g, row) in deferred.iter().zip(these.chunks_mut(grid)) {
                     member_rows[g * per_member + f] = Some(row);
                 }
                 rest = after;
-                at = row_offset(f, k, b, shape);
+                at = row_offset(f, k, end_slot, shape);
             }
         }
         // Members in fours: their peak centres are summed side by side.
