@@ -123,6 +123,13 @@ impl FieldBand {
             .map(|&s| s as usize)
     }
 
+    /// The slots of point `j`'s finite held values, in increasing order, into `sorted`.
+    fn held_sorted(&self, j: usize, sorted: &mut Vec<u32>) {
+        sorted.clear();
+        sorted.extend(self.held_values(j).map(|s| s as u32));
+        sorted.sort_unstable();
+    }
+
     /// Counts the held rows into slots; from then on pushes and merges count there.
     fn make_dense(&mut self) {
         if self.dense {
@@ -383,6 +390,19 @@ impl FieldBand {
         check_levels(qs)?;
         let mut rows = vec![Vec::with_capacity(self.points()); qs.len()];
         let (by_level, mut values) = (levels_in_order(qs), vec![f64::NAN; qs.len()]);
+        if !self.dense {
+            // A point's few held values in order give their ranks directly: no slot counts to
+            // fill, walk and clear (the detailed points of a sampled design hold one member).
+            let mut sorted = Vec::with_capacity(self.held_rows);
+            for j in 0..self.points() {
+                self.held_sorted(j, &mut sorted);
+                self.bins.quantiles_of_sorted(&sorted, qs, &mut values);
+                for (row, &v) in rows.iter_mut().zip(&values) {
+                    row.push(v);
+                }
+            }
+            return Ok(rows);
+        }
         self.for_each_point(|_, slots, occupied| {
             self.bins
                 .quantiles_in(slots, occupied, qs, &by_level, &mut values);
@@ -493,7 +513,8 @@ impl FieldBandColumns {
         let mut moments = Vec::with_capacity(40 * g);
         let mut nonzero = Vec::with_capacity(4 * g);
         let (mut steps, mut counts) = (Vec::new(), Vec::new());
-        band.for_each_point(|j, slots, occupied| {
+        // Point j's moments and its non-empty slots with their counts, in increasing order.
+        let mut emit = |j: usize, occupied: &mut dyn Iterator<Item = (usize, u32)>| {
             let (n, nf, m) = band.points[j].raw();
             put(&mut count, n, 8);
             put(&mut non_finite, nf, 8);
@@ -502,20 +523,39 @@ impl FieldBandColumns {
             }
             let mut previous = -1i64;
             let mut filled = 0u64;
-            for (slot, &c) in slots
-                .iter()
-                .enumerate()
-                .take(occupied.end)
-                .skip(occupied.start)
-                .filter(|(_, &c)| c > 0)
-            {
+            for (slot, c) in occupied {
                 put(&mut steps, (slot as i64 - previous) as u64, step_bytes);
                 put(&mut counts, c.into(), count_bytes);
                 previous = slot as i64;
                 filled += 1;
             }
             put(&mut nonzero, filled, 4);
-        });
+        };
+        if band.dense {
+            band.for_each_point(|j, slots, occupied| {
+                let start = occupied.start;
+                emit(
+                    j,
+                    &mut slots[occupied]
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, &c)| c > 0)
+                        .map(|(s, &c)| (start + s, c)),
+                )
+            });
+        } else {
+            // A held point's values in order: its non-empty slots are their runs.
+            let mut sorted = Vec::with_capacity(band.held_rows);
+            for j in 0..g {
+                band.held_sorted(j, &mut sorted);
+                emit(
+                    j,
+                    &mut sorted
+                        .chunk_by(|a, b| a == b)
+                        .map(|run| (run[0] as usize, run.len() as u32)),
+                );
+            }
+        }
         FieldBandColumns {
             lo: band.bins.lo(),
             hi: band.bins.hi(),

@@ -209,26 +209,44 @@ impl Bins {
             return;
         }
         // Ranks grow with the level, so one walk up the cumulative counts finds each in turn.
-        let rank = |i: usize| ((qs[i] * (n - 1) as f64).floor() as u64).min(n - 1);
         let mut pending = by_level.iter().copied().peekable();
         let mut seen = 0;
         // Empty slots below the first value find no level (every rank is >= 0 = seen there).
         for (s, &c) in slots.iter().enumerate().skip(occupied.start) {
             seen += c.into();
             while let Some(&i) = pending.peek() {
-                if rank(i) >= seen {
+                if quantile_rank(qs[i], n) >= seen {
                     break;
                 }
-                out[i] = if s == 0 || s == self.bins + 1 {
-                    f64::NAN
-                } else {
-                    self.midpoint(s - 1)
-                };
+                out[i] = self.slot_value(s);
                 pending.next();
             }
             if pending.peek().is_none() {
                 break;
             }
+        }
+    }
+
+    /// [`quantiles_in`](Self::quantiles_in) of values given by their slots in increasing order:
+    /// the value of rank r is in the r-th slot, so no counts are needed (a band of few members).
+    pub(super) fn quantiles_of_sorted(&self, sorted_slots: &[u32], qs: &[f64], out: &mut [f64]) {
+        let n = sorted_slots.len() as u64;
+        for (o, &q) in out.iter_mut().zip(qs) {
+            *o = match n {
+                0 => f64::NAN,
+                _ => self.slot_value(sorted_slots[quantile_rank(q, n) as usize] as usize),
+            };
+        }
+    }
+
+    /// What a quantile reports for a value in slot `s`: its bin's midpoint, NaN below `lo` or
+    /// above `hi`.
+    #[inline]
+    fn slot_value(&self, s: usize) -> f64 {
+        if s == 0 || s == self.bins + 1 {
+            f64::NAN
+        } else {
+            self.midpoint(s - 1)
         }
     }
 
@@ -443,6 +461,13 @@ pub(super) fn check_levels(qs: &[f64]) -> Result<(), StatsError> {
 }
 
 /// The indices of the levels `qs` (in `[0, 1]`) in increasing order of level.
+/// The rank `floor(q (n - 1))` (0-based, the lower convention) of the `q`-quantile of `n >= 1`
+/// values.
+#[inline]
+fn quantile_rank(q: f64, n: u64) -> u64 {
+    ((q * (n - 1) as f64).floor() as u64).min(n - 1)
+}
+
 pub(super) fn levels_in_order(qs: &[f64]) -> Vec<usize> {
     let mut by_level: Vec<usize> = (0..qs.len()).collect();
     by_level.sort_by(|&a, &b| qs[a].total_cmp(&qs[b]));
