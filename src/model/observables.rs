@@ -257,6 +257,18 @@ pub fn cubic_interpolated(nodes: &[f64], values: &[f64], grid_x: &[f64]) -> Vec<
         .collect()
 }
 
+/// Per cell of a chain: its width and the densities the grid points in it take.
+#[derive(Default)]
+struct CellValues {
+    widths: Vec<f64>,
+    rho: Vec<f64>,
+    rho_star: Vec<f64>,
+}
+
+thread_local! {
+    static CELL_VALUES: std::cell::Cell<CellValues> = std::cell::Cell::new(CellValues::default());
+}
+
 #[allow(clippy::too_many_arguments)]
 /// The snapshot of one member from its state as the solvers store it (`stored_gaps` in the
 /// `stored_gap` form). One pass over the chain gives the minima, the energy and the dissipation
@@ -352,15 +364,23 @@ pub fn observe(
         // The cells' widths and values first, in loops the compiler packs: a division each,
         // which inside the walk stalled it.
         let two_eps = 2.0 * eps;
-        let widths: Vec<f64> = (0..n).map(|i| gap(i) + two_eps).collect();
-        let cell_rho: Vec<f64> = match f.rho {
-            true => widths.iter().map(|&w| two_eps / w).collect(),
-            false => Vec::new(),
-        };
-        let cell_rho_star: Vec<f64> = match (rho_star.is_empty(), dstar) {
-            (false, Some(ds)) => ds.iter().map(|&s| two_eps / (s + two_eps)).collect(),
-            _ => Vec::new(),
-        };
+        // In this thread's buffers: three allocations a member and output time, freed at once.
+        let mut cells = CELL_VALUES.take();
+        let CellValues {
+            widths,
+            rho: cell_rho,
+            rho_star: cell_rho_star,
+        } = &mut cells;
+        widths.clear();
+        widths.extend((0..n).map(|i| gap(i) + two_eps));
+        cell_rho.clear();
+        if f.rho {
+            cell_rho.extend(widths.iter().map(|&w| two_eps / w));
+        }
+        cell_rho_star.clear();
+        if let (false, Some(ds)) = (rho_star.is_empty(), dstar) {
+            cell_rho_star.extend(ds.iter().map(|&s| two_eps / (s + two_eps)));
+        }
         let (mut j, mut i, mut q_left) = (0, 1, 0.0);
         while j < g {
             let q_right = q_left + widths[i - 1];
@@ -395,6 +415,7 @@ pub fn observe(
             q_left = q_right;
             i += 1;
         }
+        CELL_VALUES.set(cells);
     }
     Snapshot {
         gaps: if f.gaps {

@@ -554,7 +554,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         params: &[MemberParams],
         grid_x: &[f64],
     ) -> Vec<(usize, Snapshot)> {
-        let mut out = Vec::new();
+        let mut out = Vec::with_capacity(self.lanes.len());
         let (mut gaps, mut vel, mut dstar) = (Vec::new(), Vec::new(), Vec::new());
         for (l, lane) in self.lanes.iter().enumerate() {
             let Some(member) = lane.member else { continue };
