@@ -29,20 +29,24 @@ mod members;
 use batch::{solve_batch, PassContext};
 use members::{member_rows, write_kept_members, Responses};
 
-/// The plan of a chunk: the scene's, with these members, and the fields the statistics need
-/// (rho always: the peak density and its centre are read from it; u and rho* where their bands
-/// are asked for).
+/// The plan of a chunk: the scene's, with these members, and the fields the statistics need.
+/// With `detailed` (a member of a detailed point among them): rho (its band and the peak
+/// centre are read from it), u and rho* where their bands are asked for. Without, no field on
+/// the grid: only detailed points keep anything per output time, and the grid was most of a
+/// snapshot's cost. Rho also where the members' arrays are kept (`store_members`).
 pub(super) fn chunk_plan(
     scene: &Scene,
     first_chain: &Chain,
     members: Vec<MemberParams>,
     store_members: bool,
+    detailed: bool,
 ) -> Plan {
     let mut plan = scene.plan(first_chain);
     plan.members = members;
     plan.repulsion = first_chain.dstar.is_some();
-    plan.fields.rho_star = plan.repulsion && scene.fields.rho_star;
-    plan.fields.rho = true;
+    plan.fields.rho_star = detailed && plan.repulsion && scene.fields.rho_star;
+    plan.fields.u &= detailed;
+    plan.fields.rho = detailed || store_members;
     // Gaps and velocities per member are only read when the members' arrays are kept.
     plan.fields.gaps &= store_members;
     plan.fields.velocities &= store_members;

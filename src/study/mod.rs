@@ -169,6 +169,7 @@ fn select_for_study(
         &inputs.chain,
         vec![inputs.params; largest_chunk],
         spec.store_members,
+        true,
     );
     select(
         options.backend.unwrap_or(scene.backend),

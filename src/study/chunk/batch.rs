@@ -96,7 +96,14 @@ pub(super) fn solve_batch(
     let setup = inputs[a].setup.clone();
     let params: Vec<MemberParams> = inputs[a..b].iter().map(|i| i.params).collect();
     let chains: Vec<Chain> = inputs[a..b].iter().map(|i| i.chain.clone()).collect();
-    let mut plan = chunk_plan(&setup.scene, &chains[0], params, spec.store_members);
+    let detailed = inputs[a..b].iter().any(|i| header.is_detailed(i.point));
+    let mut plan = chunk_plan(
+        &setup.scene,
+        &chains[0],
+        params,
+        spec.store_members,
+        detailed,
+    );
     if let (Some(expr), Some(forcing)) = (members.symbolic_forcing(), plan.forcing.as_mut()) {
         forcing.expr = expr.clone();
         forcing.params = inputs[a..b]
