@@ -460,14 +460,14 @@ pub(super) fn check_levels(qs: &[f64]) -> Result<(), StatsError> {
     }
 }
 
-/// The indices of the levels `qs` (in `[0, 1]`) in increasing order of level.
 /// The rank `floor(q (n - 1))` (0-based, the lower convention) of the `q`-quantile of `n >= 1`
 /// values.
 #[inline]
-fn quantile_rank(q: f64, n: u64) -> u64 {
+pub(super) fn quantile_rank(q: f64, n: u64) -> u64 {
     ((q * (n - 1) as f64).floor() as u64).min(n - 1)
 }
 
+/// The indices of the levels `qs` (in `[0, 1]`) in increasing order of level.
 pub(super) fn levels_in_order(qs: &[f64]) -> Vec<usize> {
     let mut by_level: Vec<usize> = (0..qs.len()).collect();
     by_level.sort_by(|&a, &b| qs[a].total_cmp(&qs[b]));

@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use super::buckets::BucketStore;
+use super::histogram::quantile_rank;
 use super::{Histogram, StatsError};
 
 /// `2 atanh(s) = ln((1 + s) / (1 - s))` by its Taylor series `2 s (1 + z/3 + z^2/5 + ...)`,
@@ -256,7 +257,7 @@ impl QuantileSketch {
         if self.count == 0 || !(0.0..=1.0).contains(&q) {
             return None;
         }
-        Some(((q * (self.count - 1) as f64).floor() as u64).min(self.count - 1))
+        Some(quantile_rank(q, self.count))
     }
 
     /// Approximate `q`-quantile (see the type's documentation for the rank convention and the
