@@ -169,6 +169,7 @@ fn select_for_study(
         &inputs.chain,
         vec![inputs.params; largest_chunk],
         spec.store_members,
+        // The engine is chosen for the heaviest chunk: one with detailed members.
         true,
     );
     select(

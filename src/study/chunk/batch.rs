@@ -121,6 +121,12 @@ pub(super) fn solve_batch(
     // threads to itself otherwise only in parts: the rows of groups that push as they go
     // into their bands, the others' rows copied for after the chunk, and the peak centres.
     // `recorded[g]`: batch member a + g is recorded at output k.
+    // The batch's deferred members (their rows wait in `field_rows`, at slots
+    // first_slot..end_slot in member order).
+    let (first_slot, end_slot) = (row_slot[a], row_slot[b]);
+    let deferred: Vec<usize> = (0..b - a)
+        .filter(|&g| row_slot[a + g + 1] > row_slot[a + g])
+        .collect();
     let output_statistics = |snaps: &[Snapshot],
                              k: usize,
                              recorded: &[bool],
@@ -135,11 +141,7 @@ pub(super) fn solve_batch(
         let per_member = fields.max(1);
         let mut member_rows: Vec<Option<&mut [f64]>> = Vec::new();
         member_rows.resize_with((b - a) * per_member, || None);
-        let (first_slot, end_slot) = (row_slot[a], row_slot[b]);
         if end_slot > first_slot && fields > 0 {
-            let deferred: Vec<usize> = (0..b - a)
-                .filter(|&g| row_slot[a + g + 1] > row_slot[a + g])
-                .collect();
             let mut rest = &mut field_rows[row_offset(0, k, first_slot, shape)..];
             let mut at = row_offset(0, k, first_slot, shape);
             for f in 0..fields {
