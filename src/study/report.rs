@@ -68,10 +68,23 @@ pub(super) fn finalize(
         &detailed.iter().map(|&p| p as f64).collect::<Vec<_>>(),
     )?;
 
-    write_scalars_per_time(&stats, header, &detailed, &point)?;
-    write_responses(&stats, header, &points, &point)?;
-    write_bands(&stats, header, &detailed, &point)?;
-    super::sensitivity::write_sensitivity(dir, header, state, plots)?;
+    // Independent files, written side by side: a small design's report is mostly files
+    // created (about 45 us each here) and its few detailed points' bands read.
+    let (per_time, (responses, bands)) = rayon::join(
+        || write_scalars_per_time(&stats, header, &detailed, &point),
+        || {
+            rayon::join(
+                || {
+                    write_responses(&stats, header, &points, &point)?;
+                    super::sensitivity::write_sensitivity(dir, header, state, plots)
+                },
+                || write_bands(&stats, header, &detailed, &point),
+            )
+        },
+    );
+    per_time?;
+    responses?;
+    bands?;
     if plots {
         let plots_dir = dir.join("plots");
         std::fs::create_dir_all(&plots_dir).map_err(|e| Error::io(&plots_dir, e))?;
@@ -93,7 +106,7 @@ pub(super) fn finalize(
 
 /// Statistics of a study's points, by point index (every point has them, empty where no member
 /// reached it).
-type PointOf<'a> = dyn Fn(u64) -> &'a PointStats + 'a;
+type PointOf<'a> = dyn Fn(u64) -> &'a PointStats + Sync + 'a;
 
 /// The scalars at every output time of the detailed points: `stats/{scalar}_{count,mean,var,
 /// min,max}.npy` [D, T], `_quantiles.npy` [D, T, Q] and the histograms.
@@ -106,7 +119,7 @@ fn write_scalars_per_time<'a>(
     let (d_count, t) = (detailed.len() as u64, header.times.len() as u64);
     let qs = &header.quantiles;
     let nq = qs.len() as u64;
-    for name in SCALARS {
+    SCALARS.par_iter().try_for_each(|&name| -> Result<()> {
         let per_point = |f: &dyn Fn(&ScalarSummary) -> f64| -> Vec<f64> {
             detailed
                 .iter()
@@ -165,8 +178,8 @@ fn write_scalars_per_time<'a>(
             &[d_count, t, SCALAR_BINS as u64],
             &counts,
         )?;
-    }
-    Ok(())
+        Ok(())
+    })
 }
 
 /// Each member's responses summarised per point (every point): `stats/first_hit.npy` [P, 6],
@@ -247,44 +260,47 @@ fn write_bands<'a>(
     );
     let qs = &header.quantiles;
     let nq = qs.len() as u64;
-    for name in &header.band_fields {
-        let mut mean: Vec<f64> = Vec::new();
-        let mut var: Vec<f64> = Vec::new();
-        let mut quant: Vec<f64> = Vec::new();
-        for &p in detailed {
-            // The bands of one point, each read on its own (in parallel), written in time order.
-            let rows: Vec<_> = point(p).fields[name.as_str()]
-                .par_iter()
-                .map(|band| {
-                    let quantiles = band.quantile_rows(qs);
-                    (band.mean_row(), band.variance_row(), quantiles)
-                })
-                .collect();
-            for (band_mean, band_var, band_quantiles) in rows {
-                mean.extend(band_mean);
-                var.extend(band_var);
-                for row in band_quantiles.map_err(|e| stats_error(stats, e))? {
-                    quant.extend(row);
+    header
+        .band_fields
+        .par_iter()
+        .try_for_each(|name| -> Result<()> {
+            let mut mean: Vec<f64> = Vec::new();
+            let mut var: Vec<f64> = Vec::new();
+            let mut quant: Vec<f64> = Vec::new();
+            for &p in detailed {
+                // The bands of one point, each read on its own (in parallel), written in time order.
+                let rows: Vec<_> = point(p).fields[name.as_str()]
+                    .par_iter()
+                    .map(|band| {
+                        let quantiles = band.quantile_rows(qs);
+                        (band.mean_row(), band.variance_row(), quantiles)
+                    })
+                    .collect();
+                for (band_mean, band_var, band_quantiles) in rows {
+                    mean.extend(band_mean);
+                    var.extend(band_var);
+                    for row in band_quantiles.map_err(|e| stats_error(stats, e))? {
+                        quant.extend(row);
+                    }
                 }
             }
-        }
-        write_npy(
-            stats.join(format!("{name}_mean.npy")),
-            &[d_count, t, g],
-            &mean,
-        )?;
-        write_npy(
-            stats.join(format!("{name}_var.npy")),
-            &[d_count, t, g],
-            &var,
-        )?;
-        write_npy(
-            stats.join(format!("{name}_quantiles.npy")),
-            &[d_count, t, nq, g],
-            &quant,
-        )?;
-    }
-    Ok(())
+            write_npy(
+                stats.join(format!("{name}_mean.npy")),
+                &[d_count, t, g],
+                &mean,
+            )?;
+            write_npy(
+                stats.join(format!("{name}_var.npy")),
+                &[d_count, t, g],
+                &var,
+            )?;
+            write_npy(
+                stats.join(format!("{name}_quantiles.npy")),
+                &[d_count, t, nq, g],
+                &quant,
+            )?;
+            Ok(())
+        })
 }
 
 /// The per-member responses drawn against the swept keys: (file stem, axis label, members.csv
