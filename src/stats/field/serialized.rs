@@ -52,8 +52,14 @@ struct FieldBandColumns {
 }
 
 /// Little-endian integers of `width` bytes (2, 4 or 8), appended to `out`.
+#[inline(always)]
 fn put(out: &mut Vec<u8>, v: u64, width: u8) {
-    out.extend_from_slice(&v.to_le_bytes()[..width as usize]);
+    // Each width as a fixed-size copy: a slice of run-time length was a call per value.
+    match width {
+        2 => out.extend_from_slice(&(v as u16).to_le_bytes()),
+        4 => out.extend_from_slice(&(v as u32).to_le_bytes()),
+        _ => out.extend_from_slice(&v.to_le_bytes()),
+    }
 }
 
 /// The `i`-th little-endian integer of `width` bytes in `bytes`.
