@@ -69,7 +69,7 @@ pub(super) fn finalize(
     )?;
 
     // Independent files, written side by side: a small design's report is mostly files
-    // created (about 45 us each here) and its few detailed points' bands read.
+    // created and its few detailed points' bands read.
     let (per_time, (responses, bands)) = rayon::join(
         || write_scalars_per_time(&stats, header, &detailed, &point),
         || {

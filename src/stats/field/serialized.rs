@@ -58,7 +58,8 @@ fn put(out: &mut Vec<u8>, v: u64, width: u8) {
     match width {
         2 => out.extend_from_slice(&(v as u16).to_le_bytes()),
         4 => out.extend_from_slice(&(v as u32).to_le_bytes()),
-        _ => out.extend_from_slice(&v.to_le_bytes()),
+        8 => out.extend_from_slice(&v.to_le_bytes()),
+        w => out.extend_from_slice(&v.to_le_bytes()[..w as usize]),
     }
 }
 
