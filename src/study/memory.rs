@@ -4,7 +4,8 @@
 //!
 //! The estimate follows what the study holds at once: the per-time statistics of the detailed
 //! points (the run's total, its field bands, and one chunk's scalar summaries), the responses
-//! of every point, and one chunk's members (solver state, recorded observables, kept arrays).
+//! of every point, and one chunk's members (solver state, recorded observables, kept arrays) or,
+//! once they are solved, the rows the report writes (whichever is more).
 
 use super::files::StudyHeader;
 use super::SCALARS;
@@ -29,6 +30,9 @@ pub struct MemoryEstimate {
     pub detailed_bytes: u64,
     pub responses_bytes: u64,
     pub chunk_bytes: u64,
+    /// The band rows the report holds while it writes them (after the chunks: the estimate
+    /// counts the larger of the two).
+    pub report_bytes: u64,
 }
 
 /// The estimate for the study `header` describes, with chains of up to `particles` particles
@@ -71,11 +75,21 @@ pub fn estimate(
     // Snapshots carry rho on the grid (the peak centre), and the solver its state.
     let chunk_bytes =
         chunk * (solvers * n * SOLVER_BYTES_PER_PARTICLE + recorded + kept + g * 8 + ROW_BYTES);
+    // After the last chunk, the report holds band rows for every detailed point while it
+    // writes them: every field's where they are small together, else one field's.
+    let fields = header.band_fields.len();
+    let together = super::report::report_rows_bytes(header, detailed, fields);
+    let report_bytes = if together <= super::report::REPORT_ROWS_TOGETHER {
+        together
+    } else {
+        super::report::report_rows_bytes(header, detailed, fields.min(1))
+    };
     MemoryEstimate {
-        bytes: detailed_bytes + responses_bytes + chunk_bytes,
+        bytes: detailed_bytes + responses_bytes + chunk_bytes.max(report_bytes),
         detailed_bytes,
         responses_bytes,
         chunk_bytes,
+        report_bytes,
     }
 }
 
@@ -108,7 +122,7 @@ pub fn check(
         "ensemble (memory)",
         format!("{:.1} GB", gb(estimate.bytes)),
         format!(
-            "the study would hold about {:.1} GB in memory: {:.1} GB of per-time statistics for {} detailed points ({} output times x grid {} x {} bins x fields [{}]), {:.1} GB of responses for {} sweep points, {:.1} GB for a chunk of {} members",
+            "the study would hold about {:.1} GB in memory: {:.1} GB of per-time statistics for {} detailed points ({} output times x grid {} x {} bins x fields [{}]), {:.1} GB of responses for {} sweep points, and the larger of {:.1} GB for a chunk of {} members and {:.1} GB of band rows while the report writes them",
             gb(estimate.bytes),
             gb(estimate.detailed_bytes),
             header.detailed_count(),
@@ -120,6 +134,7 @@ pub fn check(
             header.points.len().max(1),
             gb(estimate.chunk_bytes),
             spec.chunk,
+            gb(estimate.report_bytes),
         ),
         format!(
             "at most {:.1} GB (half this machine's memory): fewer ensemble.detailed_points, fewer [output] fields, a coarser [output] grid or ensemble.bins, fewer outputs, a smaller ensemble.chunk, or --allow-large",

@@ -260,47 +260,63 @@ fn write_bands<'a>(
     );
     let qs = &header.quantiles;
     let nq = qs.len() as u64;
-    header
-        .band_fields
-        .par_iter()
-        .try_for_each(|name| -> Result<()> {
-            let mut mean: Vec<f64> = Vec::new();
-            let mut var: Vec<f64> = Vec::new();
-            let mut quant: Vec<f64> = Vec::new();
-            for &p in detailed {
-                // The bands of one point, each read on its own (in parallel), written in time order.
-                let rows: Vec<_> = point(p).fields[name.as_str()]
-                    .par_iter()
-                    .map(|band| {
-                        let quantiles = band.quantile_rows(qs);
-                        (band.mean_row(), band.variance_row(), quantiles)
-                    })
-                    .collect();
-                for (band_mean, band_var, band_quantiles) in rows {
-                    mean.extend(band_mean);
-                    var.extend(band_var);
-                    for row in band_quantiles.map_err(|e| stats_error(stats, e))? {
-                        quant.extend(row);
-                    }
+    // A field's rows for every detailed point are held until its files are written: the
+    // fields side by side while all their rows are small, else one after another (a design may
+    // detail hundreds of points). Each point's bands are read in parallel either way.
+    let write_field = |name: &String| -> Result<()> {
+        let mut mean: Vec<f64> = Vec::new();
+        let mut var: Vec<f64> = Vec::new();
+        let mut quant: Vec<f64> = Vec::new();
+        for &p in detailed {
+            // The bands of one point, each read on its own (in parallel), written in time order.
+            let rows: Vec<_> = point(p).fields[name.as_str()]
+                .par_iter()
+                .map(|band| {
+                    let quantiles = band.quantile_rows(qs);
+                    (band.mean_row(), band.variance_row(), quantiles)
+                })
+                .collect();
+            for (band_mean, band_var, band_quantiles) in rows {
+                mean.extend(band_mean);
+                var.extend(band_var);
+                for row in band_quantiles.map_err(|e| stats_error(stats, e))? {
+                    quant.extend(row);
                 }
             }
-            write_npy(
-                stats.join(format!("{name}_mean.npy")),
-                &[d_count, t, g],
-                &mean,
-            )?;
-            write_npy(
-                stats.join(format!("{name}_var.npy")),
-                &[d_count, t, g],
-                &var,
-            )?;
-            write_npy(
-                stats.join(format!("{name}_quantiles.npy")),
-                &[d_count, t, nq, g],
-                &quant,
-            )?;
-            Ok(())
-        })
+        }
+        write_npy(
+            stats.join(format!("{name}_mean.npy")),
+            &[d_count, t, g],
+            &mean,
+        )?;
+        write_npy(
+            stats.join(format!("{name}_var.npy")),
+            &[d_count, t, g],
+            &var,
+        )?;
+        write_npy(
+            stats.join(format!("{name}_quantiles.npy")),
+            &[d_count, t, nq, g],
+            &quant,
+        )?;
+        Ok(())
+    };
+    if report_rows_bytes(header, d_count, header.band_fields.len()) <= REPORT_ROWS_TOGETHER {
+        header.band_fields.par_iter().try_for_each(write_field)
+    } else {
+        header.band_fields.iter().try_for_each(write_field)
+    }
+}
+
+/// The most bytes of band rows the report holds to write its fields side by side.
+pub(super) const REPORT_ROWS_TOGETHER: u64 = 64 << 20;
+
+/// Bytes of the rows the report holds for `fields` band fields of `detailed` points: mean,
+/// variance and the quantile levels at every time and grid point.
+pub(super) fn report_rows_bytes(header: &StudyHeader, detailed: u64, fields: usize) -> u64 {
+    let (t, g) = (header.times.len() as u64, header.x.len() as u64);
+    let q = header.quantiles.len() as u64;
+    fields as u64 * detailed * t * g * (q + 2) * 8
 }
 
 /// The per-member responses drawn against the swept keys: (file stem, axis label, members.csv
