@@ -279,3 +279,33 @@ fn merge_refuses_shards_from_two_roughness_files() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// A state file whose bands do not match its study (a field's band renamed in one point, as a
+/// damaged or edited file might have it) is refused with an error naming the file and what is
+/// wrong, exit status 2, nothing written; the report used to look the band up and panic.
+#[test]
+fn merge_refuses_a_state_whose_bands_do_not_match_its_study() {
+    let tmp = tempfile::tempdir().unwrap();
+    let a = tmp.path().join("s0");
+    shard(&a, 0);
+    let state = a.join("partial.state");
+    let mut bytes = std::fs::read(&state).unwrap();
+    // The last "rho" key is a band field's name in the last detailed point's map of bands
+    // (the header, written first, names the fields before any point does).
+    let at = bytes
+        .windows(4)
+        .rposition(|w| w == b"\x63rho")
+        .expect("a band of rho");
+    bytes[at + 3] = b'x';
+    std::fs::write(&state, &bytes).unwrap();
+    let merged = tmp.path().join("m");
+    let out = merge(&[&a], &merged, &["--allow-partial"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("partial.state") && err.contains("inconsistent study state"),
+        "{err}"
+    );
+    assert!(err.contains("rho"), "the message names the field: {err}");
+    assert!(!merged.exists(), "a refused merge wrote {merged:?}");
+}

@@ -436,6 +436,64 @@ pub(super) struct PartialFile {
     pub state: StudyState,
 }
 
+/// Checks that a state read from `path` has what the report and a merge look up by name and
+/// count for the study `header` describes: band fields among rho, u, rho_star (each once, in
+/// that order), and per detailed point every scalar and band field at every output time, each
+/// band over the grid. A state file is input to `merge` and `--resume`, so a damaged or edited
+/// one gets an error naming it, not a panic or two threads writing one file.
+pub(super) fn check_state(header: &StudyHeader, state: &StudyState, path: &Path) -> Result<()> {
+    let bad = |message: String| {
+        Err(Error::Output {
+            path: path.to_path_buf(),
+            message: format!("inconsistent study state: {message}; rerun the study"),
+        })
+    };
+    let mut known = super::FIELDS.iter();
+    for name in &header.band_fields {
+        if !known.any(|f| f == name) {
+            return bad(format!(
+                "band fields {:?} are not among {:?}, each once and in that order",
+                header.band_fields,
+                super::FIELDS
+            ));
+        }
+    }
+    let (t, g) = (header.times.len(), header.x.len());
+    for (p, stats) in &state.points {
+        if !header.is_detailed(*p) {
+            continue;
+        }
+        for name in super::SCALARS {
+            if stats.scalars.get(name).map(Vec::len) != Some(t) {
+                return bad(format!(
+                    "point {p} lacks {name} at each of the {t} output times"
+                ));
+            }
+        }
+        if stats.fields.is_empty() {
+            continue;
+        }
+        if stats.fields.len() != header.band_fields.len() {
+            return bad(format!(
+                "point {p} has bands of {:?}, the study {:?}",
+                stats.fields.keys().collect::<Vec<_>>(),
+                header.band_fields
+            ));
+        }
+        for name in &header.band_fields {
+            let fits = stats.fields.get(name).is_some_and(|per_time| {
+                per_time.len() == t && per_time.iter().all(|b| b.points() == g)
+            });
+            if !fits {
+                return bad(format!(
+                    "point {p} lacks the {name} band at each of the {t} output times over {g} grid points"
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// [`PartialFile`] borrowed, for writing it without a copy of the state.
 #[derive(Serialize)]
 pub(super) struct PartialFileRef<'a> {

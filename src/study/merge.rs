@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::files::{study_differences, CsvOut, PartialFile, StudyHeader};
+use super::files::{check_state, study_differences, CsvOut, PartialFile, StudyHeader};
 use super::report::{finalize, quantile_method};
 use super::state::StudyState;
 use super::{StudySummary, OLD_PARTIAL, PARTIAL};
@@ -53,6 +53,7 @@ pub fn merge_studies(
             return Err(old_format_error(&dir.join(OLD_PARTIAL)));
         }
         let partial: PartialFile = read_state(&partial_path)?;
+        check_state(&partial.header, &partial.state, &partial_path)?;
         // A run killed before it finished leaves the previous study's partial.json beside its
         // own study.json: those statistics are not this directory's study.
         let study_path = dir.join("study.json");

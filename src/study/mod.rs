@@ -55,8 +55,8 @@ use crate::scene::{EnsembleSpec, Scene};
 
 use chunk::{chunk_plan, solve_chunk, RowBuffer, StudyCosts};
 use files::{
-    check_resume, header_for, shard_range, CheckpointFile, CheckpointFileRef, CsvOut, PartialFile,
-    PartialFileRef,
+    check_resume, check_state, header_for, shard_range, CheckpointFile, CheckpointFileRef, CsvOut,
+    PartialFile, PartialFileRef,
 };
 use report::{finalize, quantile_method};
 
@@ -358,6 +358,7 @@ fn complete_study(
     }
     // A complete study: its chunks are merged into partial.state.
     let partial: PartialFile = read_state(&dir.join(PARTIAL))?;
+    check_state(header, &partial.state, &dir.join(PARTIAL))?;
     let held: u64 = partial.state.ranges.iter().map(|(a, b)| b - a).sum();
     if held != header.member_range.1 - header.member_range.0 {
         return Ok(None);
@@ -402,7 +403,9 @@ fn solve_chunks(
     let checkpoint_path = dir.join(CHECKPOINT);
     // The chunks an interrupted run checkpointed, with the rows and error estimates they wrote.
     let checkpoint: Option<CheckpointFile> = if options.resume && checkpoint_path.exists() {
-        Some(read_state(&checkpoint_path)?)
+        let c: CheckpointFile = read_state(&checkpoint_path)?;
+        check_state(header, &c.state, &checkpoint_path)?;
+        Some(c)
     } else {
         None
     };
