@@ -56,9 +56,9 @@ struct PState {
     scale: real,
     hard_detail: real,
     sub_hard_detail: real,
-    row_work: array<real, 7>,
-    row_energy: array<real, 7>,
-    estimates: array<real, 7>,
+    row_work: array<real, 9>,
+    row_energy: array<real, 9>,
+    estimates: array<real, 9>,
     // The member takes a trial step / an Euler substep is under way / a projection is pending.
     trying: u32,
     sub_active: u32,
@@ -111,7 +111,7 @@ struct Seg {
     smallest_ln: real,
     // Velocity of row 1 (segment 0).
     u_first: real,
-    err: array<real, 7>,
+    err: array<real, 9>,
     hard: u32,
     hard_index: u32,
     nonfinite: u32,
@@ -346,7 +346,7 @@ fn p_begin(@builtin(global_invocation_id) gid: vec3<u32>) {
         st.hard = 0u;
         st.hard_index = 0u;
         st.hard_detail = 0.0;
-        for (var j: u32 = 0u; j < 7u; j++) {
+        for (var j: u32 = 0u; j < 9u; j++) {
             st.row_work[j] = 0.0;
             st.row_energy[j] = 0.0;
         }
@@ -777,7 +777,7 @@ fn p_extrapolate(@builtin(global_invocation_id) gid: vec3<u32>) {
     let batch = config.batch;
     let base = st.cand * config.particles * batch;
     let range = seg_rows(s);
-    var err: array<real, 7>;
+    var err: array<real, 9>;
     var sum: real = 0.0;
     for (var i: u32 = seg_first_gap(s, range); i < range.y; i++) {
         extrapolate_gap(i * batch + b, st.cand, st.rows, &err);
@@ -802,7 +802,7 @@ fn p_extrapolated(@builtin(global_invocation_id) gid: vec3<u32>) {
     if st.trying == 0u {
         return;
     }
-    var err: array<real, 7>;
+    var err: array<real, 9>;
     var sum: real = 0.0;
     for (var s: u32 = parts.segments; s >= 1u; s--) {
         let k = (s - 1u) * batch + b;
@@ -851,8 +851,8 @@ fn p_decide(@builtin(global_invocation_id) gid: vec3<u32>) {
     var factor: real = 1.0;
     var order_next = k;
 //@BEGIN ADAPTIVE
-    var scaled: array<real, 7>;
-    for (var j: u32 = 0u; j < 7u; j++) {
+    var scaled: array<real, 9>;
+    for (var j: u32 = 0u; j < 9u; j++) {
         scaled[j] = st.estimates[j] / config.tolerance;
     }
     err = scaled[rows];

@@ -148,8 +148,10 @@ struct Attempt {
 // between a tableau row's substeps; from 4 the rows' results (row j in set ROW_SET + j - 1).
 const SUB_SET: u32 = 2u;
 const ROW_SET: u32 = 4u;
-// `MAX_ORDER` of src/model/params.rs: the tableau's largest column.
-const MAX_ORDER: u32 = 6u;
+// `MAX_ORDER` of src/model/params.rs: the tableau's largest column. Its rows (array<real, 8>)
+// and their estimates by column (array<real, 9>, index 0..=MAX_ORDER) are sized with literals
+// here and in shaders/partitioned.wgsl: change them with it.
+const MAX_ORDER: u32 = 8u;
 
 // Step control constants of kernels/src/shared/control.rs.
 const REJECT_SHRINK: real = 0.25;
@@ -533,10 +535,10 @@ fn noted(err: real, e: real) -> real {
 // ROW_SET + j - 1), element by element, gaps in ln d (shifted by ln of row k), velocities
 // linearly; set `cand` <- T_kk (or row k itself when not EXTRAPOLATES: order 1). Returns
 // |T_jj - T_{j,j-1}| for j = 2..=k (gaps: of ln d; velocities: over 1 + |T_{j,j-1}|).
-fn extrapolate(b: u32, cand: u32, k: u32) -> array<real, 7> {
+fn extrapolate(b: u32, cand: u32, k: u32) -> array<real, 9> {
     let batch = config.batch;
     let n = config.particles;
-    var err: array<real, 7>;
+    var err: array<real, 9>;
     for (var i: u32 = 0u; i < n; i++) {
         extrapolate_gap(i * batch + b, cand, k, &err);
     }
@@ -548,10 +550,10 @@ fn extrapolate(b: u32, cand: u32, k: u32) -> array<real, 7> {
 
 // Gap `idx` of `extrapolate` (also called by the partitioned kernel, shaders/partitioned.wgsl):
 // writes it to set `cand` and notes its estimates in `err`.
-fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 7>>) {
+fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 9>>) {
     let n = config.particles;
     let batch = config.batch;
-    var y: array<real, 6>;
+    var y: array<real, 8>;
     for (var j: u32 = 0u; j < k; j++) {
         y[j] = gap_sets[(ROW_SET + j) * n * batch + idx];
     }
@@ -564,7 +566,7 @@ fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 7
     for (var j: u32 = 0u; j < k; j++) {
         plain = plain && y[j] > 0.0;
     }
-    var rho: array<real, 6>;
+    var rho: array<real, 8>;
     for (var j: u32 = 0u; j < k; j++) {
         if plain {
             rho[j] = ln_ratio(y[j] / last);
@@ -572,7 +574,7 @@ fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 7
             rho[j] = stored_ln(y[j]) - stored_ln(last);
         }
     }
-    var e: array<real, 7>;
+    var e: array<real, 9>;
     // `neville`.
     for (var c: u32 = 1u; c < k; c++) {
         for (var j: u32 = k - 1u; j >= c; j--) {
@@ -599,14 +601,14 @@ fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 7
 }
 
 // Velocity `idx` of `extrapolate` (also called by the partitioned kernel).
-fn extrapolate_velocity(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 7>>) {
+fn extrapolate_velocity(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 9>>) {
     let rows = (config.particles - 1u) * config.batch;
-    var t: array<real, 6>;
+    var t: array<real, 8>;
     for (var j: u32 = 0u; j < k; j++) {
         t[j] = vel_sets[(ROW_SET + j) * rows + idx];
     }
     let last = t[k - 1u];
-    var e: array<real, 7>;
+    var e: array<real, 9>;
     for (var c: u32 = 1u; c < k; c++) {
         for (var j: u32 = k - 1u; j >= c; j--) {
             let delta = (t[j] - t[j - 1u]) * (real(j + 1u - c) / real(c));
@@ -654,7 +656,7 @@ fn tableau_work(k: u32) -> real {
 
 // `select_order` of kernels/src/shared/control.rs: (next column, step factor) from the scaled
 // estimates of columns 2..=k.
-fn select_order(k: u32, errs: array<real, 7>, accepted: bool) -> vec2<real> {
+fn select_order(k: u32, errs: array<real, 9>, accepted: bool) -> vec2<real> {
     var e = errs;
     var work_k = tableau_work(k) / step_factor(e[k], k);
     if k > 2u {
@@ -704,8 +706,8 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
     var energy_ok = true;
     var hard = StepReport(true, 0u, 0u, 0.0, 0.0, 0.0);
     // Forcing work and the last substep's energy of each row.
-    var row_work: array<real, 7>;
-    var row_energy: array<real, 7>;
+    var row_work: array<real, 9>;
+    var row_energy: array<real, 9>;
     for (var j: u32 = 1u; j <= rows; j++) {
         let hj = h / real(j);
         // The energy of the previous substep (every substep's energy is computed here), and
@@ -751,8 +753,8 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
     var factor: real = 1.0;
     var order_next = k;
 //@BEGIN ADAPTIVE
-    var scaled: array<real, 7>;
-    for (var j: u32 = 0u; j < 7u; j++) {
+    var scaled: array<real, 9>;
+    for (var j: u32 = 0u; j < 9u; j++) {
         scaled[j] = estimates[j] / config.tolerance;
     }
     err = scaled[rows];

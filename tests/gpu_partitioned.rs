@@ -318,6 +318,7 @@ fn higher_orders_and_auto_agree() {
     for (order, stepping) in [
         (Order::Fixed(3), FIXED),
         (Order::Fixed(6), FIXED),
+        (Order::Fixed(8), FIXED),
         (Order::Auto, tight),
     ] {
         let plan = plan_for(

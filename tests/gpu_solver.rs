@@ -142,11 +142,13 @@ fn assert_f64_agreement(ctx: &GpuContext, label: &str, plan: &Plan, chains: &[Ch
             c.status
         );
         // Orders above 2 set dt from estimates that carry the backends' rounding differences
-        // amplified by the tableau's weights (see the estimates below).
-        let dt_tol = if plan.order.columns() <= 2 {
-            1e-9
-        } else {
-            1e-5
+        // amplified by the tableau's weights (see the estimates below): hundreds up to column
+        // 6, about a thousand at columns 7 and 8 (auto at 1e-8 measured 3.6e-5 on 40 particles,
+        // every accepted and rejected step the same).
+        let dt_tol = match plan.order.columns() {
+            0..=2 => 1e-9,
+            3..=6 => 1e-5,
+            _ => 1e-4,
         };
         assert!(
             (g.last_dt - c.last_dt).abs() <= dt_tol * c.last_dt,
@@ -165,10 +167,16 @@ fn assert_f64_agreement(ctx: &GpuContext, label: &str, plan: &Plan, chains: &[Ch
             (Some(ge), Some(ce)) => {
                 // An estimate is a difference of tableau entries: the backends' rounding
                 // differences in those (up to ~1e-12 of the state at order 6, where the
-                // tableau's weights reach hundreds) pass into it unscaled.
+                // tableau's weights reach hundreds; ~1e-11 at order 8, measured 3.6e-11 on
+                // velocities, where they reach a thousand) pass into it unscaled.
+                let floor = if plan.order.columns() <= 6 {
+                    1e-12
+                } else {
+                    1e-11
+                };
                 for (a, b) in ge.iter().zip(ce) {
                     assert!(
-                        (a - b).abs() <= 1e-6 * b.abs() + 1e-12,
+                        (a - b).abs() <= 1e-6 * b.abs() + floor,
                         "{label}: member {} error estimates {ge:?} vs {ce:?}",
                         c.index
                     );
@@ -350,6 +358,7 @@ fn higher_orders_and_auto_agree_including_order_choices() {
     for (order, stepping) in [
         (Order::Fixed(3), FIXED),
         (Order::Fixed(6), FIXED),
+        (Order::Fixed(8), FIXED),
         (Order::Fixed(4), ADAPTIVE),
         (Order::Auto, ADAPTIVE),
         (Order::Auto, tight),

@@ -1,7 +1,7 @@
 //! `roughlub accuracy`: the speed/accuracy trade measured on the user's own scene.
 //!
 //! A reference solution (order auto, adaptive, a tight tolerance, checked against a run ten times
-//! tighter), then a ladder of settings (orders 1, 2, 4, 6 (and auto) × adaptive tolerances and fixed steps, on each
+//! tighter), then a ladder of settings (orders 1, 2, 4, 6, 8 (and auto) × adaptive tolerances and fixed steps, on each
 //! backend and precision asked for), each run once on the measured members and compared with the
 //! reference at every output time. In a parameter study the measured members are spread over
 //! the sweep points, the first and the last point always among them (the first point of a sweep
@@ -161,10 +161,11 @@ struct Run {
     failed: bool,
 }
 
-/// The fixed orders of the ladder (3 and 5 lie between their neighbours), the usually cheapest
+/// The fixed orders of the ladder (3, 5 and 7 lie between their neighbours), the usually cheapest
 /// first: a line stops once its rungs cost far more than a setting that already met the target
 /// ([`LINE_BUDGET`]).
-const LADDER_ORDERS: [Order; 4] = [
+const LADDER_ORDERS: [Order; 5] = [
+    Order::Fixed(8),
     Order::Fixed(6),
     Order::Fixed(4),
     Order::Fixed(2),

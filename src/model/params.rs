@@ -61,7 +61,7 @@ impl Order {
         }
     }
 
-    /// "1".."6" or "auto", as a scene writes it.
+    /// "1".."8" or "auto", as a scene writes it.
     pub fn label(self) -> String {
         match self {
             Order::Fixed(p) => p.to_string(),
