@@ -148,7 +148,7 @@ struct Attempt {
 // between a tableau row's substeps; from 4 the rows' results (row j in set ROW_SET + j - 1).
 const SUB_SET: u32 = 2u;
 const ROW_SET: u32 = 4u;
-// `MAX_ORDER` of src/model/params.rs: the tableau's largest column. Its rows (array<real, 8>)
+// `MAX_ORDER` of kernels/src/shared/control.rs: the tableau's largest column. Its rows (array<real, 8>)
 // and their estimates by column (array<real, 9>, index 0..=MAX_ORDER) are sized with literals
 // here and in shaders/partitioned.wgsl: change them with it.
 const MAX_ORDER: u32 = 8u;

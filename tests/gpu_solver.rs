@@ -331,7 +331,7 @@ fn random_roughness_and_forcing_agree_including_adaptive_step_sequences() {
     }
 }
 
-/// The extrapolated orders 3..=6 and auto: the same tableau, error estimates, step sequences
+/// The extrapolated orders 3..=8 and auto: the same tableau, error estimates, step sequences
 /// and order choices on both backends (members with their own roughness, mu, gamma, forcing).
 #[test]
 fn higher_orders_and_auto_agree_including_order_choices() {

@@ -8,7 +8,7 @@ use roughlub::backend::gpu::kernel::{generate_step_wgsl, GammaSpec, KernelSpec, 
 use roughlub::backend::gpu::validate_wgsl;
 use roughlub::backend::Precision;
 use roughlub::expr::Expr;
-use roughlub::model::params::Order;
+use roughlub::model::params::{Order, MAX_ORDER};
 use roughlub::model::quadrature::GaussLegendre;
 
 const FORCING: &str = "0.3*sin(2*pi*x)*cos(3*t)";
@@ -182,12 +182,25 @@ fn every_partitioned_variant_validates() {
                             Precision::F32 => 4,
                             Precision::F64 => 8,
                         };
-                        // Seg: 26 reals and 4 u32; PState: 34 reals and 20 u32 (estimates by column: MAX_ORDER + 1).
-                        assert_eq!(struct_size(&module, "Seg"), Some(26 * real + 16), "{label}");
+                        // Seg: 17 reals, the estimates by column (MAX_ORDER + 1) and 4 u32;
+                        // PState: 7 reals, three arrays by column and 20 u32. The shader writes
+                        // those arrays with literals: this ties them to MAX_ORDER.
+                        let columns = u64::from(MAX_ORDER) + 1;
+                        assert_eq!(
+                            struct_size(&module, "Seg"),
+                            Some((17 + columns) * real + 16),
+                            "{label}"
+                        );
                         assert_eq!(
                             struct_size(&module, "PState"),
-                            Some(34 * real + 20 * 4),
+                            Some((7 + 3 * columns) * real + 20 * 4),
                             "{label}"
+                        );
+                        assert!(
+                            src.contains(&format!("const MAX_ORDER: u32 = {MAX_ORDER}u;"))
+                                && src.contains(&format!("array<real, {MAX_ORDER}>"))
+                                && src.contains(&format!("array<real, {columns}>")),
+                            "{label}: the tableau's arrays are not sized for MAX_ORDER = {MAX_ORDER}"
                         );
                     }
                 }

@@ -172,12 +172,19 @@ const LADDER_ORDERS: [Order; 5] = [
     Order::Fixed(1),
 ];
 
+/// [`LADDER_ORDERS`] that a run in `precision` may take (f32: up to `MAX_ORDER_F32`).
+fn ladder_orders(precision: Precision) -> impl Iterator<Item = Order> {
+    LADDER_ORDERS.into_iter().filter(move |o| {
+        precision == Precision::F64 || o.columns() <= crate::model::params::MAX_ORDER_F32
+    })
+}
+
 /// A ladder line stops after a rung that took more than this many times the wall time of the
 /// cheapest setting found so far that meets the target (its later rungs only cost more: order 1
 /// adaptive at 1e-8 would take minutes where auto needs milliseconds).
 const LINE_BUDGET: f64 = 20.0;
 
-/// The adaptive lines: auto and orders 6, 4, 2, 1 on each backend, tolerances 1e-2, 1e-3, ...
+/// The adaptive lines: auto and orders 8, 6, 4, 2, 1 on each backend, tolerances 1e-2, 1e-3, ...
 /// down to a hundredth of the target (no tighter than ten times the reference's tolerance).
 fn adaptive_ladder(
     scene: &Scene,
@@ -187,7 +194,7 @@ fn adaptive_ladder(
 ) -> Vec<Vec<Setting>> {
     let mut lines = Vec::new();
     for &(backend, precision) in backends {
-        for order in [Order::Auto].into_iter().chain(LADDER_ORDERS) {
+        for order in [Order::Auto].into_iter().chain(ladder_orders(precision)) {
             let mut line = Vec::new();
             for k in 2..=14 {
                 let tolerance = format!("1e-{k}").parse::<f64>().expect("a number");
@@ -476,7 +483,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         }
     }
     for &(backend, precision) in &options.backends {
-        for order in LADDER_ORDERS {
+        for order in ladder_orders(precision) {
             let mut previous: Option<f64> = None;
             for k in 0..=MAX_HALVINGS {
                 let (error, over_budget) =

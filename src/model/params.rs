@@ -35,6 +35,13 @@ impl Stepping {
 
 pub use roughlub_kernels::shared::control::MAX_ORDER;
 
+/// The highest fixed order a run may ask for in f32. The Aitken–Neville weights of columns 7
+/// and 8 carry about 1e-3 of f32 rounding into their error estimates (order 6: 1e-4): on the
+/// N = 200 chain of docs/accuracy.md order 8 in f32 failed at tolerances 1e-4 (after a million
+/// steps) to 1e-6 where order 6 completed at 1e-4 in 34 steps. (`auto` in f32 took the same
+/// steps up to 8 as up to 6 there.)
+pub const MAX_ORDER_F32: u8 = 6;
+
 /// The order of the time scheme: the linearly implicit Euler step (1) or its extrapolation from
 /// 1, 2, …, p substeps (Aitken–Neville; order p), fixed for the run; or chosen per member and
 /// step by the work per unit step (`Auto`, adaptive steps only, orders 2..=MAX_ORDER).

@@ -18,7 +18,7 @@ const SUMMARY_BYTES: u64 = 4096;
 /// Bytes of one point's response summaries (four scalar summaries, map overhead).
 const POINT_RESPONSE_BYTES: u64 = 4 * SUMMARY_BYTES + 256;
 /// Bytes per particle of one member being solved: gaps, velocities, tridiagonal work arrays and
-/// the extrapolation tableau (order 6: a few copies of the state), in f64.
+/// the extrapolation tableau (order 8: its rows and two substep states), in f64.
 const SOLVER_BYTES_PER_PARTICLE: u64 = 64 * 8;
 /// Bytes of one members.csv row held for a chunk.
 const ROW_BYTES: u64 = 512;
