@@ -174,9 +174,9 @@ const LADDER_ORDERS: [Order; 5] = [
 
 /// [`LADDER_ORDERS`] that a run in `precision` may take (f32: up to `MAX_ORDER_F32`).
 fn ladder_orders(precision: Precision) -> impl Iterator<Item = Order> {
-    LADDER_ORDERS.into_iter().filter(move |o| {
-        precision == Precision::F64 || o.columns() <= crate::model::params::MAX_ORDER_F32
-    })
+    LADDER_ORDERS
+        .into_iter()
+        .filter(move |o| precision == Precision::F64 || o.runs_in_f32())
 }
 
 /// A ladder line stops after a rung that took more than this many times the wall time of the

@@ -11,7 +11,7 @@ use super::gpu::{AdapterDescription, GpuContext};
 use super::{Backend, BatchSolver, GpuError, Precision};
 use crate::error::{Error, Result};
 use crate::model::chain::Chain;
-use crate::model::params::{Order, MAX_ORDER, MAX_ORDER_F32};
+use crate::model::params::{MAX_ORDER, MAX_ORDER_F32};
 use crate::model::plan::Plan;
 
 /// Which backend actually runs.
@@ -204,15 +204,13 @@ fn gpu_acquire_error(e: GpuError, precision: Precision) -> Error {
 /// `Backend::Auto`, the GPU when a hardware adapter (not a software rasterizer) is found that can
 /// run the plan at `precision`, else the CPU (in the same precision) with the reason recorded.
 pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<Engine> {
-    if let (Precision::F32, Order::Fixed(p)) = (precision, plan.order) {
-        if p > MAX_ORDER_F32 {
-            return Err(Error::invalid(
-                "solver.order",
-                format!("{p} with precision f32"),
-                "its high columns carry about 1e-3 of f32 rounding into their error estimates",
-                format!("1..={MAX_ORDER_F32} or \"auto\" in f32; orders up to {MAX_ORDER} in f64"),
-            ));
-        }
+    if precision == Precision::F32 && !plan.order.runs_in_f32() {
+        return Err(Error::invalid(
+            "solver.order",
+            format!("{} with precision f32", plan.order.label()),
+            "its high columns carry about 1e-3 of f32 rounding into their error estimates",
+            format!("1..={MAX_ORDER_F32} or \"auto\" in f32; orders up to {MAX_ORDER} in f64"),
+        ));
     }
     let cpu = |fallback: Option<String>| -> Result<Engine> {
         Ok(Engine {

@@ -68,6 +68,14 @@ impl Order {
         }
     }
 
+    /// Whether a run in f32 may take this order (fixed orders up to [`MAX_ORDER_F32`], or auto).
+    pub fn runs_in_f32(self) -> bool {
+        match self {
+            Order::Fixed(p) => p <= MAX_ORDER_F32,
+            Order::Auto => true,
+        }
+    }
+
     /// "1".."8" or "auto", as a scene writes it.
     pub fn label(self) -> String {
         match self {

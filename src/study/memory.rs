@@ -76,14 +76,8 @@ pub fn estimate(
     let chunk_bytes =
         chunk * (solvers * n * SOLVER_BYTES_PER_PARTICLE + recorded + kept + g * 8 + ROW_BYTES);
     // After the last chunk, the report holds band rows for every detailed point while it
-    // writes them: every field's where they are small together, else one field's.
-    let fields = header.band_fields.len();
-    let together = super::report::report_rows_bytes(header, detailed, fields);
-    let report_bytes = if together <= super::report::REPORT_ROWS_TOGETHER {
-        together
-    } else {
-        super::report::report_rows_bytes(header, detailed, fields.min(1))
-    };
+    // writes them.
+    let (_, report_bytes) = super::report::band_rows_held(header, detailed);
     MemoryEstimate {
         bytes: detailed_bytes + responses_bytes + chunk_bytes.max(report_bytes),
         detailed_bytes,

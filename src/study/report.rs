@@ -301,7 +301,7 @@ fn write_bands<'a>(
         )?;
         Ok(())
     };
-    if report_rows_bytes(header, d_count, header.band_fields.len()) <= REPORT_ROWS_TOGETHER {
+    if band_rows_held(header, d_count).0 {
         header.band_fields.par_iter().try_for_each(write_field)
     } else {
         header.band_fields.iter().try_for_each(write_field)
@@ -309,14 +309,21 @@ fn write_bands<'a>(
 }
 
 /// The most bytes of band rows the report holds to write its fields side by side.
-pub(super) const REPORT_ROWS_TOGETHER: u64 = 64 << 20;
+const REPORT_ROWS_TOGETHER: u64 = 64 << 20;
 
-/// Bytes of the rows the report holds for `fields` band fields of `detailed` points: mean,
-/// variance and the quantile levels at every time and grid point.
-pub(super) fn report_rows_bytes(header: &StudyHeader, detailed: u64, fields: usize) -> u64 {
+/// Whether the report writes the band fields of `detailed` points side by side, and the bytes of
+/// rows it then holds at once (mean, variance and the quantile levels at every time and grid
+/// point, of every field or of one).
+pub(super) fn band_rows_held(header: &StudyHeader, detailed: u64) -> (bool, u64) {
     let (t, g) = (header.times.len() as u64, header.x.len() as u64);
     let q = header.quantiles.len() as u64;
-    fields as u64 * detailed * t * g * (q + 2) * 8
+    let field = detailed * t * g * (q + 2) * 8;
+    let all = header.band_fields.len() as u64 * field;
+    if all <= REPORT_ROWS_TOGETHER {
+        (true, all)
+    } else {
+        (false, field)
+    }
 }
 
 /// The per-member responses drawn against the swept keys: (file stem, axis label, members.csv
