@@ -167,8 +167,9 @@ fn manifest(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap()
 }
 
-/// 1. A Sobol design of 3000 points x 1 member: bounded memory and disk, per-time statistics
-///    for the first 4 points, responses for all, one row per member and per point.
+/// 1. A Sobol design of 3000 points x 1 member: bounded memory and disk, no per-time statistics
+///    (a point of one member has none by default), responses for all, one row per member and
+///    per point. With several members a point, the first 4 points keep per-time statistics.
 #[test]
 fn a_sampled_design_of_thousands_of_points_runs_in_bounded_memory() {
     let tmp = tempfile::tempdir().unwrap();
@@ -190,14 +191,18 @@ fn a_sampled_design_of_thousands_of_points_runs_in_bounded_memory() {
     // Before the change this design held ~40 MB of statistics per point (> 100 GB here).
     // 200 MB bounds it with room for the binary, its libraries and one chunk.
     assert!(peak < 200_000_000, "peak memory {peak} B");
-    // 3000 points: members.csv and points.csv rows, per-point responses, 4 detailed points.
+    // 3000 points: members.csv and points.csv rows, per-point responses.
     assert!(disk < 20_000_000, "{disk} B on disk");
 
     let (shape, detailed) = npy(&out.join("stats/detailed_points.npy"));
-    assert_eq!(shape, [4]);
-    assert_eq!(detailed, [0.0, 1.0, 2.0, 3.0]);
-    let (shape, _) = npy(&out.join("stats/rho_mean.npy"));
-    assert_eq!(shape[0], 4, "field bands for the detailed points only");
+    assert_eq!(shape, [0], "no detailed point with one member a point");
+    assert!(detailed.is_empty());
+    for file in ["rho_mean.npy", "u_quantiles.npy", "max_density_mean.npy"] {
+        assert!(
+            !out.join("stats").join(file).exists(),
+            "{file}: per-time statistics of no point are not written"
+        );
+    }
     let (shape, peak_density) = npy(&out.join("stats/peak_density.npy"));
     assert_eq!(shape, [points, 5], "responses for every point");
     // One member per point: its count is 1 and its mean is its own peak density.
@@ -217,7 +222,7 @@ fn a_sampled_design_of_thousands_of_points_runs_in_bounded_memory() {
     }
     assert_eq!(rows, points);
     let m = manifest(&out);
-    assert_eq!(m["detailed_points"], 4);
+    assert_eq!(m["detailed_points"], 0);
     assert!(
         !out.join("chunks").exists(),
         "a complete study keeps no chunk files"
@@ -228,6 +233,31 @@ fn a_sampled_design_of_thousands_of_points_runs_in_bounded_memory() {
         estimate < m["memory_limit_bytes"].as_u64().unwrap(),
         "estimate {estimate}"
     );
+}
+
+/// 1b. Points of several members: the first 4 of a sampled design keep per-time statistics and
+///     field bands by default (bands of 2 members, the rest responses only).
+#[test]
+fn a_sampled_design_of_several_members_a_point_details_its_first_four() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = scene_text("members = 2", &sampled_sweep("random", 6, 4));
+    let scene = write(tmp.path(), "random.toml", &text);
+    let out = tmp.path().join("random");
+    let o = run_study(&scene, &out, &[]);
+    assert_success(&o, "random design of 2 members a point");
+    let (shape, detailed) = npy(&out.join("stats/detailed_points.npy"));
+    assert_eq!(shape, [4]);
+    assert_eq!(detailed, [0.0, 1.0, 2.0, 3.0]);
+    let (shape, counts) = npy(&out.join("stats/max_density_count.npy"));
+    assert_eq!(
+        shape[0], 4,
+        "per-time statistics for the detailed points only"
+    );
+    assert!(counts.iter().all(|&c| c == 2.0), "each holds its 2 members");
+    let (shape, _) = npy(&out.join("stats/rho_mean.npy"));
+    assert_eq!(shape[0], 4, "field bands for the detailed points only");
+    let (shape, _) = npy(&out.join("stats/peak_density.npy"));
+    assert_eq!(shape[0], 6, "responses for every point");
 }
 
 /// 2. `[output] fields` decides the bands: with fields = ["energy"] no band is accumulated or

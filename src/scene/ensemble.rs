@@ -34,14 +34,16 @@ pub struct EnsembleSpec {
     pub u_range: Option<[f64; 2]>,
     /// How many sweep points (the first ones) keep statistics per output time (scalars at every
     /// time and the field bands); `None`: every point of a grid design, the first
-    /// [`DEFAULT_DETAILED_SAMPLED_POINTS`] of a sampled one. Every point keeps its members'
-    /// responses (peak density, first hit, smallest gap, final energy).
+    /// [`DEFAULT_DETAILED_SAMPLED_POINTS`] of a sampled one whose points hold several members,
+    /// none of a sampled one of one member a point. Every point keeps its members' responses
+    /// (peak density, first hit, smallest gap, final energy).
     pub detailed_points: Option<u64>,
 }
 
-/// Points of a sampled design (random, Latin hypercube, Sobol) that keep per-time statistics by
-/// default: as many as get their own plots. A sampled point usually holds one member, whose
-/// "band" is its own profile; the design's information is in the responses per point.
+/// Points of a sampled design (random, Latin hypercube, Sobol, Saltelli) with several members a
+/// point that keep per-time statistics by default: as many as get their own plots. A point of
+/// one member keeps none by default: its "bands" would be that member's own profile (which
+/// `store_members` keeps), and the design's information is in the responses per point.
 pub const DEFAULT_DETAILED_SAMPLED_POINTS: u64 = 4;
 
 pub(super) fn validate_ensemble(

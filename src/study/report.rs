@@ -69,16 +69,24 @@ pub(super) fn finalize(
     )?;
 
     // Independent files, written side by side: a small design's report is mostly files
-    // created and its few detailed points' bands read.
+    // created and its few detailed points' bands read. Without detailed points the per-time
+    // files would hold nothing: they are not written (65 empty files were a tenth of a
+    // 64-point design's time).
     let (per_time, (responses, bands)) = rayon::join(
-        || write_scalars_per_time(&stats, header, &detailed, &point),
+        || match d_count {
+            0 => Ok(()),
+            _ => write_scalars_per_time(&stats, header, &detailed, &point),
+        },
         || {
             rayon::join(
                 || {
                     write_responses(&stats, header, &points, &point)?;
                     super::sensitivity::write_sensitivity(dir, header, state, plots)
                 },
-                || write_bands(&stats, header, &detailed, &point),
+                || match d_count {
+                    0 => Ok(()),
+                    _ => write_bands(&stats, header, &detailed, &point),
+                },
             )
         },
     );
