@@ -8,9 +8,9 @@
 //! - `ensemble_1024_N200`, `ensemble_256_N1000`: ensembles of longer chains, default outputs;
 //! - `random_P_x1`: a random design of P points x 1 member (P = 64, 256, 4096, 10000).
 //!
-//! Criterion times each row (the whole command); one further run of each prints the table:
-//! wall time, the statistics' share of it (from the manifest), peak memory (the child's
-//! ru_maxrss) and the size of the output directory. `STUDY_SCALE_ROWS=ensemble_4096,batch_4096`
+//! Criterion times each row (the whole command); five further runs of each print the table:
+//! median wall time, median statistics' share of it (from the manifest), largest peak memory
+//! (the child's ru_maxrss) and the size of the output directory. `STUDY_SCALE_ROWS=ensemble_4096,batch_4096`
 //! restricts the rows.
 
 use std::path::Path;
@@ -158,6 +158,14 @@ fn dir_bytes(dir: &Path) -> u64 {
         .unwrap_or(0)
 }
 
+/// Runs of each row behind the printed table.
+const TABLE_RUNS: usize = 5;
+
+fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
+}
+
 fn study_scale(c: &mut Criterion) {
     let only: Option<Vec<String>> = std::env::var("STUDY_SCALE_ROWS")
         .ok()
@@ -177,12 +185,23 @@ fn study_scale(c: &mut Criterion) {
         std::fs::write(&scene, text).expect("scene written");
         let out = tmp.path().join(&name);
         group.bench_function(&name, |b| b.iter(|| run_once(&scene, &out)));
-        let (wall, peak) = run_once(&scene, &out);
-        let share = std::fs::read_to_string(out.join("manifest.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-            .and_then(|m| m["statistics_share"].as_f64());
-        table.push((name, wall, share, peak, dir_bytes(&out)));
+        // The table's wall time and share are medians of TABLE_RUNS runs (one run's share
+        // varied by 3 points of percentage here), its peak memory the largest.
+        let (mut walls, mut shares, mut peak) = (Vec::new(), Vec::new(), 0);
+        for _ in 0..TABLE_RUNS {
+            let (wall, run_peak) = run_once(&scene, &out);
+            walls.push(wall);
+            peak = peak.max(run_peak);
+            if let Some(share) = std::fs::read_to_string(out.join("manifest.json"))
+                .ok()
+                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+                .and_then(|m| m["statistics_share"].as_f64())
+            {
+                shares.push(share);
+            }
+        }
+        let share = (!shares.is_empty()).then(|| median(&mut shares));
+        table.push((name, median(&mut walls), share, peak, dir_bytes(&out)));
     }
     group.finish();
     println!("\n| study | wall | statistics share | peak memory | on disk |");
