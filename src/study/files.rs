@@ -428,6 +428,8 @@ pub(super) fn study_differences(a: &StudyHeader, b: &StudyHeader) -> Vec<&'stati
         ("roughlub version", a.roughlub_version != b.roughlub_version),
         ("backend", a.backend != b.backend),
         ("precision", a.precision != b.precision),
+        // Its default changed within one version (sampled designs of one member a point).
+        ("detailed points", a.detailed_points != b.detailed_points),
     ];
     differs.iter().filter(|d| d.1).map(|d| d.0).collect()
 }
