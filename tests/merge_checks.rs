@@ -309,3 +309,34 @@ fn merge_refuses_a_state_whose_bands_do_not_match_its_study() {
     assert!(err.contains("rho"), "the message names the field: {err}");
     assert!(!merged.exists(), "a refused merge wrote {merged:?}");
 }
+
+/// Shards whose detailed points differ (an earlier build's default, or an edited setting) are
+/// not one study: merge refuses them and names the detailed points among what differs.
+#[test]
+fn merge_refuses_shards_whose_detailed_points_differ() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = "name = \"dp\"\n[model]\nparticles = 8\nmu = 0.01\ngamma = 2.0\n\
+[initial]\nrho = \"0.7\"\nrho_star = \"0.7\"\nvelocity = \"0.5*sin(2*pi*x)\"\n[time]\nend = 0.01\noutputs = 2\ndt = 1e-3\n\
+[solver]\nbackend = \"cpu\"\n[output]\ngrid = 10\nplots = false\n\
+[ensemble]\nmembers = 8\nchunk = 4\nseed = 3\nroughness = { kind = \"lognormal\", spread = 0.3 }\n";
+    let shard_of = |k: u64, scene_text: &str, name: &str| {
+        let scene = tmp.path().join(format!("{name}.toml"));
+        std::fs::write(&scene, scene_text).unwrap();
+        let dir = tmp.path().join(name);
+        let out = run_text(&scene, &dir, &["--shard", &format!("{k}/2")]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        dir
+    };
+    // Without a sweep the one point is detailed by default; the second shard keeps none.
+    let a = shard_of(0, text, "a0");
+    let b = shard_of(1, &format!("{text}detailed_points = 0\n"), "b1");
+    let out = merge(&[&a, &b], &tmp.path().join("mixed"), &[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("detailed points"), "{err}");
+    assert!(!tmp.path().join("mixed").exists());
+}
