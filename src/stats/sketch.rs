@@ -181,7 +181,12 @@ impl QuantileSketch {
 
     #[inline]
     fn key(&self, magnitude: f64) -> i32 {
-        (det_ln(magnitude) * self.inv_ln_gamma).ceil() as i32
+        // ceil(t) as truncation plus one below t: f64::ceil is a library call on the baseline
+        // x86-64 target (no SSE4.1), a third of a push. The same integer for every t here:
+        // |t| <= ln(1e308) / ln(gamma) is far inside i32.
+        let t = det_ln(magnitude) * self.inv_ln_gamma;
+        let k = t as i32;
+        k + i32::from((k as f64) < t)
     }
 
     /// Representative magnitude of bucket `k`: `2 gamma^k / (gamma + 1)`, computed as
@@ -450,6 +455,27 @@ impl TryFrom<SketchState> for QuantileSketch {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn key_is_the_ceiling_of_the_scaled_log() {
+        // The key's truncation-based ceiling against f64::ceil, over values from 1e-300 to
+        // 1e300 and at every bucket's upper end gamma^k (where t is an integer or next to one),
+        // below and above 1 (t negative and positive).
+        let sketch = QuantileSketch::new(0.001).unwrap();
+        let ceil_key = |x: f64| (det_ln(x) * sketch.inv_ln_gamma).ceil() as i32;
+        let mut x = 1e-300;
+        while x < 1e300 {
+            assert_eq!(sketch.key(x), ceil_key(x), "x = {x:e}");
+            x *= 1.013;
+        }
+        for k in -2000..2000 {
+            let edge = (k as f64 * sketch.ln_gamma).exp();
+            for y in [edge.next_down(), edge, edge.next_up()] {
+                assert_eq!(sketch.key(y), ceil_key(y), "x = {y:e}");
+            }
+        }
+        assert_eq!(sketch.key(1.0), 0);
+    }
 
     #[test]
     fn det_ln_matches_libm() {
