@@ -114,6 +114,17 @@ fn run_text(scene_path: &Path, dir: &Path, extra: &[&str]) -> Output {
     roughlub(&args)
 }
 
+/// Shard `k` of 2 of `scene` into `dir`, which it returns; the run must succeed.
+fn shard_of_two(scene: &Path, dir: &Path, k: u64) -> PathBuf {
+    let out = run_text(scene, dir, &["--shard", &format!("{k}/2")]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    dir.to_path_buf()
+}
+
 const FILE_ROUGHNESS_SCENE: &str = "name = \"fr\"\n[model]\nparticles = 8\nmu = 0.01\ngamma = 2.0\n\
 [initial]\nrho = \"0.7\"\nvelocity = \"0.5*sin(2*pi*x)\"\n[time]\nend = 0.01\noutputs = 2\ndt = 1e-3\n\
 [solver]\nbackend = \"cpu\"\n[output]\ngrid = 10\nplots = false\n\
@@ -253,14 +264,7 @@ fn merge_refuses_shards_from_two_roughness_files() {
     std::fs::write(&scene, FILE_ROUGHNESS_SCENE.replace("SEED", "7")).unwrap();
     let shard_with = |k: u64, r: f64, name: &str| {
         std::fs::write(tmp.path().join("radii.csv"), radii(r)).unwrap();
-        let dir = tmp.path().join(name);
-        let out = run_text(&scene, &dir, &["--shard", &format!("{k}/2")]);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        dir
+        shard_of_two(&scene, &tmp.path().join(name), k)
     };
     let a = shard_with(0, 0.001, "a0");
     let b_same = shard_with(1, 0.001, "a1");
@@ -322,14 +326,7 @@ fn merge_refuses_shards_whose_detailed_points_differ() {
     let shard_of = |k: u64, scene_text: &str, name: &str| {
         let scene = tmp.path().join(format!("{name}.toml"));
         std::fs::write(&scene, scene_text).unwrap();
-        let dir = tmp.path().join(name);
-        let out = run_text(&scene, &dir, &["--shard", &format!("{k}/2")]);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        dir
+        shard_of_two(&scene, &tmp.path().join(name), k)
     };
     // Without a sweep the one point is detailed by default; the second shard keeps none.
     let a = shard_of(0, text, "a0");
