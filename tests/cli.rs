@@ -800,7 +800,7 @@ fn rejects_orders_above_six_in_f32() {
     )
     .unwrap();
     let out = run(&path, &tmp.path().join("out"), &[]);
-    assert!(out.status.success(), "{}", stderr_of(&out));
+    assert_success(&out);
 }
 
 #[test]
