@@ -8,9 +8,9 @@ use std::collections::BTreeMap;
 const DENSE_SPAN: usize = 512;
 
 /// Counts by bucket index: a count for every index of a contiguous range while that range is at
-/// most [`DENSE_SPAN`] wide, a map of the non-empty buckets beyond (memory stays proportional to
-/// what the store holds either way). The two forms hold the same counts: every reader sees only
-/// the non-empty buckets, in ascending index order.
+/// most [`DENSE_SPAN`] wide, the non-empty buckets in index order beyond (memory stays
+/// proportional to what the store holds either way). The two forms hold the same counts: every
+/// reader sees only the non-empty buckets, in ascending index order.
 #[derive(Clone, Debug)]
 pub(super) enum BucketStore {
     Dense {
@@ -20,7 +20,10 @@ pub(super) enum BucketStore {
         /// How many of `counts` are non-zero.
         nonzero: usize,
     },
-    Sparse(BTreeMap<i32, u64>),
+    /// `(index, count)` of the non-empty buckets, indices ascending: a chunk's sketch merges
+    /// into a study's total in one pass over both (a tree took a search per bucket, most of
+    /// the time between a study's chunks).
+    Sparse(Vec<(i32, u64)>),
 }
 
 impl Default for BucketStore {
@@ -53,7 +56,10 @@ impl BucketStore {
                     self.add_outside(k, c);
                 }
             }
-            BucketStore::Sparse(map) => *map.entry(k).or_insert(0) += c,
+            BucketStore::Sparse(buckets) => match buckets.binary_search_by_key(&k, |b| b.0) {
+                Ok(at) => buckets[at].1 += c,
+                Err(at) => buckets.insert(at, (k, c)),
+            },
         }
     }
 
@@ -78,9 +84,9 @@ impl BucketStore {
         let last = *first as i64 + counts.len() as i64 - 1;
         let (lo, hi) = ((k as i64).min(*first as i64), (k as i64).max(last));
         if (hi - lo + 1) as usize > DENSE_SPAN {
-            let mut map = self.to_map();
-            *map.entry(k).or_insert(0) += c;
-            *self = BucketStore::Sparse(map);
+            let mut sparse = BucketStore::Sparse(self.iter().collect());
+            sparse.add(k, c);
+            *self = sparse;
             return;
         }
         if (k as i64) < *first as i64 {
@@ -94,11 +100,89 @@ impl BucketStore {
         *nonzero += 1;
     }
 
+    /// Adds every bucket of `other`. Two dense stores whose ranges together fit
+    /// [`DENSE_SPAN`] add their counts slot by slot (a study merges each chunk's sketches into
+    /// the total: bucket by bucket that was most of the time between chunks); otherwise bucket
+    /// by bucket, as [`add`](Self::add) does. The same counts either way.
+    pub(super) fn merge_from(&mut self, other: &BucketStore) {
+        if let (
+            BucketStore::Dense {
+                first,
+                counts,
+                nonzero,
+            },
+            BucketStore::Dense {
+                first: other_first,
+                counts: other_counts,
+                ..
+            },
+        ) = (&mut *self, other)
+        {
+            if other_counts.is_empty() {
+                return;
+            }
+            let other_last = *other_first as i64 + other_counts.len() as i64 - 1;
+            let (lo, hi) = match counts.is_empty() {
+                true => (*other_first as i64, other_last),
+                false => (
+                    (*first as i64).min(*other_first as i64),
+                    (*first as i64 + counts.len() as i64 - 1).max(other_last),
+                ),
+            };
+            if ((hi - lo + 1) as usize) <= DENSE_SPAN {
+                if counts.is_empty() {
+                    *first = lo as i32;
+                }
+                if lo < *first as i64 {
+                    let grow = (*first as i64 - lo) as usize;
+                    counts.splice(0..0, std::iter::repeat_n(0, grow));
+                    *first = lo as i32;
+                }
+                counts.resize((hi - lo + 1) as usize, 0);
+                let at = (*other_first as i64 - lo) as usize;
+                let mut became_nonzero = 0;
+                for (mine, &theirs) in counts[at..at + other_counts.len()]
+                    .iter_mut()
+                    .zip(other_counts)
+                {
+                    became_nonzero += usize::from(*mine == 0 && theirs > 0);
+                    *mine += theirs;
+                }
+                *nonzero += became_nonzero;
+                return;
+            }
+        }
+        if let BucketStore::Sparse(mine) = self {
+            // Both in index order: one pass over the two.
+            let mut merged = Vec::with_capacity(mine.len() + other.len());
+            let mut theirs = other.iter().peekable();
+            for &(k, c) in mine.iter() {
+                while let Some(&(j, d)) = theirs.peek().filter(|b| b.0 < k) {
+                    merged.push((j, d));
+                    theirs.next();
+                }
+                match theirs.peek() {
+                    Some(&(j, d)) if j == k => {
+                        merged.push((k, c + d));
+                        theirs.next();
+                    }
+                    _ => merged.push((k, c)),
+                }
+            }
+            merged.extend(theirs);
+            *mine = merged;
+            return;
+        }
+        for (k, c) in other.iter() {
+            self.add(k, c);
+        }
+    }
+
     /// Number of non-empty buckets.
     pub(super) fn len(&self) -> usize {
         match self {
             BucketStore::Dense { nonzero, .. } => *nonzero,
-            BucketStore::Sparse(map) => map.len(),
+            BucketStore::Sparse(buckets) => buckets.len(),
         }
     }
 
@@ -106,7 +190,7 @@ impl BucketStore {
     pub(super) fn iter(&self) -> impl DoubleEndedIterator<Item = (i32, u64)> + '_ {
         let (dense, sparse) = match self {
             BucketStore::Dense { first, counts, .. } => (Some((*first, counts)), None),
-            BucketStore::Sparse(map) => (None, Some(map)),
+            BucketStore::Sparse(buckets) => (None, Some(buckets)),
         };
         let dense = dense.into_iter().flat_map(|(first, counts)| {
             counts
@@ -117,7 +201,7 @@ impl BucketStore {
         });
         let sparse = sparse
             .into_iter()
-            .flat_map(|map| map.iter().map(|(&k, &c)| (k, c)));
+            .flat_map(|buckets| buckets.iter().copied());
         dense.chain(sparse)
     }
 
@@ -170,5 +254,61 @@ mod tests {
             assert_eq!(back, expected, "span {span}");
             assert_eq!(BucketStore::from_map(&map).to_map(), map, "span {span}");
         }
+    }
+
+    /// Merging two stores, dense or not, in either order, holds the sum of their maps (what
+    /// adding the other's buckets one by one gave).
+    #[test]
+    fn a_merge_holds_the_sum_of_both() {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut store_of = |span: u64, offset: i32| {
+            let mut store = BucketStore::default();
+            let mut map = BTreeMap::new();
+            for _ in 0..400 {
+                let k = (next() % span) as i32 + offset;
+                let c = 1 + next() % 3;
+                store.add(k, c);
+                *map.entry(k).or_insert(0u64) += c;
+            }
+            (store, map)
+        };
+        // Dense and dense (overlapping, apart, too wide together), sparse on either side.
+        let cases = [
+            ((100, 0), (100, 50)),
+            ((100, 0), (100, 400)),
+            ((100, 0), (100, 600)),
+            ((3000, -1500), (100, 20)),
+            ((100, 20), (3000, -1500)),
+            ((3000, 0), (3000, 1000)),
+            ((1, 0), (1, 0)),
+        ];
+        for ((span_a, at_a), (span_b, at_b)) in cases {
+            let (mut a, mut sum) = store_of(span_a, at_a);
+            let (b, map_b) = store_of(span_b, at_b);
+            for (k, c) in map_b {
+                *sum.entry(k).or_insert(0) += c;
+            }
+            a.merge_from(&b);
+            assert_eq!(
+                a.to_map(),
+                sum,
+                "{span_a} at {at_a} with {span_b} at {at_b}"
+            );
+            assert_eq!(a.len(), sum.len());
+            let width = sum.keys().last().unwrap() - sum.keys().next().unwrap() + 1;
+            if matches!(a, BucketStore::Dense { .. }) {
+                assert!(width as usize <= DENSE_SPAN);
+            }
+        }
+        let mut empty = BucketStore::default();
+        let (b, map_b) = store_of(50, 7);
+        empty.merge_from(&b);
+        assert_eq!(empty.to_map(), map_b);
     }
 }

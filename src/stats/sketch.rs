@@ -242,12 +242,8 @@ impl QuantileSketch {
     /// `self` unchanged, if the two sketches were built with different `alpha`.
     pub fn merge(&mut self, other: &QuantileSketch) -> Result<(), StatsError> {
         self.check_compatible(other)?;
-        for (k, c) in other.positive.iter() {
-            self.positive.add(k, c);
-        }
-        for (k, c) in other.negative.iter() {
-            self.negative.add(k, c);
-        }
+        self.positive.merge_from(&other.positive);
+        self.negative.merge_from(&other.negative);
         self.zero_count += other.zero_count;
         self.count += other.count;
         self.non_finite += other.non_finite;
