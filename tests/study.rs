@@ -392,6 +392,35 @@ fn statistics_match_direct_computation_over_members() {
     assert_eq!(g, 30);
     let (_, x) = stat(&out, "x");
     assert_eq!(x.len(), g);
+    // Scalar peak centre: each member's centroid of its rho excess over its mean, from the
+    // reference rows (the study computes it where each snapshot is observed).
+    let want_centre: Vec<f64> = r.fields["rho"]
+        .iter()
+        .map(|rows| {
+            let centres: Vec<f64> = rows
+                .iter()
+                .filter_map(|rho| {
+                    let level = mean(rho);
+                    let (mut wx, mut w) = (0.0, 0.0);
+                    for (xi, ri) in x.iter().zip(rho) {
+                        let excess = (ri - level).max(0.0);
+                        wx += xi * excess;
+                        w += excess;
+                    }
+                    (w > 1e-12).then(|| wx / w)
+                })
+                .collect();
+            assert_eq!(centres.len(), m, "every member's rho has a peak");
+            mean(&centres)
+        })
+        .collect();
+    assert_all_close(
+        "peak_centre_mean",
+        &stat(&out, "peak_centre_mean").1,
+        &want_centre,
+        1e-12,
+        0.0,
+    );
     let u_range = &manifest(&out)["quantile_method"]["field_ranges"]["u"];
     let (u_lo, u_hi) = (u_range[0].as_f64().unwrap(), u_range[1].as_f64().unwrap());
     for (field, lo, hi) in [("rho", 0.0, 1.0), ("rho_star", 0.0, 1.0), ("u", u_lo, u_hi)] {

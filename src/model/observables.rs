@@ -20,6 +20,8 @@ pub struct Snapshot {
     /// ln of the smallest gap: defined also when that gap is below the float range.
     pub log_min_gap: f64,
     pub max_density: f64,
+    /// [`peak_centre`] of `rho` where the plan asks for it (NaN otherwise).
+    pub peak_centre: f64,
 }
 
 impl Snapshot {
@@ -47,6 +49,7 @@ impl Snapshot {
             min_gap: f64::NAN,
             log_min_gap: f64::NAN,
             max_density: f64::NAN,
+            peak_centre: f64::NAN,
         }
     }
 }
@@ -417,6 +420,12 @@ pub fn observe(
         }
         CELL_VALUES.set(cells);
     }
+    // Here, not where the statistics read the rows later: the row was just written, so it is
+    // read from cache (as a statistic it read every member's row from memory again).
+    let centre = match plan.peak_centre {
+        true => peak_centre(grid_x, &rho),
+        false => f64::NAN,
+    };
     Snapshot {
         gaps: if f.gaps {
             (0..n).map(gap).collect()
@@ -436,5 +445,26 @@ pub fn observe(
         min_gap,
         log_min_gap,
         max_density,
+        peak_centre: centre,
+    }
+}
+
+/// Centre of mass of the density peak: the centroid of the excess of rho over its spatial mean
+/// (NaN when the profile is flat, or `rho` is empty).
+pub fn peak_centre(x: &[f64], rho: &[f64]) -> f64 {
+    if rho.is_empty() {
+        return f64::NAN;
+    }
+    let mean = rho.iter().sum::<f64>() / rho.len() as f64;
+    let (mut wx, mut w) = (0.0, 0.0);
+    for (xi, r) in x.iter().zip(rho) {
+        let e = (r - mean).max(0.0);
+        wx += xi * e;
+        w += e;
+    }
+    if w > 1e-12 {
+        wx / w
+    } else {
+        f64::NAN
     }
 }

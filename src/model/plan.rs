@@ -53,6 +53,9 @@ pub struct Plan {
     /// Order 1 with fixed steps: estimate the error with a companion run (see
     /// [`crate::backend::companion`]).
     pub companion_estimate: bool,
+    /// Compute each snapshot's [`peak_centre`](crate::model::observables::peak_centre) (a
+    /// study's detailed points: there the rho row is still in cache).
+    pub peak_centre: bool,
     /// What the environment overrides (read once by the command line, passed down from the
     /// scene): the CPU step's instruction set and partition choice, the GPU's adapter,
     /// partition and attempts per dispatch. The default overrides nothing.

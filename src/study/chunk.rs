@@ -47,6 +47,7 @@ pub(super) fn chunk_plan(
     plan.fields.rho_star = detailed && plan.repulsion && scene.fields.rho_star;
     plan.fields.u &= detailed;
     plan.fields.rho = detailed || store_members;
+    plan.peak_centre = detailed;
     // Gaps and velocities per member are only read when the members' arrays are kept.
     plan.fields.gaps &= store_members;
     plan.fields.velocities &= store_members;
@@ -64,9 +65,6 @@ struct RecordedObservables {
     /// field has none; see [`row_offset`] for where it is).
     rows_present: u8,
 }
-
-/// Where the peak centre is in [`RecordedObservables::scalars`].
-const PEAK_CENTRE: usize = 4;
 
 /// Where the row of band field `f` at output time `k` of the chunk's deferred member `i` (its
 /// [`PassContext::row_slot`](batch::PassContext)) starts in the chunk's `field_rows`: laid out
@@ -608,15 +606,5 @@ fn settle_points(
                 stats.first_hit.push(responses.first_hit[m]);
             }
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_peak_centre_is_where_the_scalars_say() {
-        assert_eq!(SCALARS[PEAK_CENTRE], "peak_centre");
     }
 }

@@ -30,7 +30,6 @@
 //! `stats/*.npy` and the plots; `merge.rs` is `roughlub merge` over shards. This file
 //! orchestrates a run ([`run_study`]).
 
-mod centre;
 mod chunk;
 mod files;
 mod memory;
@@ -60,7 +59,7 @@ use files::{
 };
 use report::{finalize, quantile_method};
 
-pub use centre::peak_centre;
+pub use crate::model::observables::peak_centre;
 pub use files::{
     MemberRow, StudyHeader, MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS,
     POINT_INDEX_COLUMN,

@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use super::members::Responses;
 use super::{
     band_row, chunk_plan, push_as_observed, push_output_scalars, row_offset, MomentsBefore,
-    RecordedObservables, StudyCosts, PEAK_CENTRE,
+    RecordedObservables, StudyCosts,
 };
 use crate::backend::{Engine, MemberReport, OutputStatus};
 use crate::error::Result;
@@ -19,7 +19,6 @@ use crate::model::observables::Snapshot;
 use crate::model::params::MemberParams;
 use crate::scene::members::{EnsembleMembers, MemberInputs};
 use crate::scene::EnsembleSpec;
-use crate::study::centre::{peak_centres, CENTRES_TOGETHER};
 use crate::study::files::StudyHeader;
 use crate::study::state::StudyState;
 
@@ -131,8 +130,7 @@ pub(super) fn solve_batch(
                              k: usize,
                              recorded: &[bool],
                              total: &mut StudyState,
-                             field_rows: &mut [f64],
-                             group_recorded: &mut [Vec<Option<RecordedObservables>>]|
+                             field_rows: &mut [f64]|
      -> Result<f64> {
         let busy = std::sync::atomic::AtomicU64::new(0);
         let fields = header.band_fields.len();
@@ -155,49 +153,24 @@ pub(super) fn solve_batch(
                 at = row_offset(f, k, end_slot, shape);
             }
         }
-        // Members in fours: their peak centres are summed side by side.
-        let centres: Vec<f64> = snaps
-            .par_chunks(CENTRES_TOGETHER)
-            .zip(member_rows.par_chunks_mut(CENTRES_TOGETHER * per_member))
+        // The deferred members' rows, copied for after the chunk (rows pushed as they are
+        // observed are read from the snapshot instead).
+        snaps
+            .par_iter()
+            .zip(member_rows.par_chunks_mut(per_member))
             .enumerate()
-            .flat_map_iter(|(c, (together, rows))| {
+            .filter(|&(g, _)| recorded[g] && !is_eager(a + g))
+            .for_each(|(_, (s, rows))| {
                 let started = Instant::now();
-                let g0 = c * CENTRES_TOGETHER;
-                for (o, (s, rows)) in together.iter().zip(rows.chunks_mut(per_member)).enumerate() {
-                    // Rows pushed as they are observed are read from the snapshot instead.
-                    if !recorded[g0 + o] || is_eager(a + g0 + o) {
-                        continue;
-                    }
-                    for (row, name) in rows.iter_mut().zip(&header.band_fields) {
-                        let from = band_row(s, name);
-                        if let (Some(into), true) = (row, from.len() == grid) {
-                            into.copy_from_slice(from);
-                        }
+                for (row, name) in rows.iter_mut().zip(&header.band_fields) {
+                    let from = band_row(s, name);
+                    if let (Some(into), true) = (row, from.len() == grid) {
+                        into.copy_from_slice(from);
                     }
                 }
-                // No row (NaN) for a member not recorded.
-                let rho: Vec<&[f64]> = together
-                    .iter()
-                    .enumerate()
-                    .map(|(o, s)| {
-                        if recorded[g0 + o] {
-                            &s.rho[..]
-                        } else {
-                            &[][..]
-                        }
-                    })
-                    .collect();
-                let centres = peak_centres(&header.x, &rho);
                 let nanos = started.elapsed().as_nanos() as u64;
                 busy.fetch_add(nanos, std::sync::atomic::Ordering::Relaxed);
-                centres
-            })
-            .collect();
-        for (g, per_time) in group_recorded.iter_mut().enumerate() {
-            if let Some(Some(o)) = per_time.get_mut(k) {
-                o.scalars[PEAK_CENTRE] = centres[g];
-            }
-        }
+            });
         let pushing = push_as_observed(total, groups, eager, inputs, (a, b), snaps, k, recorded)
             .map_err(|e| crate::study::report::stats_error(dir, e))?;
         Ok(busy.into_inner() as f64 * 1e-9 + pushing)
@@ -255,8 +228,7 @@ pub(super) fn solve_batch(
                             s.min_gap,
                             s.energy,
                             s.dissipation,
-                            // Set by `output_statistics` below.
-                            f64::NAN,
+                            s.peak_centre,
                             estimate,
                         ],
                         rows_present,
@@ -264,14 +236,7 @@ pub(super) fn solve_batch(
                 }
                 let recorded: Vec<bool> = (0..b - a).map(recorded_here).collect();
                 let recording = started.elapsed().as_secs_f64();
-                let busy = output_statistics(
-                    &snaps,
-                    k,
-                    &recorded,
-                    total,
-                    field_rows,
-                    &mut group_recorded,
-                )?;
+                let busy = output_statistics(&snaps, k, &recorded, total, field_rows)?;
                 let started = Instant::now();
                 push_output_scalars(state, header, &inputs[a..b], k, &group_recorded);
                 let scalars = started.elapsed().as_secs_f64();
