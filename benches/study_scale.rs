@@ -8,9 +8,10 @@
 //! - `ensemble_1024_N200`, `ensemble_256_N1000`: ensembles of longer chains, default outputs;
 //! - `random_P_x1`: a random design of P points x 1 member (P = 64, 256, 4096, 10000).
 //!
-//! Criterion times each row (the whole command); five further runs of each print the table:
-//! median wall time, median statistics' share of it (from the manifest), largest peak memory
-//! (the child's ru_maxrss) and the size of the output directory. `STUDY_SCALE_ROWS=ensemble_4096,batch_4096`
+//! Criterion times each row (the whole command); further runs of each print the table (five, or
+//! for short rows as many as fill 2 s, at most 41): median wall time, median statistics' share
+//! of it (from the manifest) with its range over the runs, largest peak memory (the child's
+//! ru_maxrss) and the size of the output directory. `STUDY_SCALE_ROWS=ensemble_4096,batch_4096`
 //! restricts the rows.
 
 use std::path::Path;
@@ -158,8 +159,12 @@ fn dir_bytes(dir: &Path) -> u64 {
         .unwrap_or(0)
 }
 
-/// Runs of each row behind the printed table.
+/// Runs of each row behind the printed table: at least `TABLE_RUNS`, more for short rows until
+/// they add up to `TABLE_SECONDS` (at most `TABLE_RUNS_MAX`): the share of a 20 ms study moved
+/// from 7 to 25 % between medians of 5 runs, a stall of a few ms in writing its files.
 const TABLE_RUNS: usize = 5;
+const TABLE_SECONDS: f64 = 2.0;
+const TABLE_RUNS_MAX: usize = 41;
 
 fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
@@ -185,10 +190,12 @@ fn study_scale(c: &mut Criterion) {
         std::fs::write(&scene, text).expect("scene written");
         let out = tmp.path().join(&name);
         group.bench_function(&name, |b| b.iter(|| run_once(&scene, &out)));
-        // The table's wall time and share are medians of TABLE_RUNS runs (one run's share
-        // varied by 3 points of percentage here), its peak memory the largest.
+        // The table's wall time and share are medians of the runs (one run's share varied by 3
+        // points of percentage here), its peak memory the largest.
         let (mut walls, mut shares, mut peak) = (Vec::new(), Vec::new(), 0);
-        for _ in 0..TABLE_RUNS {
+        while walls.len() < TABLE_RUNS
+            || (walls.iter().sum::<f64>() < TABLE_SECONDS && walls.len() < TABLE_RUNS_MAX)
+        {
             let (wall, run_peak) = run_once(&scene, &out);
             walls.push(wall);
             peak = peak.max(run_peak);
@@ -200,16 +207,26 @@ fn study_scale(c: &mut Criterion) {
                 shares.push(share);
             }
         }
-        let share = (!shares.is_empty()).then(|| median(&mut shares));
-        table.push((name, median(&mut walls), share, peak, dir_bytes(&out)));
+        let runs = walls.len();
+        // The median, then the range of the runs.
+        let share = (!shares.is_empty()).then(|| {
+            let middle = median(&mut shares);
+            (middle, shares[0], shares[shares.len() - 1])
+        });
+        table.push((name, runs, median(&mut walls), share, peak, dir_bytes(&out)));
     }
     group.finish();
-    println!("\n| study | wall | statistics share | peak memory | on disk |");
-    println!("|---|---|---|---|---|");
-    for (name, wall, share, peak, disk) in table {
+    println!("\n| study | runs | wall | statistics share (range) | peak memory | on disk |");
+    println!("|---|---|---|---|---|---|");
+    for (name, runs, wall, share, peak, disk) in table {
         println!(
-            "| {name} | {wall:.2} s | {} | {:.0} MB | {:.1} MB |",
-            share.map_or("-".into(), |s| format!("{:.1} %", 100.0 * s)),
+            "| {name} | {runs} | {wall:.2} s | {} | {:.0} MB | {:.1} MB |",
+            share.map_or("-".into(), |(m, lo, hi)| format!(
+                "{:.1} % ({:.1}-{:.1} %)",
+                100.0 * m,
+                100.0 * lo,
+                100.0 * hi
+            )),
             peak as f64 / 1e6,
             disk as f64 / 1e6
         );
