@@ -18,7 +18,7 @@ use crate::backend::shared::control::{
 };
 use crate::backend::OutputStatus;
 use crate::model::chain::{stored_gap, Chain};
-use crate::model::observables::{observe, Snapshot};
+use crate::model::observables::{observe, set_peak_centres, Snapshot};
 use crate::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
 use crate::model::plan::{Plan, Power};
 use roughlub_kernels::BlockKernels;
@@ -584,6 +584,9 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                     grid_x,
                 ),
             ));
+        }
+        if plan.peak_centre {
+            set_peak_centres(grid_x, out.iter_mut().map(|(_, s)| s));
         }
         out
     }

@@ -55,7 +55,7 @@ use crate::backend::report::{
 use crate::backend::shared::control::Rules;
 use crate::backend::{BatchSolver, Precision, Progress};
 use crate::model::chain::Chain;
-use crate::model::observables::{grid_points, observe, Snapshot};
+use crate::model::observables::{grid_points, observe, set_peak_centres, Snapshot};
 use crate::model::params::Stepping;
 use crate::model::plan::{Plan, Power};
 
@@ -664,7 +664,8 @@ impl<'a> GpuSolver<'a> {
         let member = |values: &[f64], b: usize| -> Vec<f64> {
             values.iter().skip(b).step_by(bsz).copied().collect()
         };
-        self.last_controls
+        let mut snapshots: Vec<Snapshot> = self
+            .last_controls
             .iter()
             .enumerate()
             .map(|(b, control)| {
@@ -681,7 +682,11 @@ impl<'a> GpuSolver<'a> {
                     &self.grid_x,
                 )
             })
-            .collect()
+            .collect();
+        if self.plan.peak_centre {
+            set_peak_centres(&self.grid_x, snapshots.iter_mut());
+        }
+        snapshots
     }
 
     /// Advances to the next output time and returns every member's snapshot there, in member
