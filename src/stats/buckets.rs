@@ -223,18 +223,13 @@ impl BucketStore {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::integer_stream;
 
     /// Whatever the order of the additions and however wide their range, the store holds what a
     /// map holds (the form the sketch had before, and its serialized form).
     #[test]
     fn holds_what_a_map_holds_dense_and_sparse() {
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut next = integer_stream(0x2545_F491_4F6C_DD1Du64);
         for span in [1u64, 40, 511, 512, 513, 5000] {
             let mut store = BucketStore::default();
             let mut map = BTreeMap::new();
@@ -260,13 +255,7 @@ mod tests {
     /// adding the other's buckets one by one gave).
     #[test]
     fn a_merge_holds_the_sum_of_both() {
-        let mut state = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut next = integer_stream(0x9E37_79B9_7F4A_7C15u64);
         let mut store_of = |span: u64, offset: i32| {
             let mut store = BucketStore::default();
             let mut map = BTreeMap::new();
