@@ -50,6 +50,8 @@ pub fn companion_plan(plan: &Plan) -> Plan {
     coarse.fields.rho = false;
     coarse.fields.u = false;
     coarse.fields.rho_star = false;
+    // Its snapshots are only compared, never summarised.
+    coarse.peak_centre = false;
     coarse
 }
 

@@ -22,7 +22,9 @@ pub(super) enum BucketStore {
     },
     /// `(index, count)` of the non-empty buckets, indices ascending: a chunk's sketch merges
     /// into a study's total in one pass over both (a tree took a search per bucket, most of
-    /// the time between a study's chunks).
+    /// the time between a study's chunks). A new bucket shifts those after it; values pushed
+    /// one by one go into a chunk's sketches, and a sketch holds at most about 1150 buckets
+    /// per decade its values span (alpha = 0.001).
     Sparse(Vec<(i32, u64)>),
 }
 

@@ -684,7 +684,11 @@ impl<'a> GpuSolver<'a> {
             })
             .collect();
         if self.plan.peak_centre {
-            set_peak_centres(&self.grid_x, snapshots.iter_mut());
+            // Beside each other on the CPU's threads (a batch can hold a million members).
+            use rayon::prelude::*;
+            snapshots
+                .par_chunks_mut(64)
+                .for_each(|some| set_peak_centres(&self.grid_x, some.iter_mut()));
         }
         snapshots
     }
