@@ -77,27 +77,14 @@ impl BucketStore {
         else {
             unreachable!("called for a dense store")
         };
-        if counts.is_empty() {
-            *first = k;
-            counts.push(c);
-            *nonzero = 1;
-            return;
-        }
-        let last = *first as i64 + counts.len() as i64 - 1;
-        let (lo, hi) = ((k as i64).min(*first as i64), (k as i64).max(last));
+        let (lo, hi) = dense_union(*first, counts, (k as i64, k as i64));
         if (hi - lo + 1) as usize > DENSE_SPAN {
             let mut sparse = BucketStore::Sparse(self.iter().collect());
             sparse.add(k, c);
             *self = sparse;
             return;
         }
-        if (k as i64) < *first as i64 {
-            let grow = (*first as i64 - k as i64) as usize;
-            counts.splice(0..0, std::iter::repeat_n(0, grow));
-            *first = k;
-        } else {
-            counts.resize((k as i64 - *first as i64 + 1) as usize, 0);
-        }
+        widen(first, counts, (lo, hi));
         counts[(k as i64 - *first as i64) as usize] = c;
         *nonzero += 1;
     }
@@ -124,23 +111,9 @@ impl BucketStore {
                 return;
             }
             let other_last = *other_first as i64 + other_counts.len() as i64 - 1;
-            let (lo, hi) = match counts.is_empty() {
-                true => (*other_first as i64, other_last),
-                false => (
-                    (*first as i64).min(*other_first as i64),
-                    (*first as i64 + counts.len() as i64 - 1).max(other_last),
-                ),
-            };
+            let (lo, hi) = dense_union(*first, counts, (*other_first as i64, other_last));
             if ((hi - lo + 1) as usize) <= DENSE_SPAN {
-                if counts.is_empty() {
-                    *first = lo as i32;
-                }
-                if lo < *first as i64 {
-                    let grow = (*first as i64 - lo) as usize;
-                    counts.splice(0..0, std::iter::repeat_n(0, grow));
-                    *first = lo as i32;
-                }
-                counts.resize((hi - lo + 1) as usize, 0);
+                widen(first, counts, (lo, hi));
                 let at = (*other_first as i64 - lo) as usize;
                 let mut became_nonzero = 0;
                 for (mine, &theirs) in counts[at..at + other_counts.len()]
@@ -220,6 +193,30 @@ impl BucketStore {
         }
         store
     }
+}
+
+/// The smallest range holding a dense store's counts (none if empty) and `lo..=hi`.
+fn dense_union(first: i32, counts: &[u64], (lo, hi): (i64, i64)) -> (i64, i64) {
+    match counts.is_empty() {
+        true => (lo, hi),
+        false => (
+            lo.min(first as i64),
+            hi.max(first as i64 + counts.len() as i64 - 1),
+        ),
+    }
+}
+
+/// Widens a dense store's counts with zeros to the range `lo..=hi`, which holds its own.
+fn widen(first: &mut i32, counts: &mut Vec<u64>, (lo, hi): (i64, i64)) {
+    if counts.is_empty() {
+        *first = lo as i32;
+    }
+    if lo < *first as i64 {
+        let grow = (*first as i64 - lo) as usize;
+        counts.splice(0..0, std::iter::repeat_n(0, grow));
+        *first = lo as i32;
+    }
+    counts.resize((hi - lo + 1) as usize, 0);
 }
 
 #[cfg(test)]
