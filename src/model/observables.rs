@@ -471,32 +471,22 @@ pub fn peak_centre(x: &[f64], rho: &[f64]) -> f64 {
 /// statistic reading the rows again, it took 24-29 ms of the 4096-member ensemble's thread
 /// time).
 pub fn set_peak_centres<'a>(x: &[f64], snapshots: impl Iterator<Item = &'a mut Snapshot>) {
-    let mut four: Vec<&mut Snapshot> = Vec::with_capacity(4);
-    let flush = |four: &mut Vec<&mut Snapshot>| {
-        if four.len() == 4
-            && four
-                .iter()
-                .all(|s| s.rho.len() == x.len() && !s.rho.is_empty())
-        {
-            let centres =
-                peak_centre_of_four(x, [&four[0].rho, &four[1].rho, &four[2].rho, &four[3].rho]);
-            for (s, c) in four.iter_mut().zip(centres) {
-                s.peak_centre = c;
-            }
-        } else {
-            for s in four.iter_mut() {
-                s.peak_centre = peak_centre(x, &s.rho);
+    let mut snapshots: Vec<&mut Snapshot> = snapshots.collect();
+    let full = |s: &Snapshot| s.rho.len() == x.len() && !s.rho.is_empty();
+    for some in snapshots.chunks_mut(4) {
+        if let [a, b, c, d] = some {
+            if [&**a, &**b, &**c, &**d].into_iter().all(full) {
+                let centres = peak_centre_of_four(x, [&a.rho, &b.rho, &c.rho, &d.rho]);
+                for (s, centre) in some.iter_mut().zip(centres) {
+                    s.peak_centre = centre;
+                }
+                continue;
             }
         }
-        four.clear();
-    };
-    for s in snapshots {
-        four.push(s);
-        if four.len() == 4 {
-            flush(&mut four);
+        for s in some.iter_mut() {
+            s.peak_centre = peak_centre(x, &s.rho);
         }
     }
-    flush(&mut four);
 }
 
 /// [`peak_centre`] of four rows of `x`'s length, at least one point.
