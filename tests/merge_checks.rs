@@ -30,11 +30,7 @@ fn shard(dir: &Path, k: u64) {
         spec.as_ref(),
         "--quiet".as_ref(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_succeeded(&out);
 }
 
 fn merge(inputs: &[&Path], out: &Path, extra: &[&str]) -> Output {
@@ -114,14 +110,19 @@ fn run_text(scene_path: &Path, dir: &Path, extra: &[&str]) -> Output {
     roughlub(&args)
 }
 
-/// Shard `k` of 2 of `scene` into `dir`, which it returns; the run must succeed.
-fn shard_of_two(scene: &Path, dir: &Path, k: u64) -> PathBuf {
-    let out = run_text(scene, dir, &["--shard", &format!("{k}/2")]);
+/// Fails with the command's stderr unless it succeeded.
+fn assert_succeeded(out: &Output) {
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+/// Shard `k` of 2 of `scene` into `dir`, which it returns; the run must succeed.
+fn shard_of_two(scene: &Path, dir: &Path, k: u64) -> PathBuf {
+    let out = run_text(scene, dir, &["--shard", &format!("{k}/2")]);
+    assert_succeeded(&out);
     dir.to_path_buf()
 }
 
@@ -141,11 +142,7 @@ fn resume_refuses_a_changed_roughness_file() {
     std::fs::write(&scene, FILE_ROUGHNESS_SCENE.replace("SEED", "7")).unwrap();
     let dir = tmp.path().join("study");
     let out = run_text(&scene, &dir, &[]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_succeeded(&out);
     let header: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("study.json")).unwrap()).unwrap();
     let files = header["input_files"].as_object().unwrap();
@@ -154,11 +151,7 @@ fn resume_refuses_a_changed_roughness_file() {
 
     // The same file: resume is accepted.
     let out = run_text(&scene, &dir, &["--resume"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_succeeded(&out);
     // Another radius: refused, naming what differs.
     std::fs::write(tmp.path().join("radii.csv"), radii(0.002)).unwrap();
     let out = run_text(&scene, &dir, &["--resume"]);
@@ -181,8 +174,8 @@ fn merge_refuses_a_stale_partial() {
     std::fs::write(&s7, FILE_ROUGHNESS_SCENE.replace("SEED", "7")).unwrap();
     std::fs::write(&s8, FILE_ROUGHNESS_SCENE.replace("SEED", "8")).unwrap();
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
-    assert!(run_text(&s7, &a, &[]).status.success());
-    assert!(run_text(&s8, &b, &[]).status.success());
+    assert_succeeded(&run_text(&s7, &a, &[]));
+    assert_succeeded(&run_text(&s8, &b, &[]));
     // What a killed seed-8 run into `a` leaves: its study.json beside seed 7's statistics.
     std::fs::copy(b.join("study.json"), a.join("study.json")).unwrap();
     let out = merge(&[&a], &tmp.path().join("m"), &[]);
@@ -220,11 +213,7 @@ fn merge_output_is_replaced_whole_and_foreign_files_need_force() {
     assert!(!merged.join("manifest.json").exists());
 
     let out = merge(&inputs, &merged, &["--force"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_succeeded(&out);
     assert!(
         !merged.join("notes.txt").exists(),
         "a foreign file stayed beside the merge"
@@ -232,11 +221,7 @@ fn merge_output_is_replaced_whole_and_foreign_files_need_force() {
     // A second merge (of two shards) replaces the first whole.
     std::fs::write(merged.join("stats").join("extra.npy"), b"x").unwrap();
     let out = merge(&inputs[..2], &merged, &["--allow-partial"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_succeeded(&out);
     assert!(!merged.join("stats").join("extra.npy").exists());
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(merged.join("manifest.json")).unwrap())
@@ -277,11 +262,7 @@ fn merge_refuses_shards_from_two_roughness_files() {
     assert!(!tmp.path().join("mixed").exists());
 
     let out = merge(&[&a, &b_same], &tmp.path().join("same"), &[]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_succeeded(&out);
 }
 
 /// A state file whose bands do not match its study (a field's band renamed in one point, as a
