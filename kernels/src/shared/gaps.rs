@@ -46,3 +46,16 @@ pub const SPIKE_TINY: f64 = 1e-140;
 /// far below anything that matters against the O(1) terms it is added to (2^-24).
 /// (Also the GPU's f32 twin's, `SPIKE_TINY_F32` in src/backend/gpu/partitioned.rs.)
 pub const SPIKE_TINY_F32: f64 = 1e-30;
+
+/// The exact Jacobian's factor k = 1/(1 + h r) of a gap (`jacobian_factor` in the step kernels)
+/// takes 1 + h r at least this: k stays positive (the matrix SPD) and at most 10 where a gap
+/// would close within the step in the linearisation, whose steps the error control rejects
+/// anyway. 0.1 is the cap of the experiment that measured the factor (docs/accuracy.md).
+pub const MIN_JACOBIAN_DIVISOR: f64 = 0.1;
+/// A gap's start rate r = (u_right - u_left)/d is resolved, and k used, only where
+/// h (|u_left| + |u_right|) <= JACOBIAN_RESOLVED d: there the rounding of u_right - u_left moves
+/// h r by at most ~1e-12 (f64). Below it (near contact, where the velocities' difference is
+/// rounding) the step keeps k = 1, the Jacobian without the term, as every step did before.
+pub const JACOBIAN_RESOLVED: f64 = 1e4;
+/// [`JACOBIAN_RESOLVED`] in f32: rounding of 6e-8 then moves h r by ~2e-6.
+pub const JACOBIAN_RESOLVED_F32: f64 = 30.0;

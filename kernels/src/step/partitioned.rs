@@ -23,7 +23,7 @@
 //! interface), right to left from the wall. Its pivots 1 - Lc C are >= 1 (Lc >= 0, C <= 0) and
 //! Lc stays >= 0: no cancellation. The back-substitution of each segment from its tau and right
 //! neighbour's first velocity is then the sequential back sweep (velocities, rate form of the
-//! gap update, flags for the energy certificate, sum of the new gaps), again side by side.
+//! gap update, the opening check, sum of the new gaps), again side by side.
 //!
 //! The interface carries a rate, not a velocity: near contact (d below GAP_FLOOR) the rate is
 //! O(1) while u_b - u_{b-1} is below rounding, so a velocity interface would lose the rate of a
@@ -49,7 +49,7 @@
 //! That reads the inputs twice and stores nothing per row but the new state (about 80 bytes
 //! per particle-step in f64 against ~140 for storing the spike rows; half in f32), at the price
 //! of a second forward sweep. The log-form fix-up of a gap is local, so it is done in the back
-//! sweep (the rates are not kept); the hard-failure lookup, certificate, projection and energy
+//! sweep (the rates are not kept); the hard-failure lookup, projection and energy
 //! are the sequential path's code.
 //!
 //! Layout: the rows of group g (and the prologue's, for group 0) are one contiguous range; the
@@ -73,8 +73,8 @@
 use rayon::prelude::*;
 
 use super::{
-    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms, particle_force,
-    Law, Real, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, MAX_OPENING,
+    find_hard_failure, fixed_up, fmax, gap_exp, gap_terms, jacobian_factor, particle_force, Law,
+    Real, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, MAX_OPENING,
 };
 
 /// Segments per group: the lanes of the partitioned lane loops (as many as the batched blocks,
@@ -583,7 +583,8 @@ struct Step<T> {
 }
 
 /// One row of the forward sweep for S segments: the sequential sweep's operations, plus (with
-/// SPIKE) the spike and the accumulation of u_b. Returns w of the row; ls, ys are left in the
+/// SPIKE) the spike and the accumulation of u_b. `vel` and `vel_right` are the velocities at
+/// the two ends of the row's next gap. Returns w and the next gap's k; ls, ys are left in the
 /// state.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -603,8 +604,9 @@ fn forward_row<
     dstar: &[T; S],
     bonded: &[bool; S],
     vel: &[T; S],
+    vel_right: &[T; S],
     f: &[T; S],
-) -> [T; S]
+) -> ([T; S], [T; S])
 where
     P: Fn(usize, T) -> T + Copy,
     Q: Fn(usize) -> T + Copy,
@@ -612,10 +614,13 @@ where
     let eps2 = T::c(2.0) * c.eps;
     let tiny = T::SPIKE_TINY;
     let mut w = [T::ZERO; S];
+    let mut k = [T::ZERO; S];
     for l in 0..S {
         let (a_next, g_next, d_next) = gap_terms::<T, REP, true, P, Q>(
             law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
         );
+        k[l] = jacobian_factor(d_next, c.h, vel[l], vel_right[l]);
+        let a_next = a_next * k[l];
         st.nonfinite[l] |= T::Flag::from(!(g_next + f[l]).is_finite());
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
         // As in the sequential sweep (step.rs), operation for operation.
@@ -642,7 +647,7 @@ where
         st.a_prev[l] = a_next;
         st.g_prev[l] = g_next;
     }
-    w
+    (w, k)
 }
 
 /// Forcing of one row of S segments (rows `row0 + l·stride`): interpreted, so not in the lane
@@ -682,12 +687,19 @@ fn forces<T: Real, const S: usize, const L: usize>(
 /// The inputs, natural layout: gaps, d* and bonded flags (where they exist), velocities.
 type Inputs<'a, T> = (&'a [T], &'a [T], &'a [bool], &'a [T]);
 
-/// The sweep rows of one group (w, ls, ys: the prologue's rows at row - 1, then the group's
-/// rows interleaved), for the second pass.
+/// The sweep rows of one group (w, ls, ys and the next gap's k: the prologue's rows at
+/// row - 1, then the group's rows interleaved), for the second pass.
 struct Rows<'a, T> {
     w: &'a mut [T],
     ls: &'a mut [T],
     ys: &'a mut [T],
+    k: &'a mut [T],
+}
+
+/// The velocity of index `at` (natural layout), 0 beyond the last particle (the right wall).
+#[inline(always)]
+fn velocity_at<T: Real>(vel_in: &[T], at: usize) -> T {
+    vel_in.get(at).copied().unwrap_or(T::ZERO)
 }
 
 /// Forward sweep of group g's segments (and of the prologue, for group 0) from `start`. The
@@ -735,10 +747,18 @@ where
             [false; S]
         };
         for l in 0..S {
-            let (a, gg, _) = gap_terms::<T, REP, true, P, Q>(
+            let (a, gg, d) = gap_terms::<T, REP, true, P, Q>(
                 law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
             );
-            st.a_prev[l] = a;
+            // The gap's k as the row before it computes it (index 0 is the left wall's gap).
+            let at = main + l * m;
+            let u_left = if at == 0 {
+                zero
+            } else {
+                vel_in[at - 1]
+            };
+            let k = jacobian_factor(d, c.h, u_left, velocity_at(vel_in, at));
+            st.a_prev[l] = a * k;
             st.g_prev[l] = gg;
         }
     }
@@ -756,7 +776,7 @@ where
             clu && bonded_all[0],
             c.h,
         );
-        s0.a_prev[0] = a;
+        s0.a_prev[0] = a * jacobian_factor(d, c.h, zero, velocity_at(vel_in, 0));
         s0.g_prev[0] = gg;
         s0.ls_prev[0] = T::ONE / d;
         s0.nonfinite[0] |= T::Flag::from(!gg.is_finite());
@@ -770,13 +790,15 @@ where
             let dstar = [if REP { dstar_all[row] } else { zero }];
             let bonded = [clu && bonded_all[row]];
             let vel = [vel_in[row - 1]];
-            let w = forward_row::<T, 1, REP, true, false, P, Q>(
-                law, c, &mut s0, &stored, &dstar, &bonded, &vel, &f,
+            let vel_right = [velocity_at(vel_in, row)];
+            let (w, k) = forward_row::<T, 1, REP, true, false, P, Q>(
+                law, c, &mut s0, &stored, &dstar, &bonded, &vel, &vel_right, &f,
             );
             if let Some(r) = rows.as_mut() {
                 r.w[row - 1] = w[0];
                 r.ls[row - 1] = s0.ls_prev[0];
                 r.ys[row - 1] = s0.ys_prev[0];
+                r.k[row - 1] = k[0];
             }
         }
         st.ls_prev[0] = s0.ls_prev[0];
@@ -814,7 +836,14 @@ where
                 t_f[kk] =
                     forces::<T, S, L>(terms, c, &mut st, gaps_in, row0 + kk, m, force, chunk_at);
             }
-            let w = forward_row::<T, S, REP, true, SPIKE, P, Q>(
+            // The velocity right of the row's next gap: the next row's, or past the tile's end
+            // read from the input (the right wall's 0 after the last row).
+            let vel_right: [T; S] = if kk + 1 < kn {
+                t_vel[kk + 1]
+            } else {
+                std::array::from_fn(|l| velocity_at(vel_in, row0 + kk + l * m))
+            };
+            let (w, k) = forward_row::<T, S, REP, true, SPIKE, P, Q>(
                 law,
                 c,
                 &mut st,
@@ -822,6 +851,7 @@ where
                 &t_dstar[kk],
                 &t_bond[kk],
                 &t_vel[kk],
+                &vel_right,
                 &t_f[kk],
             );
             if let Some(r) = rows.as_mut() {
@@ -829,6 +859,7 @@ where
                 r.w[at..at + S].copy_from_slice(&w);
                 r.ls[at..at + S].copy_from_slice(&st.ls_prev);
                 r.ys[at..at + S].copy_from_slice(&st.ys_prev);
+                r.k[at..at + S].copy_from_slice(&k);
             }
         }
         k0 += kn;
@@ -891,8 +922,6 @@ struct Back<T: Real, const S: usize> {
     /// The sums of the new gaps in f64 in either precision (as the sequential sweep's).
     sum: [f64; S],
     opening: [T; S],
-    closing: [T; S],
-    needs_fixup: [T::Flag; S],
 }
 
 /// One row of the back sweep for S segments: the sequential back sweep's operations, with the
@@ -902,13 +931,13 @@ struct Back<T: Real, const S: usize> {
 #[inline(always)]
 fn back_row<T: Real, const S: usize, const CLU: bool>(
     h: T,
-    gamma2: T,
     st: &mut Back<T, S>,
     old: &[T; S],
     bonded: &[bool; S],
     w: &[T; S],
     ys: &[T; S],
     ls: &[T; S],
+    k: &[T; S],
 ) -> ([T; S], [T; S]) {
     let zero = T::ZERO;
     let floor = T::GAP_FLOOR;
@@ -921,7 +950,7 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
         if CLU && bonded[l] {
             u = st.u_next[l];
         }
-        let rate = ls[l] * st.u_next[l] - ys[l];
+        let rate = (ls[l] * st.u_next[l] - ys[l]) * k[l];
         x[l] = h * rate;
         small &= flag(x[l].abs() < T::c(GAP_EXP_TAYLOR));
         st.u_next[l] = u;
@@ -935,12 +964,9 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
         if old[l] > zero {
             st.opening[l] = fmax(x[l], st.opening[l]);
         }
-        let d = fmax(old[l], floor);
-        st.closing[l] = fmax(d * (gamma2 * fmin(x[l], zero) - T::ONE), st.closing[l]);
         // NaN fails the comparisons.
         flags[l] =
             flag(!(grown[l] >= floor && grown[l] < T::INFINITY && x[l] <= T::c(EXP_FAST_MAX)));
-        st.needs_fixup[l] |= flags[l];
         any |= flags[l];
     }
     if any != T::Flag::default() {
@@ -965,8 +991,6 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
 struct GroupBack<T> {
     sums: [f64; SEGMENT_LANES],
     opening: T,
-    closing: T,
-    needs_fixup: bool,
     /// u_1 (group 0 only).
     u_first: T,
 }
@@ -1021,12 +1045,13 @@ where
     const S: usize = SEGMENT_LANES;
     {
         let len = layout.chunk(g).len();
-        if buf.len() < 3 * len {
-            buf.resize(3 * len, T::ZERO);
+        if buf.len() < 4 * len {
+            buf.resize(4 * len, T::ZERO);
         }
         let (w, rest) = buf.split_at_mut(len);
         let (ls, rest) = rest.split_at_mut(len);
-        let ys = &mut rest[..len];
+        let (ys, rest) = rest.split_at_mut(len);
+        let k = &mut rest[..len];
         let tau: [T; S] = std::array::from_fn(|l| iface[g * S + l].0);
         forward_group::<T, L, REP, false, P, Q>(
             terms,
@@ -1036,33 +1061,26 @@ where
             Sweep::new(tau, T::ZERO),
             inputs,
             out.force,
-            Some(Rows { w, ls, ys }),
+            Some(Rows { w, ls, ys, k }),
             law,
         );
-        back_group::<T, L, P, Q>(terms, layout, g, c, iface, inputs.0, w, ls, ys, out, law)
+        back_group::<T, L>(terms, layout, g, c, iface, inputs.0, [w, ls, ys, k], out)
     }
 }
 
 /// The back sweep of [`solve_group_impl`].
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn back_group<T: PartitionedReal, const L: usize, P, Q>(
+fn back_group<T: PartitionedReal, const L: usize>(
     terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
     c: Step<T>,
     iface: &[(T, T)],
     gaps_in: &[T],
-    w: &[T],
-    ls: &[T],
-    ys: &[T],
+    [w, ls, ys, k]: [&mut [T]; 4],
     out: Outputs<'_, T>,
-    law: Law<P, Q>,
-) -> GroupBack<T>
-where
-    P: Fn(usize, T) -> T + Copy,
-    Q: Fn(usize) -> T + Copy,
-{
+) -> GroupBack<T> {
     const S: usize = SEGMENT_LANES;
     let zero = T::ZERO;
     let h = c.h;
@@ -1072,13 +1090,10 @@ where
     let off = main - chunk_at;
     let bonded_all = terms.bonded.unwrap_or(&[]);
     let clu = !bonded_all.is_empty();
-    let gamma2 = -((law.gamma)(0) + T::c(2.0));
     let mut st = Back::<T, S> {
         u_next: std::array::from_fn(|l| iface[g * S + l].1),
         sum: [0.0; S],
         opening: [zero; S],
-        closing: [T::NEG_INFINITY; S],
-        needs_fixup: [T::Flag::default(); S],
     };
     // Tiles of rows from the top, as in the forward sweep; the outputs go out per tile.
     let mut t_old = [[zero; S]; TILE];
@@ -1098,13 +1113,13 @@ where
             let at = off + (k0 + kk) * S;
             let (u, grown) = back_row::<T, S, true>(
                 h,
-                gamma2,
                 &mut st,
                 &t_old[kk],
                 &t_bond[kk],
                 w[at..at + S].try_into().unwrap(),
                 ys[at..at + S].try_into().unwrap(),
                 ls[at..at + S].try_into().unwrap(),
+                k[at..at + S].try_into().unwrap(),
             );
             t_u[kk] = u;
             t_grown[kk] = grown;
@@ -1120,36 +1135,30 @@ where
             u_next: [st.u_next[0]],
             sum: [st.sum[0]],
             opening: [st.opening[0]],
-            closing: [st.closing[0]],
-            needs_fixup: [st.needs_fixup[0]],
         };
         for row in (1..=layout.rem).rev() {
             let i = row - 1;
             let (u, grown) = back_row::<T, 1, true>(
                 h,
-                gamma2,
                 &mut s0,
                 &[gaps_in[row]],
                 &[clu && bonded_all[row]],
                 &[w[i]],
                 &[ys[i]],
                 &[ls[i]],
+                &[k[i]],
             );
             out.vel[i] = u[0];
             out.gaps[i] = grown[0];
         }
         st.sum[0] = s0.sum[0];
         st.opening[0] = s0.opening[0];
-        st.closing[0] = s0.closing[0];
-        st.needs_fixup[0] = s0.needs_fixup[0];
         u_first = s0.u_next[0];
     }
     // max and | do not depend on the order.
     GroupBack {
         sums: st.sum,
         opening: st.opening.iter().fold(zero, |a, &b| fmax(b, a)),
-        closing: st.closing.iter().fold(T::NEG_INFINITY, |a, &b| fmax(b, a)),
-        needs_fixup: st.needs_fixup.iter().any(|&f| f != T::Flag::default()),
         u_first,
     }
 }
@@ -1297,20 +1306,16 @@ where
     // not depend on the thread count; in f64 in either precision.
     let mut sum = 0.0f64;
     let mut opening = zero;
-    let mut closing = T::NEG_INFINITY;
-    let mut needs_fixup = false;
     for b in backs.iter().rev() {
         for s in b.sums.iter().rev() {
             sum += s;
         }
         opening = fmax(b.opening, opening);
-        closing = fmax(b.closing, closing);
-        needs_fixup |= b.needs_fixup;
     }
     let u_first = backs[0].u_first;
 
     // 4. The rest as in the sequential path (step.rs `euler_impl`): bodies glued to the left
-    // wall, the first gap, the certificate and the projection.
+    // wall, the first gap and the projection.
     if CLU {
         for i in 0..n - 1 {
             if !bonded_all[i] {
@@ -1319,17 +1324,15 @@ where
             vel_out[i] = zero;
         }
     }
-    let gamma2 = -((law.gamma)(0) + T::c(2.0));
     let old = gaps_in[0];
-    let x = h0 * (u_first / fmax(old, floor));
+    let d = fmax(old, floor);
+    let k_first = jacobian_factor(d, h0, zero, vel_in[0]);
+    let x = h0 * (u_first / d * k_first);
     let mut grown = old * gap_exp(x);
     if old > zero {
         opening = fmax(x, opening);
     }
-    let d = fmax(old, floor);
-    closing = fmax(d * (gamma2 * fmin(x, zero) - T::ONE), closing);
     if !(grown >= floor && grown < T::INFINITY && x <= T::c(EXP_FAST_MAX)) {
-        needs_fixup = true;
         grown = if CLU && bonded_all[0] {
             zero
         } else {
@@ -1339,15 +1342,7 @@ where
     gap_first[0] = grown;
     sum += fmax(grown, zero).to_f64();
     report[0].admissible &= opening <= T::c(MAX_OPENING);
-    report[0].certified = !needs_fixup
-        && energy_certified(
-            REP,
-            closing.to_f64(),
-            opening.to_f64(),
-            mass.to_f64(),
-            terms.contact_repulsion[0],
-            (terms.mu[0] / h0).to_f64(),
-        );
+    report[0].certified = !REP;
     let force = terms.forcing.is_some().then_some(scratch.force.as_slice());
     super::conclude_simd::<T, L, REP, CLU, P, Q>(
         simd,

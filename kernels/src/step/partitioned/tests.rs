@@ -83,7 +83,6 @@ fn step_as<T: Real>(
         eps: T::c(eps),
         mu: [T::c(0.01)],
         total_gap: [gaps.iter().map(|&v| stored_gap::decode(v.to_f64())).sum()],
-        contact_repulsion: [model.gamma.map_or(0.0, |g| 3f64.powf(g))],
         repulsion: model
             .gamma
             .map(|g| (dstar.as_slice(), Gamma::Uniform(Power::of(g)))),
