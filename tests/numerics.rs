@@ -106,6 +106,8 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
                 mu,
                 total_gap,
                 // Large: the energy is always computed (and checked against the model's below).
+                contact_repulsion: [f64::INFINITY; L],
+                exact_jacobian: false,
                 repulsion: Some((&dstar, Gamma::PerLane(gammas))),
                 bonded: with_clusters.then_some(bonded.as_slice()),
                 forcing: Some(&forcing),

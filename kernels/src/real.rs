@@ -21,7 +21,7 @@ use crate::shared::control::{ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_G
 use crate::shared::f64_math;
 use crate::step::{
     partitioned_real, Layout, StepBuffers, StepReport, Terms, GAP_FLOOR, GAP_FLOOR_F32,
-    JACOBIAN_RESOLVED, JACOBIAN_RESOLVED_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32,
+    LN_GAP_FLOOR, LN_GAP_FLOOR_F32,
 };
 use crate::stored_gap;
 use crate::SimdLevel;
@@ -61,8 +61,6 @@ pub trait Real:
     const GAP_FLOOR_F64: f64;
     /// ln(GAP_FLOOR).
     const LN_GAP_FLOOR: Self;
-    /// Where a gap's start rate is resolved (`JACOBIAN_RESOLVED` in f64, `_F32` in f32).
-    const JACOBIAN_RESOLVED: Self;
     /// Relative slack of the energy check ([`crate::shared::control::energy_acceptable`]) ...
     const ENERGY_RTOL: f64;
     /// ... plus this much per unit of gamma (G carries about gamma ulps of rounding; 0 in f64,
@@ -116,7 +114,6 @@ impl Real for f64 {
     const GAP_FLOOR: f64 = GAP_FLOOR;
     const GAP_FLOOR_F64: f64 = GAP_FLOOR;
     const LN_GAP_FLOOR: f64 = LN_GAP_FLOOR;
-    const JACOBIAN_RESOLVED: f64 = JACOBIAN_RESOLVED;
     const ENERGY_RTOL: f64 = ENERGY_RTOL_F64;
     const ENERGY_RTOL_PER_GAMMA: f64 = 0.0;
 
@@ -193,7 +190,6 @@ impl Real for f32 {
     const GAP_FLOOR: f32 = GAP_FLOOR_F32 as f32;
     const GAP_FLOOR_F64: f64 = GAP_FLOOR_F32;
     const LN_GAP_FLOOR: f32 = LN_GAP_FLOOR_F32 as f32;
-    const JACOBIAN_RESOLVED: f32 = JACOBIAN_RESOLVED_F32 as f32;
     const ENERGY_RTOL: f64 = ENERGY_RTOL_F32;
     const ENERGY_RTOL_PER_GAMMA: f64 = ENERGY_RTOL_PER_GAMMA_F32;
 

@@ -22,12 +22,14 @@
 //! below the float range (d = 0 in the sweep) makes its two particles move as one, exactly as the
 //! limit says.
 //!
-//! The exact Jacobian. In the variables (ln d, u) the gap equation d(ln d_i)/dt = r_i has the
-//! derivative -r_i in ln d_i. Keeping it (the linearly implicit Euler step with the exact
-//! Jacobian, not a W-method) multiplies a_i and the gap's update by k_i = 1/(1 + h r_i), r_i the
-//! rate at the step's start ([`jacobian_factor`]): ln d_i' = ln d_i + h k_i r_i'. Without it the
-//! extrapolated orders fall to about 2 on long chains with random roughness (docs/accuracy.md);
-//! with it they climb towards their nominal order. The back sweep stores k_i r_i' as the rate.
+//! The exact Jacobian (steps that are extrapolated: `Terms::exact_jacobian`). In the variables
+//! (ln d, u) the gap equation d(ln d_i)/dt = r_i has the derivative -r_i in ln d_i. Keeping it
+//! (the linearly implicit Euler step with the exact Jacobian, not a W-method) multiplies a_i and
+//! the gap's update by k_i = 1/(1 + h r_i), r_i the rate at the step's start
+//! ([`jacobian_factor`]): ln d_i' = ln d_i + h k_i r_i'. Without it the extrapolated orders fall
+//! to about 2 on long chains with random roughness (docs/accuracy.md); with it they climb towards
+//! their nominal order. The back sweep stores k_i r_i' as the rate. Order 1 keeps k_i = 1: its
+//! steps are not extrapolated, and k_i = 1 is what the energy certificate below is proved for.
 //!
 //! The gap update: ln d_i' = ln d_i + h r_i. The lubrication force over the step is then exactly
 //! mu (ln d' - ln d)/h, i.e. the step integrates mu d(ln d)/dt exactly; gaps stay positive and
@@ -38,8 +40,7 @@
 //!
 //! Energy: the step returns the discrete energy E' of its result and the work h Σ u_i' F_i of the
 //! forcing, so that the caller rejects a step whose energy rose (linearising G is not
-//! energy-stable at large gamma h). Without repulsion the step is certified not to raise it
-//! ([`StepReport::certified`]); with repulsion the energy is always computed.
+//! energy-stable at large gamma h).
 //!
 //! Clusters (Appendix A): a bonded gap (zero at t = 0) enters the sweep as a gap of GAP_FLOOR with
 //! G = 0 and a = mu: the sweep merges its two particles (to ~1e-250); the back sweep then copies
@@ -61,9 +62,8 @@ use crate::power::{powi_in_rounds, Power};
 use crate::real::Real;
 use crate::shared::f64_math;
 pub use crate::shared::gaps::{
-    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, JACOBIAN_RESOLVED,
-    JACOBIAN_RESOLVED_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32, LN_RATIO_SERIES, MAX_OPENING,
-    MIN_JACOBIAN_DIVISOR,
+    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, JACOBIAN_RESOLVED, LN_GAP_FLOOR,
+    LN_GAP_FLOOR_F32, LN_RATIO_SERIES, MAX_OPENING, MIN_JACOBIAN_DIVISOR,
 };
 use crate::SimdLevel;
 
@@ -160,6 +160,12 @@ pub struct Terms<'a, const L: usize, T: Real = f64> {
     /// sum d_i of each lane's initial chain, kept by the projection (f64 in either precision:
     /// see `conclude_impl`).
     pub total_gap: [f64; L],
+    /// The largest repulsion a gap of the lane can reach, max_i ((d*_i + 2eps)/2eps)^gamma (0
+    /// without repulsion), for the energy certificate ([`StepReport::certified`]).
+    pub contact_repulsion: [f64; L],
+    /// Whether the step keeps the Jacobian's -r_i (k_i = 1/(1 + h r_i)): the extrapolated
+    /// schemes (order 2 and above); order 1 takes k_i = 1.
+    pub exact_jacobian: bool,
     /// d* (interleaved, length N·L) and how G is evaluated: present iff the model has repulsion.
     pub repulsion: Option<(&'a [T], Gamma<L>)>,
     /// Bonded gaps (interleaved, length N·L): present iff some member has clusters.
@@ -258,8 +264,8 @@ pub struct StepReport {
     /// A failure that no smaller step can cure, found in the state the step started from:
     /// the forcing or the repulsion is not finite there.
     pub hard: Option<HardFailure>,
-    /// The step provably did not raise the energy beyond the forcing's work (a model without
-    /// repulsion); its energy was then not computed (`energy` is -1).
+    /// The step provably did not raise the energy beyond the forcing's work (see
+    /// [`energy_certified`]); its energy was then not computed (`energy` is -1).
     pub certified: bool,
     /// Discrete energy of the result (-1 when certified and not computed).
     pub energy: f64,
@@ -369,14 +375,16 @@ where
 
 /// k = 1/(1 + h r) of a gap of (effective) size d whose ends move at u_left and u_right at the
 /// step's start (r = (u_right - u_left)/d), written d/(d + h (u_right - u_left)) (one division),
-/// with 1 + h r at least MIN_JACOBIAN_DIVISOR; 1 where r is not resolved (see
-/// JACOBIAN_RESOLVED: near contact the velocities' difference is rounding). NaN gives 1 or
-/// 10; the velocities it came from make the step inadmissible anyway.
+/// where `exact` and 1 + h r >= MIN_JACOBIAN_DIVISOR and r is resolved (JACOBIAN_RESOLVED: near
+/// contact the velocities' difference is rounding), else 1. NaN gives 1 (the comparisons fail);
+/// the velocities it came from make the step inadmissible anyway. k = 1 leaves every product
+/// it enters unchanged, bit for bit.
 #[inline(always)]
-fn jacobian_factor<T: Real>(d: T, h: T, u_left: T, u_right: T) -> T {
+fn jacobian_factor<T: Real>(exact: bool, d: T, h: T, u_left: T, u_right: T) -> T {
     let moved = h * (u_left.abs() + u_right.abs());
-    let divisor = fmax(d + h * (u_right - u_left), T::c(MIN_JACOBIAN_DIVISOR) * d);
-    if moved <= T::JACOBIAN_RESOLVED * d {
+    let divisor = d + h * (u_right - u_left);
+    if exact && moved <= T::c(JACOBIAN_RESOLVED) * d && divisor >= T::c(MIN_JACOBIAN_DIVISOR) * d
+    {
         d / divisor
     } else {
         T::ONE
@@ -635,6 +643,16 @@ fn fmax<T: Real>(a: T, b: T) -> T {
     }
 }
 
+/// min(a, b) as one packed min, b when a is NaN (see [`fmax`]).
+#[inline(always)]
+fn fmin<T: Real>(a: T, b: T) -> T {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
 /// The Taylor branch of [`gap_exp`] (|x| < GAP_EXP_TAYLOR), branch-free for the lane loop.
 #[allow(clippy::excessive_precision)]
 #[inline(always)]
@@ -805,6 +823,7 @@ where
     // Flags as 0/1 in lanes as wide as T (what a packed comparison yields; bools cost packing).
     let flag = T::Flag::from;
     let mut nonfinite = [T::Flag::default(); L];
+    let exact = terms.exact_jacobian;
     // The first gap's k (the wall's side does not move); the others' are kept in scratch.k.
     let mut k_first = [T::ONE; L];
     {
@@ -819,7 +838,7 @@ where
             let (a, g, d) = gap_terms::<T, REP, CLU, P, Q>(
                 law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
             );
-            k_first[l] = jacobian_factor(d, h[l], zero, u_right[l]);
+            k_first[l] = jacobian_factor(exact, d, h[l], zero, u_right[l]);
             a_prev[l] = a * k_first[l];
             g_prev[l] = g;
             ls_prev[l] = T::ONE / d;
@@ -867,7 +886,7 @@ where
                     let (a_next, g_next, d_next) = gap_terms::<T, REP, CLU, P, Q>(
                         law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
                     );
-                    k[l] = jacobian_factor(d_next, h[l], vel[l], vel_right[l]);
+                    k[l] = jacobian_factor(exact, d_next, h[l], vel[l], vel_right[l]);
                     let a_next = a_next * k[l];
                     nonfinite[l] |= flag(!(g_next + f[l]).is_finite());
                     let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
@@ -911,9 +930,11 @@ where
     // left in `ls`.
     let mut needs_fixup = [T::Flag::default(); L];
     let mut opening = [zero; L];
+    let mut closing = [T::NEG_INFINITY; L];
     // The new gaps' sum, for the projection: in f64 in either precision (see `conclude_impl`).
     let mut sum = [0.0f64; L];
     let mut u_next = [zero; L];
+    let gamma2: [T; L] = std::array::from_fn(|l| -((law.gamma)(l) + T::c(2.0)));
     let taylor = T::c(GAP_EXP_TAYLOR);
     let fast_max = T::c(EXP_FAST_MAX);
     // Whether d·e^x is the update (else the fix-up redoes it in log form); NaN fails.
@@ -928,8 +949,9 @@ where
         // all but the velocity recurrence runs in SIMD registers across gaps. The same
         // operations per gap as the loop below, and the sum in the same order.
         const W: usize = 4;
-        let h0 = h[0];
+        let (h0, gamma0) = (h[0], gamma2[0]);
         let mut open_w = [zero; W];
+        let mut close_w = [T::NEG_INFINITY; W];
         let mut fixup_w = [T::Flag::default(); W];
         let mut un = u_next[0];
         while i_top >= W {
@@ -971,6 +993,8 @@ where
                 if old[j] > zero {
                     open_w[j] = fmax(x[j], open_w[j]);
                 }
+                let d = fmax(old[j], floor);
+                close_w[j] = fmax(d * (gamma0 * fmin(x[j], zero) - T::ONE), close_w[j]);
                 fixup_w[j] |= flag(!fast(grown[j], x[j]));
             }
             for j in (0..W).rev() {
@@ -985,6 +1009,7 @@ where
         // max and | do not depend on the order.
         for j in 0..W {
             opening[0] = fmax(open_w[j], opening[0]);
+            closing[0] = fmax(close_w[j], closing[0]);
             needs_fixup[0] |= fixup_w[j];
         }
     }
@@ -1027,6 +1052,8 @@ where
             if old[l] > zero {
                 opening[l] = fmax(x[l], opening[l]);
             }
+            let d = fmax(old[l], floor);
+            closing[l] = fmax(d * (gamma2[l] * fmin(x[l], zero) - T::ONE), closing[l]);
             // NaN fails the comparisons.
             needs_fixup[l] |= flag(!fast(grown, x[l]));
         }
@@ -1063,6 +1090,8 @@ where
         if old > zero {
             opening[l] = fmax(x, opening[l]);
         }
+        let d = fmax(old, floor);
+        closing[l] = fmax(d * (gamma2[l] * fmin(x, zero) - T::ONE), closing[l]);
         needs_fixup[l] |= flag(!fast(grown, x));
     }
 
@@ -1081,11 +1110,20 @@ where
             sum[l] = lane_sum::<T, L>(n, l, gaps_out);
         }
         report[l].admissible &= opening[l] <= T::c(MAX_OPENING);
-        // Without repulsion Phi = 0 and the kinetic balance alone gives
-        // E' - E - W <= -(mu/h) sum d x^2/k <= 0 (k > 0). With it the step's energy balance has
-        // a term G d x h r(0) of either sign (the velocities do the work h G d r', the gap moves
-        // by d x = d h k r'), so the energy is computed.
-        report[l].certified = !REP;
+        // The certificate is proved for k_i = 1: with k_i the step's energy balance has a term
+        // G d x h r(0) of either sign (the velocities do the work h G d r', the gap moves by
+        // d x = d h k r'), so with repulsion the energy is computed. Without repulsion the
+        // kinetic balance, E' - E - W <= -(mu/h) sum d x^2/k, holds for any k > 0.
+        report[l].certified = needs_fixup[l] == T::Flag::default()
+            && !(REP && exact)
+            && energy_certified(
+                REP,
+                closing[l].to_f64(),
+                opening[l].to_f64(),
+                (T::c(2.0) * eps).to_f64(),
+                terms.contact_repulsion[l],
+                (terms.mu[l] / h[l]).to_f64(),
+            );
     }
     let force = terms.forcing.is_some().then_some(scratch.force.as_slice());
     conclude_impl::<T, L, REP, CLU, P, Q>(
@@ -1100,6 +1138,35 @@ where
         law,
     );
     report
+}
+
+/// Whether a linearly implicit Euler step (with the update e^{h r} and the projection) provably
+/// did not raise the energy beyond the forcing's work, from two numbers the back sweep keeps per
+/// lane. With x_i = h r_i, D_i = d_i x_i (the linear gap change), k_i = Phi_i''(d_i) and
+/// e_i = d_i (e^{x_i} - 1 - x_i) >= 0 (what the update adds beyond D_i; the projection removes
+/// their sum again):
+///   E' - E - W <= sum_i (R_i - k_i D_i^2/2) + (e^{max(x, 0)} G_max/2 - mu/h) sum_i d_i x_i^2,
+/// where R_i is the Taylor remainder of Phi_i beyond second order over D_i (the scheme's own
+/// balance gives -mu/h sum d x^2 - sum k D^2/2, the projection at most G_max sum e_i, and
+/// sum e_i <= e^{max x} sum d x^2/2). The third derivative of Phi is negative, so R_i <= 0 for
+/// an opening gap, and R_i <= k_i D_i^2/2 for a closing one when
+/// (gamma + 1)|D_i| <= d_i + D_i + 2eps, i.e. when `closing` = max_i d_i ((gamma + 2)(-x_i) - 1) <= 2eps; the second term is
+/// <= 0 when e^{max x} G_max/2 <= mu/h, with G_max bounded by the contact repulsion. A mild step
+/// is certified and skips the potential energy; any other is checked by computing E'.
+#[inline(always)]
+pub fn energy_certified(
+    repulsion: bool,
+    closing: f64,
+    opening: f64,
+    eps2: f64,
+    contact_repulsion: f64,
+    mu_over_h: f64,
+) -> bool {
+    if !repulsion {
+        // Phi = 0: the kinetic balance alone, E' - E - W <= -mu/h sum d x^2.
+        return true;
+    }
+    closing <= eps2 && 0.5 * f64_math::exp(opening.max(0.0)) * contact_repulsion <= mu_over_h
 }
 
 /// The hard failure of a lane whose forward sweep met a non-finite G or F (outside the hot loop).

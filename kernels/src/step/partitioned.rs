@@ -23,7 +23,7 @@
 //! interface), right to left from the wall. Its pivots 1 - Lc C are >= 1 (Lc >= 0, C <= 0) and
 //! Lc stays >= 0: no cancellation. The back-substitution of each segment from its tau and right
 //! neighbour's first velocity is then the sequential back sweep (velocities, rate form of the
-//! gap update, the opening check, sum of the new gaps), again side by side.
+//! gap update, flags for the energy certificate, sum of the new gaps), again side by side.
 //!
 //! The interface carries a rate, not a velocity: near contact (d below GAP_FLOOR) the rate is
 //! O(1) while u_b - u_{b-1} is below rounding, so a velocity interface would lose the rate of a
@@ -49,7 +49,7 @@
 //! That reads the inputs twice and stores nothing per row but the new state (about 80 bytes
 //! per particle-step in f64 against ~140 for storing the spike rows; half in f32), at the price
 //! of a second forward sweep. The log-form fix-up of a gap is local, so it is done in the back
-//! sweep (the rates are not kept); the hard-failure lookup, projection and energy
+//! sweep (the rates are not kept); the hard-failure lookup, certificate, projection and energy
 //! are the sequential path's code.
 //!
 //! Layout: the rows of group g (and the prologue's, for group 0) are one contiguous range; the
@@ -73,8 +73,9 @@
 use rayon::prelude::*;
 
 use super::{
-    find_hard_failure, fixed_up, fmax, gap_exp, gap_terms, jacobian_factor, particle_force, Law,
-    Real, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, MAX_OPENING,
+    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms, jacobian_factor,
+    particle_force, Law, Real, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR,
+    MAX_OPENING,
 };
 
 /// Segments per group: the lanes of the partitioned lane loops (as many as the batched blocks,
@@ -580,6 +581,8 @@ struct Step<T> {
     h: T,
     t: f64,
     m_over_h: T,
+    /// `Terms::exact_jacobian`.
+    exact: bool,
 }
 
 /// One row of the forward sweep for S segments: the sequential sweep's operations, plus (with
@@ -619,7 +622,7 @@ where
         let (a_next, g_next, d_next) = gap_terms::<T, REP, true, P, Q>(
             law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
         );
-        k[l] = jacobian_factor(d_next, c.h, vel[l], vel_right[l]);
+        k[l] = jacobian_factor(c.exact, d_next, c.h, vel[l], vel_right[l]);
         let a_next = a_next * k[l];
         st.nonfinite[l] |= T::Flag::from(!(g_next + f[l]).is_finite());
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
@@ -752,12 +755,8 @@ where
             );
             // The gap's k as the row before it computes it (index 0 is the left wall's gap).
             let at = main + l * m;
-            let u_left = if at == 0 {
-                zero
-            } else {
-                vel_in[at - 1]
-            };
-            let k = jacobian_factor(d, c.h, u_left, velocity_at(vel_in, at));
+            let u_left = if at == 0 { zero } else { vel_in[at - 1] };
+            let k = jacobian_factor(c.exact, d, c.h, u_left, velocity_at(vel_in, at));
             st.a_prev[l] = a * k;
             st.g_prev[l] = gg;
         }
@@ -776,7 +775,7 @@ where
             clu && bonded_all[0],
             c.h,
         );
-        s0.a_prev[0] = a * jacobian_factor(d, c.h, zero, velocity_at(vel_in, 0));
+        s0.a_prev[0] = a * jacobian_factor(c.exact, d, c.h, zero, velocity_at(vel_in, 0));
         s0.g_prev[0] = gg;
         s0.ls_prev[0] = T::ONE / d;
         s0.nonfinite[0] |= T::Flag::from(!gg.is_finite());
@@ -922,6 +921,8 @@ struct Back<T: Real, const S: usize> {
     /// The sums of the new gaps in f64 in either precision (as the sequential sweep's).
     sum: [f64; S],
     opening: [T; S],
+    closing: [T; S],
+    needs_fixup: [T::Flag; S],
 }
 
 /// One row of the back sweep for S segments: the sequential back sweep's operations, with the
@@ -931,6 +932,7 @@ struct Back<T: Real, const S: usize> {
 #[inline(always)]
 fn back_row<T: Real, const S: usize, const CLU: bool>(
     h: T,
+    gamma2: T,
     st: &mut Back<T, S>,
     old: &[T; S],
     bonded: &[bool; S],
@@ -964,9 +966,12 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
         if old[l] > zero {
             st.opening[l] = fmax(x[l], st.opening[l]);
         }
+        let d = fmax(old[l], floor);
+        st.closing[l] = fmax(d * (gamma2 * fmin(x[l], zero) - T::ONE), st.closing[l]);
         // NaN fails the comparisons.
         flags[l] =
             flag(!(grown[l] >= floor && grown[l] < T::INFINITY && x[l] <= T::c(EXP_FAST_MAX)));
+        st.needs_fixup[l] |= flags[l];
         any |= flags[l];
     }
     if any != T::Flag::default() {
@@ -991,6 +996,8 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
 struct GroupBack<T> {
     sums: [f64; SEGMENT_LANES],
     opening: T,
+    closing: T,
+    needs_fixup: bool,
     /// u_1 (group 0 only).
     u_first: T,
 }
@@ -1064,14 +1071,14 @@ where
             Some(Rows { w, ls, ys, k }),
             law,
         );
-        back_group::<T, L>(terms, layout, g, c, iface, inputs.0, [w, ls, ys, k], out)
+        back_group::<T, L, P, Q>(terms, layout, g, c, iface, inputs.0, [w, ls, ys, k], out, law)
     }
 }
 
 /// The back sweep of [`solve_group_impl`].
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn back_group<T: PartitionedReal, const L: usize>(
+fn back_group<T: PartitionedReal, const L: usize, P, Q>(
     terms: &Terms<L, T>,
     layout: &Layout,
     g: usize,
@@ -1080,7 +1087,12 @@ fn back_group<T: PartitionedReal, const L: usize>(
     gaps_in: &[T],
     [w, ls, ys, k]: [&mut [T]; 4],
     out: Outputs<'_, T>,
-) -> GroupBack<T> {
+    law: Law<P, Q>,
+) -> GroupBack<T>
+where
+    P: Fn(usize, T) -> T + Copy,
+    Q: Fn(usize) -> T + Copy,
+{
     const S: usize = SEGMENT_LANES;
     let zero = T::ZERO;
     let h = c.h;
@@ -1090,10 +1102,13 @@ fn back_group<T: PartitionedReal, const L: usize>(
     let off = main - chunk_at;
     let bonded_all = terms.bonded.unwrap_or(&[]);
     let clu = !bonded_all.is_empty();
+    let gamma2 = -((law.gamma)(0) + T::c(2.0));
     let mut st = Back::<T, S> {
         u_next: std::array::from_fn(|l| iface[g * S + l].1),
         sum: [0.0; S],
         opening: [zero; S],
+        closing: [T::NEG_INFINITY; S],
+        needs_fixup: [T::Flag::default(); S],
     };
     // Tiles of rows from the top, as in the forward sweep; the outputs go out per tile.
     let mut t_old = [[zero; S]; TILE];
@@ -1113,6 +1128,7 @@ fn back_group<T: PartitionedReal, const L: usize>(
             let at = off + (k0 + kk) * S;
             let (u, grown) = back_row::<T, S, true>(
                 h,
+                gamma2,
                 &mut st,
                 &t_old[kk],
                 &t_bond[kk],
@@ -1135,11 +1151,14 @@ fn back_group<T: PartitionedReal, const L: usize>(
             u_next: [st.u_next[0]],
             sum: [st.sum[0]],
             opening: [st.opening[0]],
+            closing: [st.closing[0]],
+            needs_fixup: [st.needs_fixup[0]],
         };
         for row in (1..=layout.rem).rev() {
             let i = row - 1;
             let (u, grown) = back_row::<T, 1, true>(
                 h,
+                gamma2,
                 &mut s0,
                 &[gaps_in[row]],
                 &[clu && bonded_all[row]],
@@ -1153,12 +1172,16 @@ fn back_group<T: PartitionedReal, const L: usize>(
         }
         st.sum[0] = s0.sum[0];
         st.opening[0] = s0.opening[0];
+        st.closing[0] = s0.closing[0];
+        st.needs_fixup[0] = s0.needs_fixup[0];
         u_first = s0.u_next[0];
     }
     // max and | do not depend on the order.
     GroupBack {
         sums: st.sum,
         opening: st.opening.iter().fold(zero, |a, &b| fmax(b, a)),
+        closing: st.closing.iter().fold(T::NEG_INFINITY, |a, &b| fmax(b, a)),
+        needs_fixup: st.needs_fixup.iter().any(|&f| f != T::Flag::default()),
         u_first,
     }
 }
@@ -1237,6 +1260,7 @@ where
         h: h0,
         t: t0,
         m_over_h: mass / h0,
+        exact: terms.exact_jacobian,
     };
     let mut report = [StepReport::START; L];
     let p = layout.segments();
@@ -1306,16 +1330,20 @@ where
     // not depend on the thread count; in f64 in either precision.
     let mut sum = 0.0f64;
     let mut opening = zero;
+    let mut closing = T::NEG_INFINITY;
+    let mut needs_fixup = false;
     for b in backs.iter().rev() {
         for s in b.sums.iter().rev() {
             sum += s;
         }
         opening = fmax(b.opening, opening);
+        closing = fmax(b.closing, closing);
+        needs_fixup |= b.needs_fixup;
     }
     let u_first = backs[0].u_first;
 
     // 4. The rest as in the sequential path (step.rs `euler_impl`): bodies glued to the left
-    // wall, the first gap and the projection.
+    // wall, the first gap, the certificate and the projection.
     if CLU {
         for i in 0..n - 1 {
             if !bonded_all[i] {
@@ -1324,15 +1352,18 @@ where
             vel_out[i] = zero;
         }
     }
+    let gamma2 = -((law.gamma)(0) + T::c(2.0));
     let old = gaps_in[0];
     let d = fmax(old, floor);
-    let k_first = jacobian_factor(d, h0, zero, vel_in[0]);
+    let k_first = jacobian_factor(c.exact, d, h0, zero, vel_in[0]);
     let x = h0 * (u_first / d * k_first);
     let mut grown = old * gap_exp(x);
     if old > zero {
         opening = fmax(x, opening);
     }
+    closing = fmax(d * (gamma2 * fmin(x, zero) - T::ONE), closing);
     if !(grown >= floor && grown < T::INFINITY && x <= T::c(EXP_FAST_MAX)) {
+        needs_fixup = true;
         grown = if CLU && bonded_all[0] {
             zero
         } else {
@@ -1342,7 +1373,17 @@ where
     gap_first[0] = grown;
     sum += fmax(grown, zero).to_f64();
     report[0].admissible &= opening <= T::c(MAX_OPENING);
-    report[0].certified = !REP;
+    // As the sequential sweep's: the certificate is proved for k_i = 1.
+    report[0].certified = !needs_fixup
+        && !(REP && c.exact)
+        && energy_certified(
+            REP,
+            closing.to_f64(),
+            opening.to_f64(),
+            mass.to_f64(),
+            terms.contact_repulsion[0],
+            (terms.mu[0] / h0).to_f64(),
+        );
     let force = terms.forcing.is_some().then_some(scratch.force.as_slice());
     super::conclude_simd::<T, L, REP, CLU, P, Q>(
         simd,

@@ -85,6 +85,8 @@ struct LaneModel<T: Real, const L: usize> {
     total_gap: [f64; L],
     /// The energy check's relative slack per lane (`energy_rtol`).
     energy_rtol: [f64; L],
+    /// See `Terms::contact_repulsion`.
+    contact_repulsion: [f64; L],
     /// Each lane's member (for its forcing parameters).
     members: [Option<usize>; L],
     /// The step's instruction set, chosen once from the CPU and `Plan::overrides`.
@@ -97,6 +99,8 @@ impl<T: Real, const L: usize> LaneModel<T, L> {
             eps: T::c(plan.eps),
             mu: self.mu,
             total_gap: self.total_gap,
+            contact_repulsion: self.contact_repulsion,
+            exact_jacobian: Scheme::of(plan).extrapolates(),
             repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
             bonded: self.bonded.as_deref(),
             forcing: plan
@@ -156,6 +160,13 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
     ) -> Self {
         let n = plan.particles;
         let total_gap = chains.map(|c| c.gaps.iter().sum::<f64>());
+        // max_i ((d*_i + 2eps)/2eps)^gamma: the repulsion of gap i at contact.
+        let contact_repulsion: [f64; L] = std::array::from_fn(|l| {
+            chains[l].dstar.as_ref().map_or(0.0, |dstar| {
+                let widest = dstar.iter().fold(0.0f64, |m, &d| m.max(d));
+                Power::of(params[l].gamma).apply((widest + 2.0 * plan.eps) / (2.0 * plan.eps))
+            })
+        });
         // As the GPU uploads them: encoded in f64 with T's floor, then rounded to T.
         let mut gaps = interleave::<f64>(&chains.map(|c| c.gaps.as_slice()));
         for d in gaps.iter_mut() {
@@ -204,6 +215,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                 dstar,
                 bonded,
                 total_gap,
+                contact_repulsion,
                 members,
                 simd: SimdLevel::capped(plan.overrides.cpu_simd_cap),
             },
