@@ -163,9 +163,8 @@ const MAX_SHRINK: real = 0.2;
 const GAP_EXP_TAYLOR: real = 0.0625;
 const EXP_FAST_MAX: real = 700.0;
 
-// MAX_OPENING, MIN_JACOBIAN_DIVISOR and JACOBIAN_RESOLVED of kernels/src/shared/gaps.rs.
+// MAX_OPENING and JACOBIAN_RESOLVED of kernels/src/shared/gaps.rs.
 const MAX_OPENING: real = 5.0;
-const MIN_JACOBIAN_DIVISOR: real = 0.75;
 const JACOBIAN_RESOLVED: real = 10000.0;
 
 // WORK_SLACK of kernels/src/shared/control.rs.
@@ -249,14 +248,14 @@ fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerm
     return GapTerms(a, g, d);
 }
 
-// `jacobian_factor`: k = 1/(1 + h r) of a gap of size d whose ends move at u_left and u_right,
-// as d/(d + h (u_right - u_left)) where the steps are extrapolated (the CPU's
-// `Terms::exact_jacobian`), 1 + h r >= MIN_JACOBIAN_DIVISOR and r is resolved, else 1.
+// `jacobian_factor`: k = 1 - x/(1 + x + x^2), x = h (u_right - u_left)/d (1/(1 + h r) to O(x^3),
+// smooth and bounded), where the steps are extrapolated (the CPU's `Terms::exact_jacobian`)
+// and r is resolved, else 1.
 fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
     let moved = h * (abs(u_left) + abs(u_right));
-    let divisor = d + h * (u_right - u_left);
-    if EXTRAPOLATES && moved <= JACOBIAN_RESOLVED * d && divisor >= MIN_JACOBIAN_DIVISOR * d {
-        return d / divisor;
+    let x = h * (u_right - u_left) / d;
+    if EXTRAPOLATES && moved <= JACOBIAN_RESOLVED * d {
+        return 1.0 - x / (1.0 + x + 4.0 * (x * x));
     }
     return 1.0;
 }

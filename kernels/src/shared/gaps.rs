@@ -47,14 +47,6 @@ pub const SPIKE_TINY: f64 = 1e-140;
 /// (Also the GPU's f32 twin's, `SPIKE_TINY_F32` in src/backend/gpu/partitioned.rs.)
 pub const SPIKE_TINY_F32: f64 = 1e-30;
 
-/// The exact Jacobian's factor k = 1/(1 + h r) of a gap (`jacobian_factor` in the step kernels)
-/// is used only where 1 + h r is at least this; a gap closing faster within the step keeps
-/// k = 1 (the Jacobian without the term, as the W-method). There the linearisation about the
-/// start rate, which the lubrication is about to brake, overshoots: with k up to 10 (1 + h r
-/// capped at 0.1) or 2 (at 0.5), fixed steps of order 2 through collisions below the float range
-/// (tests/extremes.rs) ended in states no step could leave. Accurate steps have |h r| far below
-/// 0.25 and never meet the limit.
-pub const MIN_JACOBIAN_DIVISOR: f64 = 0.75;
 /// A gap's start rate r = (u_right - u_left)/d is resolved, and k used, only where
 /// h (|u_left| + |u_right|) <= JACOBIAN_RESOLVED d: there the rounding of u_right - u_left moves
 /// h r by at most ~2e-12 in f64 (6e-4 in f32, whose tolerances are far looser). Below it (near

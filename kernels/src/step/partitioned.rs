@@ -1071,7 +1071,17 @@ where
             Some(Rows { w, ls, ys, k }),
             law,
         );
-        back_group::<T, L, P, Q>(terms, layout, g, c, iface, inputs.0, [w, ls, ys, k], out, law)
+        back_group::<T, L, P, Q>(
+            terms,
+            layout,
+            g,
+            c,
+            iface,
+            inputs.0,
+            [w, ls, ys, k],
+            out,
+            law,
+        )
     }
 }
 
