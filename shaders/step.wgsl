@@ -255,7 +255,7 @@ fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
     let moved = h * (abs(u_left) + abs(u_right));
     let x = h * (u_right - u_left) / d;
     if EXTRAPOLATES && moved <= JACOBIAN_RESOLVED * d {
-        return 1.0 - x / (1.0 + x + 4.0 * (x * x));
+        return 1.0 - x / (1.0 + x + 16.0 * (x * x));
     }
     return 1.0;
 }

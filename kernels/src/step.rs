@@ -388,7 +388,7 @@ fn jacobian_factor<T: Real>(exact: bool, d: T, h: T, u_left: T, u_right: T) -> T
     let moved = h * (u_left.abs() + u_right.abs());
     let x = h * (u_right - u_left) / d;
     if exact && moved <= T::c(JACOBIAN_RESOLVED) * d {
-        T::ONE - x / (T::ONE + x + T::c(4.0) * (x * x))
+        T::ONE - x / (T::ONE + x + T::c(16.0) * (x * x))
     } else {
         T::ONE
     }
