@@ -100,7 +100,6 @@ impl<T: Real, const L: usize> LaneModel<T, L> {
             mu: self.mu,
             total_gap: self.total_gap,
             contact_repulsion: self.contact_repulsion,
-            exact_jacobian: Scheme::of(plan).extrapolates(),
             repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
             bonded: self.bonded.as_deref(),
             forcing: plan
