@@ -185,7 +185,7 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
     if s == 0u {
         // The wall (u_0 = 0): ls_0 = 1/d_1, ys_0 = 0, no spike.
         let first = gap_terms(b, gap_sets[gi + b], p, h, eps2);
-        a_prev = first.a;
+        a_prev = first.a * jacobian_factor(first.d, h, 0.0, velocity_or_wall(vi, 0u, b));
         g_prev = first.g;
         ls_prev = 1.0 / first.d;
         ys_prev = 0.0;
@@ -197,10 +197,12 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
         }
 //@END REPULSION
     } else {
-        // The segment's first gap is the previous row's next gap (checked there).
+        // The segment's first gap is the previous row's next gap (checked there), and its k
+        // is that row's.
         let k = (range.x - 1u) * batch + b;
         let first = gap_terms(k, gap_sets[gi + k], p, h, eps2);
-        a_prev = first.a;
+        let u_left = vel_sets[vi + (range.x - 2u) * batch + b];
+        a_prev = first.a * jacobian_factor(first.d, h, u_left, velocity_or_wall(vi, range.x - 1u, b));
         g_prev = first.g;
         ls_prev = 0.0;
         ys_prev = -tau;
@@ -236,16 +238,19 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
             e.hard_detail = (dstar[next_gap] + eps2) / (next.d + eps2);
         }
 //@END REPULSION
-        let rhs = m_over_h * vel_sets[vi + row] + g_prev - next.g + f;
+        let vel = vel_sets[vi + row];
+        let k = jacobian_factor(next.d, h, vel, velocity_or_wall(vi, i, b));
+        let a_next = next.a * k;
+        let rhs = m_over_h * vel + g_prev - next.g + f;
         // As in `euler`, operation for operation.
         let excess = m_over_h + a_prev * ls_prev;
         let delta = rhs + a_prev * ys_prev;
-        let pivot_base = m_over_h * next.d + next.a;
+        let pivot_base = m_over_h * next.d + a_next;
         let coupling = a_prev * next.d;
         let inv = 1.0 / (pivot_base + coupling * ls_prev);
         let ls = excess * inv;
         let ys = delta * inv;
-        let w = next.a * inv;
+        let w = a_next * inv;
         if spike {
             // z <= 0; flushed to 0 once negligible (NaN is kept), as is the product of w.
             var z = a_prev * z_prev * inv;
@@ -263,10 +268,11 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
             scratch[row] = w;
             scratch[rows + row] = ls;
             scratch[2u * rows + row] = ys;
+            scratch[4u * rows + row] = k;
         }
         ls_prev = ls;
         ys_prev = ys;
-        a_prev = next.a;
+        a_prev = a_next;
         g_prev = next.g;
     }
     e.ls = ls_prev;
@@ -511,7 +517,7 @@ fn p_solve(@builtin(global_invocation_id) gid: vec3<u32>) {
             u = u_next;
         }
 //@END CLUSTERS
-        let rate = scratch[rows + row] * u_next - scratch[2u * rows + row];
+        let rate = (scratch[rows + row] * u_next - scratch[2u * rows + row]) * scratch[4u * rows + row];
         let x = h * rate;
         var grown = old * gap_exp(x);
         if old > 0.0 {
@@ -566,7 +572,9 @@ fn p_finish(@builtin(global_invocation_id) gid: vec3<u32>) {
         opening = max(opening, segs[k].opening);
     }
     let old0 = gap_sets[st.src * n * batch + b];
-    let rate_first = segs[b].u_first / max(old0, GAP_FLOOR);
+    let d0 = max(old0, GAP_FLOOR);
+    let k_first = jacobian_factor(d0, st.hj, 0.0, velocity_or_wall(st.src * (n - 1u) * batch, 0u, b));
+    let rate_first = segs[b].u_first / d0 * k_first;
     let x0 = st.hj * rate_first;
     var grown0 = old0 * gap_exp(x0);
     if old0 > 0.0 {

@@ -40,7 +40,7 @@
 //    generated code calls it.
 //
 // Bindings (group 0): 0 config (uniform), 1 gap sets, 2 velocity sets, 3 member parameters,
-// 4 controls, 5 scratch (w | ls | ys | force, each (N-1)·batch), 6 running counter (atomic),
+// 4 controls, 5 scratch (w | ls | ys | force | k, each (N-1)·batch), 6 running counter (atomic),
 // 7 gathered gaps, 8 dstar (repulsion only), 9 bonded (u32, clusters only), 10 gathered velocities.
 // The partitioned kernel (shaders/partitioned.wgsl, few members with huge N) is appended to this
 // file and calls its functions (gap_terms, potential, extrapolate_gap, conclude_attempt, ...):
@@ -163,8 +163,9 @@ const MAX_SHRINK: real = 0.2;
 const GAP_EXP_TAYLOR: real = 0.0625;
 const EXP_FAST_MAX: real = 700.0;
 
-// MAX_OPENING of kernels/src/shared/gaps.rs.
+// MAX_OPENING and JACOBIAN_RESOLVED of kernels/src/shared/gaps.rs.
 const MAX_OPENING: real = 5.0;
+const JACOBIAN_RESOLVED: real = 10000.0;
 
 // WORK_SLACK of kernels/src/shared/control.rs.
 const WORK_SLACK: real = 0.1;
@@ -247,6 +248,30 @@ fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerm
     return GapTerms(a, g, d);
 }
 
+// `jacobian_factor`: k = 1 - x/(1 + x + x^2), x = h (u_right - u_left)/d (1/(1 + h r) to O(x^3),
+// smooth and bounded), where the steps are extrapolated (the CPU's `Terms::exact_jacobian`)
+// and r is resolved, else 1.
+fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
+    let moved = h * (abs(u_left) + abs(u_right));
+    let x = h * (u_right - u_left) / d;
+    if EXTRAPOLATES && moved <= JACOBIAN_RESOLVED * d {
+        if x >= 0.0 {
+            return 1.0 / (1.0 + x);
+        }
+        return 1.0 - x / (1.0 + x + 64.0 * (x * x));
+    }
+    return 1.0;
+}
+
+// The velocity of element `index` of the set at `vi`, 0 beyond the last particle (the right
+// wall).
+fn velocity_or_wall(vi: u32, index: u32, b: u32) -> real {
+    if index + 1u < config.particles {
+        return vel_sets[vi + index * config.batch + b];
+    }
+    return 0.0;
+}
+
 // `potential`: Phi(d) of one free gap.
 fn potential(index: u32, d: real, p: Param, eps2: real) -> real {
 //@BEGIN REPULSION
@@ -285,7 +310,9 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
 
     // Forward sweep. The wall (u_0 = 0) has an infinite pivot: ls_0 = 1/d_1, ys_0 = 0.
     let first = gap_terms(b, gap_sets[gi + b], p, h, eps2);
-    var a_prev: real = first.a;
+    // The first gap's k (the wall's side does not move); the others' go to the scratch.
+    let k_first = jacobian_factor(first.d, h, 0.0, velocity_or_wall(vi, 0u, b));
+    var a_prev: real = first.a * k_first;
     var g_prev: real = first.g;
     var ls_prev: real = 1.0 / first.d;
     var ys_prev: real = 0.0;
@@ -321,26 +348,30 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
             report.hard_detail = (dstar[next_gap] + eps2) / (next.d + eps2);
         }
 //@END REPULSION
-        let rhs = m_over_h * vel_sets[vi + row] + g_prev - next.g + f;
+        let vel = vel_sets[vi + row];
+        let k = jacobian_factor(next.d, h, vel, velocity_or_wall(vi, i, b));
+        let a_next = next.a * k;
+        let rhs = m_over_h * vel + g_prev - next.g + f;
         // The pivot excess·d + a grouped as in the CPU twin (one multiply-add on the chain).
         let excess = m_over_h + a_prev * ls_prev;
         let delta = rhs + a_prev * ys_prev;
-        let pivot_base = m_over_h * next.d + next.a;
+        let pivot_base = m_over_h * next.d + a_next;
         let coupling = a_prev * next.d;
         let inv = 1.0 / (pivot_base + coupling * ls_prev);
         let ls = excess * inv;
         let ys = delta * inv;
-        scratch[row] = next.a * inv;
+        scratch[row] = a_next * inv;
         scratch[rows + row] = ls;
         scratch[2u * rows + row] = ys;
+        scratch[4u * rows + row] = k;
         ls_prev = ls;
         ys_prev = ys;
-        a_prev = next.a;
+        a_prev = a_next;
         g_prev = next.g;
     }
 
-    // Back sweep from the right wall (u_N = 0): velocities, the rate of gap i+1 (left in the ls
-    // slot for the fix-up) and its update ln d' = ln d + h r.
+    // Back sweep from the right wall (u_N = 0): velocities, the rate k r of gap i+1 (left in the
+    // ls slot for the fix-up) and its update ln d' = ln d + h k r.
     var needs_fixup = false;
     var opening: real = 0.0;
     var sum: real = 0.0;
@@ -358,7 +389,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
             u = u_next;
         }
 //@END CLUSTERS
-        let rate = scratch[rows + row] * u_next - scratch[2u * rows + row];
+        let rate = (scratch[rows + row] * u_next - scratch[2u * rows + row]) * scratch[4u * rows + row];
         let x = h * rate;
         let grown = old * gap_exp(x);
         vel_sets[vo + row] = u;
@@ -381,7 +412,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     }
 //@END CLUSTERS
     let old0 = gap_sets[gi + b];
-    let rate_first = u_next / max(old0, GAP_FLOOR);
+    let rate_first = u_next / max(old0, GAP_FLOOR) * k_first;
     let x0 = h * rate_first;
     let grown0 = old0 * gap_exp(x0);
     gap_sets[go + b] = grown0;
@@ -396,8 +427,8 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         sum = lane_sum(b, dst);
     }
     report.admissible = report.admissible && opening <= MAX_OPENING;
-    // The energy is always computed here; the CPU skips it for steps its certificate
-    // (`energy_certified`) proves acceptable, which the computed energy then passes too.
+    // The energy is always computed here; the CPU skips it without repulsion, where the step
+    // provably does not raise it (`StepReport::certified`).
     report = conclude(b, dst, p, report, sum, h, true);
     return report;
 }

@@ -107,6 +107,7 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
                 total_gap,
                 // Large: the energy is always computed (and checked against the model's below).
                 contact_repulsion: [f64::INFINITY; L],
+                exact_jacobian: false,
                 repulsion: Some((&dstar, Gamma::PerLane(gammas))),
                 bonded: with_clusters.then_some(bonded.as_slice()),
                 forcing: Some(&forcing),
@@ -558,14 +559,15 @@ fn extrapolation_orders_converge_at_their_order() {
     );
     let params = vec![MemberParams { mu, gamma }];
     // The coarsest step of each order's three: where its rates have settled (measured over
-    // dt = 0.1·2^-k, k = 0..9: order 1 reaches 0.97 at k = 6, order 6 5.83 at k = 3 and
-    // the reference's accuracy from k = 6).
+    // dt = 0.1·2^-k, k = 0..8, with the exact Jacobian: order 1 reaches 0.97 at k = 6, order 5
+    // 4.57, 4.87, 4.95 from k = 3, order 6 6.03, 6.11 from k = 3 and the reference's accuracy
+    // from k = 5).
     for (order, coarse) in [
         (1u8, 0.1 / 64.0),
         (2, 0.0125),
         (3, 0.00625),
         (4, 0.0125),
-        (5, 0.0125),
+        (5, 0.00625),
         (6, 0.0125),
     ] {
         let dts = [coarse, coarse / 2.0, coarse / 4.0];
@@ -585,11 +587,11 @@ fn extrapolation_orders_converge_at_their_order() {
         );
     }
     // Orders 7 and 8 reach the rounding floor of the extrapolation (about 1e-12 here) within a
-    // few halvings, before their rates settle (measured over dt = 0.2·2^-k: order 7 climbs 4.5,
-    // 5.8, 6.1, 7.5, 6.4; order 8 5.1, 6.5, 7.6, 7.3, then 3.3 on the floor): on their last
-    // halvings above it each converges faster than order 6 and is more accurate than it at
-    // every step.
-    for (order, coarse) in [(7u8, 0.025), (8, 0.05)] {
+    // few halvings, before their rates settle (measured over dt = 0.1·2^-k with the exact
+    // Jacobian: order 7 5.7, 6.2, 8.1, 6.2, then 2.7 on the floor; order 8 5.3, 8.4, 7.0, then
+    // 3.5): on their last halvings above it each converges faster than order 6 (4.8 and 5.5
+    // over the same steps) and is more accurate than it at every step.
+    for (order, coarse) in [(7u8, 0.05), (8, 0.05)] {
         let dts = [coarse, coarse / 2.0, coarse / 4.0];
         let errors = fixed_step_errors(&chain, &params, order, dts, t_end, (&ref_gaps, &ref_vel));
         let sixth = fixed_step_errors(&chain, &params, 6, dts, t_end, (&ref_gaps, &ref_vel));
@@ -602,7 +604,7 @@ fn extrapolation_orders_converge_at_their_order() {
         );
         for p in rates {
             assert!(
-                p >= 6.3,
+                p >= 6.0,
                 "order {order}: measured {p} from errors {errors:?}"
             );
         }

@@ -22,6 +22,15 @@
 //! below the float range (d = 0 in the sweep) makes its two particles move as one, exactly as the
 //! limit says.
 //!
+//! The exact Jacobian (steps that are extrapolated: `Terms::exact_jacobian`). In the variables
+//! (ln d, u) the gap equation d(ln d_i)/dt = r_i has the derivative -r_i in ln d_i. Keeping it
+//! (the linearly implicit Euler step with the exact Jacobian, not a W-method) multiplies a_i and
+//! the gap's update by k_i = 1/(1 + h r_i), r_i the rate at the step's start
+//! ([`jacobian_factor`]): ln d_i' = ln d_i + h k_i r_i'. Without it the extrapolated orders fall
+//! to about 2 on long chains with random roughness (docs/accuracy.md); with it they climb towards
+//! their nominal order. The back sweep stores k_i r_i' as the rate. Order 1 keeps k_i = 1: its
+//! steps are not extrapolated, and k_i = 1 is what the energy certificate below is proved for.
+//!
 //! The gap update: ln d_i' = ln d_i + h r_i. The lubrication force over the step is then exactly
 //! mu (ln d' - ln d)/h, i.e. the step integrates mu d(ln d)/dt exactly; gaps stay positive and
 //! keep their relative precision at any size, and the step need not shrink as a gap closes.
@@ -53,8 +62,8 @@ use crate::power::{powi_in_rounds, Power};
 use crate::real::Real;
 use crate::shared::f64_math;
 pub use crate::shared::gaps::{
-    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32,
-    LN_RATIO_SERIES, MAX_OPENING,
+    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, JACOBIAN_RESOLVED, LN_GAP_FLOOR,
+    LN_GAP_FLOOR_F32, LN_RATIO_SERIES, MAX_OPENING,
 };
 use crate::SimdLevel;
 
@@ -154,6 +163,9 @@ pub struct Terms<'a, const L: usize, T: Real = f64> {
     /// The largest repulsion a gap of the lane can reach, max_i ((d*_i + 2eps)/2eps)^gamma (0
     /// without repulsion), for the energy certificate ([`StepReport::certified`]).
     pub contact_repulsion: [f64; L],
+    /// Whether the step keeps the Jacobian's -r_i (k_i = 1/(1 + h r_i)): the extrapolated
+    /// schemes (order 2 and above); order 1 takes k_i = 1.
+    pub exact_jacobian: bool,
     /// d* (interleaved, length N·L) and how G is evaluated: present iff the model has repulsion.
     pub repulsion: Option<(&'a [T], Gamma<L>)>,
     /// Bonded gaps (interleaved, length N·L): present iff some member has clusters.
@@ -200,6 +212,9 @@ pub struct Scratch<T: Real = f64> {
     pub ls: Vec<T>,
     pub ys: Vec<T>,
     pub force: Vec<T>,
+    /// The exact Jacobian's factor k_i = 1/(1 + h r_i) of gap i (row i - 1), from the forward
+    /// sweep for the back sweep ([`jacobian_factor`]).
+    pub k: Vec<T>,
 }
 
 impl<T: Real> Scratch<T> {
@@ -210,6 +225,7 @@ impl<T: Real> Scratch<T> {
             ls: vec![T::ZERO; len],
             ys: vec![T::ZERO; len],
             force: vec![T::ZERO; len],
+            k: vec![T::ZERO; len],
         }
     }
 }
@@ -355,6 +371,31 @@ where
         g = T::ZERO;
     }
     (mu + h * (law.gamma)(l) * g * d * inv_s, g, d)
+}
+
+/// The factor k of a gap of (effective) size d whose ends move at u_left and u_right at the
+/// step's start: with x = h r = h (u_right - u_left)/d, k = (1 + x^2)/(1 + x + x^2)
+/// = 1 - x/(1 + x + x^2), which is 1/(1 + x) = 1 - x + x^2 - ... to O(x^3) (the exact Jacobian
+/// to O(h^2 r^3)) and smooth and within [2/3, 2] for every x: 1/(1 + x) itself is unbounded
+/// where a gap would close within the step, and any cut-off of it is a kink that the rows of
+/// one extrapolated step straddle (measured: with 1/(1 + x) cut to 1 below x = -0.25, order 4
+/// at dt = 1.6e-2 on the paper's case 2a had an error of 8e-2). k = 1 where not `exact` or
+/// where r is not resolved (JACOBIAN_RESOLVED: near contact the velocities' difference is
+/// rounding; it also keeps x below 1e4, so x^2 is finite). k = 1 leaves every product it
+/// enters unchanged, bit for bit.
+#[inline(always)]
+fn jacobian_factor<T: Real>(exact: bool, d: T, h: T, u_left: T, u_right: T) -> T {
+    let moved = h * (u_left.abs() + u_right.abs());
+    let x = h * (u_right - u_left) / d;
+    if exact && moved <= T::c(JACOBIAN_RESOLVED) * d {
+        if x >= T::ZERO {
+            T::ONE / (T::ONE + x)
+        } else {
+            T::ONE - x / (T::ONE + x + T::c(64.0) * (x * x))
+        }
+    } else {
+        T::ONE
+    }
 }
 
 /// Phi_i(d) of one free gap: (d + 2eps) G/(gamma - 1), or -(d* + 2eps) ln(d + 2eps) at gamma = 1.
@@ -789,14 +830,23 @@ where
     // Flags as 0/1 in lanes as wide as T (what a packed comparison yields; bools cost packing).
     let flag = T::Flag::from;
     let mut nonfinite = [T::Flag::default(); L];
+    let exact = terms.exact_jacobian;
+    // The first gap's k (the wall's side does not move); the others' are kept in scratch.k.
+    let mut k_first = [T::ONE; L];
     {
         let stored = lanes::<L, T>(gaps_in, 0);
         let (dstar, bonded) = inputs.row::<L, CLU>(0);
+        let u_right = if n > 1 {
+            *lanes::<L, T>(vel_in, 0)
+        } else {
+            [zero; L]
+        };
         for l in 0..L {
             let (a, g, d) = gap_terms::<T, REP, CLU, P, Q>(
                 law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
             );
-            a_prev[l] = a;
+            k_first[l] = jacobian_factor(exact, d, h[l], zero, u_right[l]);
+            a_prev[l] = a * k_first[l];
             g_prev[l] = g;
             ls_prev[l] = T::ONE / d;
             nonfinite[l] |= flag(!g.is_finite());
@@ -832,11 +882,19 @@ where
                 let (dstar, bonded) = inputs.row::<L, CLU>(next_gap);
                 let dstar = *dstar;
                 let vel = *lanes::<L, T>(vel_in, row);
+                let vel_right = if i + 1 < n {
+                    *lanes::<L, T>(vel_in, next_gap)
+                } else {
+                    [zero; L]
+                };
                 let mut w = [zero; L];
+                let mut k = [zero; L];
                 for l in 0..L {
                     let (a_next, g_next, d_next) = gap_terms::<T, REP, CLU, P, Q>(
                         law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
                     );
+                    k[l] = jacobian_factor(exact, d_next, h[l], vel[l], vel_right[l]);
+                    let a_next = a_next * k[l];
                     nonfinite[l] |= flag(!(g_next + f[l]).is_finite());
                     let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
                     // The pivot excess·d + a, grouped as (m/h·d + a) + (a_prev·d)·ls_prev so that only
@@ -858,6 +916,7 @@ where
                 *lanes_mut::<L, T>(&mut scratch.w, row) = w;
                 *lanes_mut::<L, T>(&mut scratch.ls, row) = ls_prev;
                 *lanes_mut::<L, T>(&mut scratch.ys, row) = ys_prev;
+                *lanes_mut::<L, T>(&mut scratch.k, row) = k;
             }
         };
     }
@@ -914,6 +973,7 @@ where
             let w: [T; W] = scratch.w[lo - 1..lo - 1 + W].try_into().unwrap();
             let ys: [T; W] = scratch.ys[lo - 1..lo - 1 + W].try_into().unwrap();
             let ls: [T; W] = scratch.ls[lo - 1..lo - 1 + W].try_into().unwrap();
+            let k: [T; W] = scratch.k[lo - 1..lo - 1 + W].try_into().unwrap();
             let mut u = [zero; W];
             let mut u_right = [zero; W];
             for j in (0..W).rev() {
@@ -929,7 +989,7 @@ where
             let mut x = [zero; W];
             let mut small = flag(true);
             for j in 0..W {
-                rates[j] = ls[j] * u_right[j] - ys[j];
+                rates[j] = (ls[j] * u_right[j] - ys[j]) * k[j];
                 x[j] = h0 * rates[j];
                 small &= flag(x[j].abs() < taylor);
             }
@@ -968,6 +1028,7 @@ where
         let w = *lanes::<L, T>(&scratch.w, row);
         let ys = *lanes::<L, T>(&scratch.ys, row);
         let ls = *lanes::<L, T>(&scratch.ls, row);
+        let k = *lanes::<L, T>(&scratch.k, row);
         let mut rates = [zero; L];
         let mut x = [zero; L];
         let mut small = flag(true);
@@ -979,7 +1040,7 @@ where
                 // ~1e-250).
                 u = u_next[l];
             }
-            let rate = ls[l] * u_next[l] - ys[l];
+            let rate = (ls[l] * u_next[l] - ys[l]) * k[l];
             x[l] = h[l] * rate;
             small &= flag(x[l].abs() < taylor);
             rates[l] = rate;
@@ -1027,7 +1088,7 @@ where
     let mut rate_first = [zero; L];
     for l in 0..L {
         let old = gaps_in[l];
-        let rate = u_next[l] / fmax(old, floor);
+        let rate = u_next[l] / fmax(old, floor) * k_first[l];
         let x = h[l] * rate;
         let grown = old * gap_exp(x);
         gaps_out[l] = grown;
@@ -1056,7 +1117,12 @@ where
             sum[l] = lane_sum::<T, L>(n, l, gaps_out);
         }
         report[l].admissible &= opening[l] <= T::c(MAX_OPENING);
+        // The certificate is proved for k_i = 1: with k_i the step's energy balance has a term
+        // G d x h r(0) of either sign (the velocities do the work h G d r', the gap moves by
+        // d x = d h k r'), so with repulsion the energy is computed. Without repulsion the
+        // kinetic balance, E' - E - W <= -(mu/h) sum d x^2/k, holds for any k > 0.
         report[l].certified = needs_fixup[l] == T::Flag::default()
+            && !(REP && exact)
             && energy_certified(
                 REP,
                 closing[l].to_f64(),

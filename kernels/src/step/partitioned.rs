@@ -73,8 +73,9 @@
 use rayon::prelude::*;
 
 use super::{
-    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms, particle_force,
-    Law, Real, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, MAX_OPENING,
+    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms, jacobian_factor,
+    particle_force, Law, Real, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR,
+    MAX_OPENING,
 };
 
 /// Segments per group: the lanes of the partitioned lane loops (as many as the batched blocks,
@@ -580,10 +581,13 @@ struct Step<T> {
     h: T,
     t: f64,
     m_over_h: T,
+    /// `Terms::exact_jacobian`.
+    exact: bool,
 }
 
 /// One row of the forward sweep for S segments: the sequential sweep's operations, plus (with
-/// SPIKE) the spike and the accumulation of u_b. Returns w of the row; ls, ys are left in the
+/// SPIKE) the spike and the accumulation of u_b. `vel` and `vel_right` are the velocities at
+/// the two ends of the row's next gap. Returns w and the next gap's k; ls, ys are left in the
 /// state.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -603,8 +607,9 @@ fn forward_row<
     dstar: &[T; S],
     bonded: &[bool; S],
     vel: &[T; S],
+    vel_right: &[T; S],
     f: &[T; S],
-) -> [T; S]
+) -> ([T; S], [T; S])
 where
     P: Fn(usize, T) -> T + Copy,
     Q: Fn(usize) -> T + Copy,
@@ -612,10 +617,13 @@ where
     let eps2 = T::c(2.0) * c.eps;
     let tiny = T::SPIKE_TINY;
     let mut w = [T::ZERO; S];
+    let mut k = [T::ZERO; S];
     for l in 0..S {
         let (a_next, g_next, d_next) = gap_terms::<T, REP, true, P, Q>(
             law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
         );
+        k[l] = jacobian_factor(c.exact, d_next, c.h, vel[l], vel_right[l]);
+        let a_next = a_next * k[l];
         st.nonfinite[l] |= T::Flag::from(!(g_next + f[l]).is_finite());
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
         // As in the sequential sweep (step.rs), operation for operation.
@@ -642,7 +650,7 @@ where
         st.a_prev[l] = a_next;
         st.g_prev[l] = g_next;
     }
-    w
+    (w, k)
 }
 
 /// Forcing of one row of S segments (rows `row0 + l·stride`): interpreted, so not in the lane
@@ -682,12 +690,19 @@ fn forces<T: Real, const S: usize, const L: usize>(
 /// The inputs, natural layout: gaps, d* and bonded flags (where they exist), velocities.
 type Inputs<'a, T> = (&'a [T], &'a [T], &'a [bool], &'a [T]);
 
-/// The sweep rows of one group (w, ls, ys: the prologue's rows at row - 1, then the group's
-/// rows interleaved), for the second pass.
+/// The sweep rows of one group (w, ls, ys and the next gap's k: the prologue's rows at
+/// row - 1, then the group's rows interleaved), for the second pass.
 struct Rows<'a, T> {
     w: &'a mut [T],
     ls: &'a mut [T],
     ys: &'a mut [T],
+    k: &'a mut [T],
+}
+
+/// The velocity of index `at` (natural layout), 0 beyond the last particle (the right wall).
+#[inline(always)]
+fn velocity_at<T: Real>(vel_in: &[T], at: usize) -> T {
+    vel_in.get(at).copied().unwrap_or(T::ZERO)
 }
 
 /// Forward sweep of group g's segments (and of the prologue, for group 0) from `start`. The
@@ -735,10 +750,14 @@ where
             [false; S]
         };
         for l in 0..S {
-            let (a, gg, _) = gap_terms::<T, REP, true, P, Q>(
+            let (a, gg, d) = gap_terms::<T, REP, true, P, Q>(
                 law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
             );
-            st.a_prev[l] = a;
+            // The gap's k as the row before it computes it (index 0 is the left wall's gap).
+            let at = main + l * m;
+            let u_left = if at == 0 { zero } else { vel_in[at - 1] };
+            let k = jacobian_factor(c.exact, d, c.h, u_left, velocity_at(vel_in, at));
+            st.a_prev[l] = a * k;
             st.g_prev[l] = gg;
         }
     }
@@ -756,7 +775,7 @@ where
             clu && bonded_all[0],
             c.h,
         );
-        s0.a_prev[0] = a;
+        s0.a_prev[0] = a * jacobian_factor(c.exact, d, c.h, zero, velocity_at(vel_in, 0));
         s0.g_prev[0] = gg;
         s0.ls_prev[0] = T::ONE / d;
         s0.nonfinite[0] |= T::Flag::from(!gg.is_finite());
@@ -770,13 +789,15 @@ where
             let dstar = [if REP { dstar_all[row] } else { zero }];
             let bonded = [clu && bonded_all[row]];
             let vel = [vel_in[row - 1]];
-            let w = forward_row::<T, 1, REP, true, false, P, Q>(
-                law, c, &mut s0, &stored, &dstar, &bonded, &vel, &f,
+            let vel_right = [velocity_at(vel_in, row)];
+            let (w, k) = forward_row::<T, 1, REP, true, false, P, Q>(
+                law, c, &mut s0, &stored, &dstar, &bonded, &vel, &vel_right, &f,
             );
             if let Some(r) = rows.as_mut() {
                 r.w[row - 1] = w[0];
                 r.ls[row - 1] = s0.ls_prev[0];
                 r.ys[row - 1] = s0.ys_prev[0];
+                r.k[row - 1] = k[0];
             }
         }
         st.ls_prev[0] = s0.ls_prev[0];
@@ -814,7 +835,14 @@ where
                 t_f[kk] =
                     forces::<T, S, L>(terms, c, &mut st, gaps_in, row0 + kk, m, force, chunk_at);
             }
-            let w = forward_row::<T, S, REP, true, SPIKE, P, Q>(
+            // The velocity right of the row's next gap: the next row's, or past the tile's end
+            // read from the input (the right wall's 0 after the last row).
+            let vel_right: [T; S] = if kk + 1 < kn {
+                t_vel[kk + 1]
+            } else {
+                std::array::from_fn(|l| velocity_at(vel_in, row0 + kk + l * m))
+            };
+            let (w, k) = forward_row::<T, S, REP, true, SPIKE, P, Q>(
                 law,
                 c,
                 &mut st,
@@ -822,6 +850,7 @@ where
                 &t_dstar[kk],
                 &t_bond[kk],
                 &t_vel[kk],
+                &vel_right,
                 &t_f[kk],
             );
             if let Some(r) = rows.as_mut() {
@@ -829,6 +858,7 @@ where
                 r.w[at..at + S].copy_from_slice(&w);
                 r.ls[at..at + S].copy_from_slice(&st.ls_prev);
                 r.ys[at..at + S].copy_from_slice(&st.ys_prev);
+                r.k[at..at + S].copy_from_slice(&k);
             }
         }
         k0 += kn;
@@ -909,6 +939,7 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
     w: &[T; S],
     ys: &[T; S],
     ls: &[T; S],
+    k: &[T; S],
 ) -> ([T; S], [T; S]) {
     let zero = T::ZERO;
     let floor = T::GAP_FLOOR;
@@ -921,7 +952,7 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
         if CLU && bonded[l] {
             u = st.u_next[l];
         }
-        let rate = ls[l] * st.u_next[l] - ys[l];
+        let rate = (ls[l] * st.u_next[l] - ys[l]) * k[l];
         x[l] = h * rate;
         small &= flag(x[l].abs() < T::c(GAP_EXP_TAYLOR));
         st.u_next[l] = u;
@@ -1021,12 +1052,13 @@ where
     const S: usize = SEGMENT_LANES;
     {
         let len = layout.chunk(g).len();
-        if buf.len() < 3 * len {
-            buf.resize(3 * len, T::ZERO);
+        if buf.len() < 4 * len {
+            buf.resize(4 * len, T::ZERO);
         }
         let (w, rest) = buf.split_at_mut(len);
         let (ls, rest) = rest.split_at_mut(len);
-        let ys = &mut rest[..len];
+        let (ys, rest) = rest.split_at_mut(len);
+        let k = &mut rest[..len];
         let tau: [T; S] = std::array::from_fn(|l| iface[g * S + l].0);
         forward_group::<T, L, REP, false, P, Q>(
             terms,
@@ -1036,10 +1068,20 @@ where
             Sweep::new(tau, T::ZERO),
             inputs,
             out.force,
-            Some(Rows { w, ls, ys }),
+            Some(Rows { w, ls, ys, k }),
             law,
         );
-        back_group::<T, L, P, Q>(terms, layout, g, c, iface, inputs.0, w, ls, ys, out, law)
+        back_group::<T, L, P, Q>(
+            terms,
+            layout,
+            g,
+            c,
+            iface,
+            inputs.0,
+            [w, ls, ys, k],
+            out,
+            law,
+        )
     }
 }
 
@@ -1053,9 +1095,7 @@ fn back_group<T: PartitionedReal, const L: usize, P, Q>(
     c: Step<T>,
     iface: &[(T, T)],
     gaps_in: &[T],
-    w: &[T],
-    ls: &[T],
-    ys: &[T],
+    [w, ls, ys, k]: [&mut [T]; 4],
     out: Outputs<'_, T>,
     law: Law<P, Q>,
 ) -> GroupBack<T>
@@ -1105,6 +1145,7 @@ where
                 w[at..at + S].try_into().unwrap(),
                 ys[at..at + S].try_into().unwrap(),
                 ls[at..at + S].try_into().unwrap(),
+                k[at..at + S].try_into().unwrap(),
             );
             t_u[kk] = u;
             t_grown[kk] = grown;
@@ -1134,6 +1175,7 @@ where
                 &[w[i]],
                 &[ys[i]],
                 &[ls[i]],
+                &[k[i]],
             );
             out.vel[i] = u[0];
             out.gaps[i] = grown[0];
@@ -1228,6 +1270,7 @@ where
         h: h0,
         t: t0,
         m_over_h: mass / h0,
+        exact: terms.exact_jacobian,
     };
     let mut report = [StepReport::START; L];
     let p = layout.segments();
@@ -1321,12 +1364,13 @@ where
     }
     let gamma2 = -((law.gamma)(0) + T::c(2.0));
     let old = gaps_in[0];
-    let x = h0 * (u_first / fmax(old, floor));
+    let d = fmax(old, floor);
+    let k_first = jacobian_factor(c.exact, d, h0, zero, vel_in[0]);
+    let x = h0 * (u_first / d * k_first);
     let mut grown = old * gap_exp(x);
     if old > zero {
         opening = fmax(x, opening);
     }
-    let d = fmax(old, floor);
     closing = fmax(d * (gamma2 * fmin(x, zero) - T::ONE), closing);
     if !(grown >= floor && grown < T::INFINITY && x <= T::c(EXP_FAST_MAX)) {
         needs_fixup = true;
@@ -1339,7 +1383,9 @@ where
     gap_first[0] = grown;
     sum += fmax(grown, zero).to_f64();
     report[0].admissible &= opening <= T::c(MAX_OPENING);
+    // As the sequential sweep's: the certificate is proved for k_i = 1.
     report[0].certified = !needs_fixup
+        && !(REP && c.exact)
         && energy_certified(
             REP,
             closing.to_f64(),

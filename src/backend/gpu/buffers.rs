@@ -40,9 +40,10 @@ impl BufferSizes {
         }
     }
 
-    /// The Thomas solve's scratch: w, ls, ys and the forces, one set of velocities each.
+    /// The Thomas solve's scratch: w, ls, ys, the forces and the exact Jacobian's factors k,
+    /// one set of velocities each.
     pub fn scratch(&self) -> u64 {
-        4 * self.velocities
+        5 * self.velocities
     }
 
     /// Fails with [`GpuError::BufferTooLarge`] when a storage buffer exceeds the device limits.

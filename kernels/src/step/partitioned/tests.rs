@@ -58,6 +58,8 @@ struct Model {
     gamma: Option<f64>,
     clusters: bool,
     forced: bool,
+    /// `Terms::exact_jacobian`.
+    exact: bool,
 }
 
 type Outcome = (Vec<f64>, Vec<f64>, StepReport);
@@ -84,6 +86,7 @@ fn step_as<T: Real>(
         mu: [T::c(0.01)],
         total_gap: [gaps.iter().map(|&v| stored_gap::decode(v.to_f64())).sum()],
         contact_repulsion: [model.gamma.map_or(0.0, |g| 3f64.powf(g))],
+        exact_jacobian: model.exact,
         repulsion: model
             .gamma
             .map(|g| (dstar.as_slice(), Gamma::Uniform(Power::of(g)))),
@@ -211,11 +214,14 @@ fn models() -> Vec<Model> {
     for gamma in [None, Some(2.0), Some(1.5)] {
         for clusters in [false, true] {
             for forced in [false, true] {
-                out.push(Model {
-                    gamma,
-                    clusters,
-                    forced,
-                });
+                for exact in [false, true] {
+                    out.push(Model {
+                        gamma,
+                        clusters,
+                        forced,
+                        exact,
+                    });
+                }
             }
         }
     }
@@ -351,6 +357,7 @@ fn just_above_threshold<T: Real>(tol: Tol) -> MaxDiff {
             gamma: Some(2.0),
             clusters: true,
             forced: false,
+            exact: true,
         };
         let c = chain(n, 11, &[n / 2], &[n / 3, n / 3 + 1]);
         let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::widest_here());
@@ -383,6 +390,7 @@ fn long_chain<T: Real>(tol: Tol) -> MaxDiff {
         gamma: Some(2.0),
         clusters: false,
         forced: false,
+        exact: true,
     };
     let c = chain(n, 21, &[], &[]);
     let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::widest_here());
@@ -411,6 +419,7 @@ fn bitwise_equal<T: Real>() {
         gamma: Some(2.0),
         clusters: true,
         forced: true,
+        exact: true,
     };
     let c = chain(n, 5, &[10, 2000], &[400, 401]);
     let bits = |o: &Outcome| -> Vec<u64> {
@@ -478,6 +487,7 @@ fn hard_failure<T: Real>(dstar: f64, gamma: f64) {
         gamma: Some(gamma),
         clusters: false,
         forced: false,
+        exact: true,
     };
     let seq = step_as::<T>(&c, model, 1e-4, None, SimdLevel::widest_here());
     let part = step_as::<T>(&c, model, 1e-4, Some(layout), SimdLevel::widest_here());
