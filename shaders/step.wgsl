@@ -248,9 +248,10 @@ fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerm
     return GapTerms(a, g, d);
 }
 
-// `jacobian_factor`: k = 1 - x/(1 + x + x^2), x = h (u_right - u_left)/d (1/(1 + h r) to O(x^3),
-// smooth and bounded), where the steps are extrapolated (the CPU's `Terms::exact_jacobian`)
-// and r is resolved, else 1.
+// `jacobian_factor`: k = 1/(1 + x) where the gap opens (x >= 0) and 1 - x/(1 + x + 16 x^4)
+// where it closes (1/(1 + x) to O(x^5), bounded, back to 1 for fast closing), x = h (u_right -
+// u_left)/d, where the steps are extrapolated (the CPU's `Terms::exact_jacobian`) and r is
+// resolved, else 1. The CPU twin in kernels/src/step.rs says why this form.
 fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
     let moved = h * (abs(u_left) + abs(u_right));
     let x = h * (u_right - u_left) / d;
@@ -258,7 +259,7 @@ fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
         if x >= 0.0 {
             return 1.0 / (1.0 + x);
         }
-        return 1.0 - x / (1.0 + x + 64.0 * (x * x));
+        return 1.0 - x / (1.0 + x + 16.0 * ((x * x) * (x * x)));
     }
     return 1.0;
 }

@@ -374,15 +374,18 @@ where
 }
 
 /// The factor k of a gap of (effective) size d whose ends move at u_left and u_right at the
-/// step's start: with x = h r = h (u_right - u_left)/d, k = (1 + x^2)/(1 + x + x^2)
-/// = 1 - x/(1 + x + x^2), which is 1/(1 + x) = 1 - x + x^2 - ... to O(x^3) (the exact Jacobian
-/// to O(h^2 r^3)) and smooth and within [2/3, 2] for every x: 1/(1 + x) itself is unbounded
-/// where a gap would close within the step, and any cut-off of it is a kink that the rows of
-/// one extrapolated step straddle (measured: with 1/(1 + x) cut to 1 below x = -0.25, order 4
-/// at dt = 1.6e-2 on the paper's case 2a had an error of 8e-2). k = 1 where not `exact` or
-/// where r is not resolved (JACOBIAN_RESOLVED: near contact the velocities' difference is
-/// rounding; it also keeps x below 1e4, so x^2 is finite). k = 1 leaves every product it
-/// enters unchanged, bit for bit.
+/// step's start, x = h r = h (u_right - u_left)/d: the exact Jacobian's 1/(1 + x) where the gap
+/// opens (x >= 0: k in (0, 1]), and k = 1 - x/(1 + x + 16 x^4) where it closes, which is
+/// 1/(1 + x) to O(x^5), smooth across x = 0, within [1, 1.3] and back to 1 (the W-method's k)
+/// for gaps that would close within the step, where 1/(1 + x) is unbounded and the linearisation
+/// about the start rate, which lubrication is about to brake, overshoots. Measured against other
+/// forms (docs/accuracy.md): a cut-off of 1/(1 + x) is a kink the rows of one coarse step
+/// straddle (order 4 at dt = 1.6e-2 on case 2a: 8e-2); bounded forms that match 1/(1 + x) only
+/// to O(x^3) kept the six-particle chain's order 6 at 7 instead of 6; a closing k that falls to
+/// 0 freezes colliding gaps (the collision tests fail). k = 1 where not `exact` or where r is not
+/// resolved (JACOBIAN_RESOLVED: near contact the velocities' difference is rounding; it also
+/// keeps x below 1e4, so x^4 is finite). k = 1 leaves every product it enters unchanged, bit for
+/// bit.
 #[inline(always)]
 fn jacobian_factor<T: Real>(exact: bool, d: T, h: T, u_left: T, u_right: T) -> T {
     let moved = h * (u_left.abs() + u_right.abs());
@@ -391,7 +394,7 @@ fn jacobian_factor<T: Real>(exact: bool, d: T, h: T, u_left: T, u_right: T) -> T
         if x >= T::ZERO {
             T::ONE / (T::ONE + x)
         } else {
-            T::ONE - x / (T::ONE + x + T::c(64.0) * (x * x))
+            T::ONE - x / (T::ONE + x + T::c(16.0) * ((x * x) * (x * x)))
         }
     } else {
         T::ONE
