@@ -85,6 +85,7 @@ fn plan_and_chains(
         fields: OutputFields::none(),
         grid: 2,
         companion_estimate: false,
+        jacobian: Default::default(),
         peak_centre: false,
         // The bench is the top: `ROUGHLUB_CPU_PARTITION=off` and `ROUGHLUB_CPU_SIMD` apply.
         overrides: roughlub::backend::overrides::Overrides::from_env(),

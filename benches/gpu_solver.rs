@@ -170,6 +170,7 @@ fn plan(case: &Case, eps: f64) -> Plan {
         fields: OutputFields::none(),
         grid: 2,
         companion_estimate: false,
+        jacobian: Default::default(),
         peak_centre: false,
         overrides: roughlub::backend::overrides::Overrides::from_env(),
     }

@@ -32,7 +32,7 @@
 //    terms the plan leaves out are not compiled at all;
 //  - the marker line GENERATED is replaced by the generated code: REAL_MAX, GAP_FLOOR,
 //    LN_GAP_FLOOR, ENERGY_RTOL, TIME_RESOLUTION, LN_RATIO_SERIES, EXTRAPOLATES (order >= 2: the result is the
-//    tableau's T_kk, else row k), `exp_real`, `ln_real`, `power(r, gamma)`
+//    tableau's T_kk, else row k), EXACT_JACOBIAN (`Plan::exact_jacobian`), `exp_real`, `ln_real`, `power(r, gamma)`
 //    (integer gamma: a fixed square-and-multiply chain, the sequence of `powi_by_squaring`;
 //    per-member gamma: the same chain when gamma is an integer <= 1000 as `Power::of` does, else
 //    exp/pow), `gamma_of(gamma)`, the forcing function `forcing(x, t)` and the unrolled
@@ -250,12 +250,12 @@ fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerm
 
 // `jacobian_factor`: k = 1/(1 + x) where the gap opens (x >= 0) and 1 - x/(1 + x + 16 x^4)
 // where it closes (1/(1 + x) to O(x^5), bounded, back to 1 for fast closing), x = h (u_right -
-// u_left)/d, where the steps are extrapolated (the CPU's `Terms::exact_jacobian`) and r is
-// resolved, else 1. The CPU twin in kernels/src/step.rs says why this form.
+// u_left)/d, where the plan keeps the exact Jacobian (EXACT_JACOBIAN: the CPU's
+// `Terms::exact_jacobian`, `Plan::exact_jacobian`) and r is resolved, else 1. The CPU twin in kernels/src/step.rs says why this form.
 fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
     let moved = h * (abs(u_left) + abs(u_right));
     let x = h * (u_right - u_left) / d;
-    if EXTRAPOLATES && moved <= JACOBIAN_RESOLVED * d {
+    if EXACT_JACOBIAN && moved <= JACOBIAN_RESOLVED * d {
         if x >= 0.0 {
             return 1.0 / (1.0 + x);
         }

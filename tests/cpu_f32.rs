@@ -37,6 +37,7 @@ fn plan(chain: &Chain, members: Vec<MemberParams>, order: Order, stepping: Stepp
         fields: OutputFields::all(),
         grid: 16,
         companion_estimate: false,
+        jacobian: Default::default(),
         peak_centre: false,
         overrides: Default::default(),
     }

@@ -8,7 +8,8 @@ use common::{plan_for, run_all};
 use roughlub::backend::{BatchSolver, MemberStatus};
 use roughlub::expr::Expr;
 use roughlub::model::chain::Chain;
-use roughlub::model::params::{MemberParams, Stepping};
+use roughlub::model::params::{Jacobian, MemberParams, Stepping};
+use roughlub::model::plan::Plan;
 use roughlub::scene::initial::chain_from_profiles;
 
 fn chain(n: usize, rho: &str, u: &str, rho_star: &str) -> Chain {
@@ -134,39 +135,41 @@ fn gaps_below_the_float_range_match_a_log_gap_reference() {
     let smallest = ref_s.iter().cloned().fold(f64::INFINITY, f64::min);
     eprintln!("reference: smallest ln d = {smallest:.3}");
     assert!(smallest < -800.0, "test data: gaps below the f64 range");
-    let plan = plan_for(
-        &c,
-        vec![MemberParams { mu, gamma }],
-        2,
-        Stepping::Fixed {
-            dt: 5e-5,
-            dt_min: 1e-12,
-        },
-        vec![0.0, t_end],
-        None,
-    );
-    let (snaps, solver) = run_all(plan, vec![c.clone()]);
-    assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
-    let last = &snaps[1][0];
-    let got_min = last.log_min_gap;
-    eprintln!("solver: smallest ln d = {got_min:.3}");
-    assert!(
-        (got_min - smallest).abs() <= 1e-3 * smallest.abs(),
-        "smallest ln d {got_min} vs reference {smallest}"
-    );
-    let du = last
-        .velocities
-        .iter()
-        .zip(&ref_u)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
-    assert!(du <= 1e-3, "velocities differ by {du}");
-    let sum: f64 = last.gaps.iter().sum();
-    let total: f64 = c.gaps.iter().sum();
-    assert!(
-        (sum - total).abs() <= 1e-12 * total,
-        "sum d {sum} vs {total}"
-    );
+    for (jacobian, dt) in [(Jacobian::Exact, 5e-5), (Jacobian::Frozen, 2.5e-5)] {
+        let plan = Plan {
+            jacobian,
+            ..plan_for(
+                &c,
+                vec![MemberParams { mu, gamma }],
+                2,
+                Stepping::Fixed { dt, dt_min: 1e-12 },
+                vec![0.0, t_end],
+                None,
+            )
+        };
+        let (snaps, solver) = run_all(plan, vec![c.clone()]);
+        assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
+        let last = &snaps[1][0];
+        let got_min = last.log_min_gap;
+        eprintln!("{jacobian:?}, dt {dt}: smallest ln d = {got_min:.3}");
+        assert!(
+            (got_min - smallest).abs() <= 1e-3 * smallest.abs(),
+            "{jacobian:?}: smallest ln d {got_min} vs reference {smallest}"
+        );
+        let du = last
+            .velocities
+            .iter()
+            .zip(&ref_u)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(du <= 1e-3, "{jacobian:?}: velocities differ by {du}");
+        let sum: f64 = last.gaps.iter().sum();
+        let total: f64 = c.gaps.iter().sum();
+        assert!(
+            (sum - total).abs() <= 1e-12 * total,
+            "sum d {sum} vs {total}"
+        );
+    }
 }
 
 /// The same in f32 on the CPU: every member completes and the energy of every output is at most

@@ -42,6 +42,31 @@ pub use roughlub_kernels::shared::control::MAX_ORDER;
 /// steps up to 8 as up to 6 there.)
 pub const MAX_ORDER_F32: u8 = 6;
 
+/// The matrix of the extrapolated steps (`[solver] jacobian`). In the variables (ln d, u) the
+/// gap equation d(ln d_i)/dt = (u_i - u_{i-1})/d_i has the derivative -r_i in ln d_i. `Frozen`
+/// drops it (a W-method: ln d_i' = ln d_i + h r_i'); `Exact` keeps it, as the factor
+/// k_i = 1/(1 + h r_i) on opening gaps and a bounded form of it on closing ones
+/// (`roughlub_kernels::step`'s `jacobian_factor`). Measured on the N = 200 random chain of
+/// docs/accuracy.md: `Exact` takes 4 to 6 times fewer steps at tolerance 1e-10 (auto: 149
+/// against 683) and restores order 2, but the paper's scenes at an error of 1e-3 need 1.3 to 3
+/// times more work with it and each substep with repulsion costs ~17 % more (its energy is
+/// computed, not certified). `Auto` (the default) takes `Exact` for adaptive steps at
+/// tolerances up to [`EXACT_JACOBIAN_TOLERANCE`], else `Frozen`. Order 1 always keeps the
+/// frozen matrix and its energy certificate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Jacobian {
+    #[default]
+    Auto,
+    Exact,
+    Frozen,
+}
+
+/// The tolerance at and below which `jacobian = "auto"` keeps the exact Jacobian: the crossover
+/// measured on the N = 200 chain (auto at 1e-6: 0.003 s either way; at 1e-7 0.006 s and 9.6e-8
+/// exact against 0.005 s and 1.3e-7 frozen; at 1e-8 0.008 s against 0.010 s; at 1e-10 0.022 s
+/// against 0.083 s).
+pub const EXACT_JACOBIAN_TOLERANCE: f64 = 1e-7;
+
 /// The order of the time scheme: the linearly implicit Euler step (1) or its extrapolation from
 /// 1, 2, …, p substeps (Aitken–Neville; order p), fixed for the run; or chosen per member and
 /// step by the work per unit step (`Auto`, adaptive steps only, orders 2..=MAX_ORDER).

@@ -3,7 +3,9 @@
 //! no clusters → no contact bookkeeping) and which outputs are asked for.
 
 use crate::expr::Expr;
-use crate::model::params::{MemberParams, Order, OutputFields, Stepping};
+use crate::model::params::{
+    Jacobian, MemberParams, Order, OutputFields, Stepping, EXACT_JACOBIAN_TOLERANCE,
+};
 use crate::model::quadrature::GaussLegendre;
 use roughlub_kernels::overrides::Overrides;
 
@@ -53,6 +55,8 @@ pub struct Plan {
     /// Order 1 with fixed steps: estimate the error with a companion run (see
     /// [`crate::backend::companion`]).
     pub companion_estimate: bool,
+    /// The matrix of the extrapolated steps (`[solver] jacobian`); see [`Plan::exact_jacobian`].
+    pub jacobian: Jacobian,
     /// Compute each snapshot's [`peak_centre`](crate::model::observables::peak_centre) (a
     /// study's detailed points: there the rho row is still in cache).
     pub peak_centre: bool,
@@ -70,6 +74,8 @@ pub struct PlanSummary {
     pub quadrature_points: Option<usize>,
     #[serde(serialize_with = "serialize_powers")]
     pub gamma_evaluation: Vec<Power>,
+    /// "exact" or "frozen": the matrix the run's extrapolated steps used.
+    pub jacobian: &'static str,
 }
 
 /// [`Power`] as the manifest records it (`{"kind": "integer", "value": 2}`). The kernels crate
@@ -105,7 +111,25 @@ impl Plan {
             forcing: self.forcing.as_ref().map(|f| f.expr.source().to_string()),
             quadrature_points: self.forcing.as_ref().map(|f| f.rule.nodes.len()),
             gamma_evaluation,
+            jacobian: if self.exact_jacobian() {
+                "exact"
+            } else {
+                "frozen"
+            },
         }
+    }
+
+    /// Whether the extrapolated steps keep the exact Jacobian's -r_i (see [`Jacobian`]).
+    pub fn exact_jacobian(&self) -> bool {
+        self.order != Order::Fixed(1)
+            && match self.jacobian {
+                Jacobian::Exact => true,
+                Jacobian::Frozen => false,
+                Jacobian::Auto => matches!(
+                    self.stepping,
+                    Stepping::Adaptive { tolerance, .. } if tolerance <= EXACT_JACOBIAN_TOLERANCE
+                ),
+            }
     }
 }
 

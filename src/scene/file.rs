@@ -111,6 +111,8 @@ pub(super) struct SolverSection {
     pub precision: Option<String>,
     /// Order 1 with fixed steps: run the companion that estimates the error (default true).
     pub error_estimate: Option<bool>,
+    /// "auto", "exact" or "frozen": the matrix of the extrapolated steps.
+    pub jacobian: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -26,7 +26,9 @@ use crate::backend::{Backend, Precision};
 use crate::error::{Error, Result};
 use crate::expr::Expr;
 pub(crate) use crate::input::number_text;
-use crate::model::params::{MemberParams, Order, OutputFields, Stepping, FIELD_NAMES, MAX_ORDER};
+use crate::model::params::{
+    Jacobian, MemberParams, Order, OutputFields, Stepping, FIELD_NAMES, MAX_ORDER,
+};
 use checks::{
     approx_text, check_gamma, check_mu, check_non_empty, check_profile, check_range, parse_expr,
     Range,
@@ -75,6 +77,8 @@ pub struct Scene {
     /// `[solver] error_estimate`: order 1 with fixed steps runs a companion at 4 dt to estimate
     /// its error ([`crate::backend::companion`]); false turns it off.
     pub error_estimate: bool,
+    /// `[solver] jacobian`: the matrix of the extrapolated steps ([`Jacobian`]).
+    pub jacobian: Jacobian,
     pub grid: usize,
     pub fields: OutputFields,
     pub plots: bool,
@@ -159,6 +163,12 @@ impl Scene {
             backend,
             precision,
             error_estimate: file.solver.error_estimate.unwrap_or(true),
+            jacobian: parse_choice(
+                "solver.jacobian",
+                "matrix of the extrapolated steps",
+                file.solver.jacobian.as_deref(),
+                Jacobian::Auto,
+            )?,
             grid: output.grid,
             fields: output.fields,
             plots: output.plots,

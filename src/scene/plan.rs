@@ -30,6 +30,7 @@ impl Scene {
             fields,
             grid: scene.grid,
             companion_estimate: scene.error_estimate,
+            jacobian: scene.jacobian,
             peak_centre: false,
             overrides: scene.overrides.clone(),
         }

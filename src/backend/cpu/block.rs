@@ -100,7 +100,7 @@ impl<T: Real, const L: usize> LaneModel<T, L> {
             mu: self.mu,
             total_gap: self.total_gap,
             contact_repulsion: self.contact_repulsion,
-            exact_jacobian: Scheme::of(plan).extrapolates() && std::env::var_os("RL_W").is_none(),
+            exact_jacobian: plan.exact_jacobian(),
             repulsion: self.dstar.as_deref().map(|d| (d, self.gamma)),
             bonded: self.bonded.as_deref(),
             forcing: plan

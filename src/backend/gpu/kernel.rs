@@ -64,6 +64,8 @@ pub struct SchemeSpec {
     pub adaptive: bool,
     /// Order chosen per member and step (`order = "auto"`).
     pub auto_order: bool,
+    /// The extrapolated steps keep the exact Jacobian (`Plan::exact_jacobian`).
+    pub exact_jacobian: bool,
 }
 
 impl SchemeSpec {
@@ -79,6 +81,7 @@ impl SchemeSpec {
             extrapolates: order != Order::Fixed(1),
             adaptive,
             auto_order: order == Order::Auto,
+            exact_jacobian: false,
         }
     }
 
@@ -260,9 +263,10 @@ fn generated(spec: &KernelSpec) -> String {
     );
     let _ = writeln!(
         out,
-        "const LN_RATIO_SERIES: real = {};\nconst EXTRAPOLATES: bool = {};",
+        "const LN_RATIO_SERIES: real = {};\nconst EXTRAPOLATES: bool = {};\nconst EXACT_JACOBIAN: bool = {};",
         literal(LN_RATIO_SERIES, float),
-        spec.scheme.extrapolates
+        spec.scheme.extrapolates,
+        spec.scheme.exact_jacobian
     );
     let per_gamma = match spec.precision {
         Precision::F32 => ENERGY_RTOL_PER_GAMMA_F32,

@@ -136,10 +136,13 @@ fn invalid(message: String) -> GpuError {
 
 /// The time scheme the kernel compiles for `plan`.
 fn scheme_of(plan: &Plan) -> SchemeSpec {
-    SchemeSpec::of(
-        plan.order,
-        matches!(plan.stepping, Stepping::Adaptive { .. }),
-    )
+    SchemeSpec {
+        exact_jacobian: plan.exact_jacobian(),
+        ..SchemeSpec::of(
+            plan.order,
+            matches!(plan.stepping, Stepping::Adaptive { .. }),
+        )
+    }
 }
 
 /// What the kernel for `plan` contains. A uniform integer gamma becomes a fixed chain of
