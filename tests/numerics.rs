@@ -646,6 +646,82 @@ fn extrapolation_orders_converge_at_their_order() {
     }
 }
 
+/// Issue 22, item 1, on a realistic chain: N = 200, roughness radii uniform within ±30 % of the
+/// mean (d* of gap i from its two radii), rho 0.7, u0 = 0.5 sin 2πx, gamma 2, mu 0.01, to
+/// t = 0.3. Fixed steps dt = 0.3·2^-k, k = 4..12; the observed order of each halving is log2 of
+/// the ratio of successive differences (max over ln d plus max over u, at the end: no reference
+/// needed). With the exact Jacobian, orders 2 and 3 stay within ±0.5 of their order over all
+/// seven rates (measured: 1.89..1.99 and 2.63..3.04); order 4 only over the first two (4.34,
+/// 4.24), then 3.06, 2.79, 2.59, 2.25, 2.65, and order 6 4.06, then 1.2..4.5: the stiff order
+/// reduction of docs/accuracy.md, printed here, not held. The frozen matrix's rates are printed
+/// beside them (order 3 falls to 1.3 there).
+#[test]
+fn orders_on_a_random_chain_of_200() {
+    let profile = |text: &str| Expr::parse(text).unwrap();
+    let mut chain = chain_from_profiles(
+        200,
+        &profile("0.7"),
+        &profile("0.5*sin(2*pi*x)"),
+        Some(&profile("0.7")),
+    )
+    .unwrap();
+    let mut rng = Rng(11);
+    let radii: Vec<f64> = (0..=200).map(|_| rng.uniform(0.7, 1.3)).collect();
+    for (i, d) in chain.dstar.as_mut().unwrap().iter_mut().enumerate() {
+        *d *= 0.5 * (radii[i] + radii[i + 1]);
+    }
+    let params = vec![MemberParams {
+        mu: 0.01,
+        gamma: 2.0,
+    }];
+    let t_end = 0.3;
+    let rates = |order: u8, jacobian: Jacobian| -> Vec<f64> {
+        let ends: Vec<(Vec<f64>, Vec<f64>)> = (4..=12)
+            .map(|k| {
+                let dt = t_end / f64::powi(2.0, k);
+                let stepping = Stepping::Fixed { dt, dt_min: 1e-14 };
+                let plan = Plan {
+                    jacobian,
+                    ..plan_for(
+                        &chain,
+                        params.clone(),
+                        order,
+                        stepping,
+                        vec![0.0, t_end],
+                        None,
+                    )
+                };
+                let (snaps, solver) = run_all(plan, vec![chain.clone()]);
+                assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
+                let end = &snaps[1][0];
+                (
+                    end.gaps.iter().map(|d| d.ln()).collect(),
+                    end.velocities.clone(),
+                )
+            })
+            .collect();
+        let differences: Vec<f64> = ends
+            .windows(2)
+            .map(|w| max_error(&w[0].0, &w[1].0) + max_error(&w[0].1, &w[1].1))
+            .collect();
+        differences
+            .windows(2)
+            .map(|w| (w[0] / w[1]).log2())
+            .collect()
+    };
+    for (order, halvings_held) in [(2u8, 7), (3, 7), (4, 2), (6, 0)] {
+        let exact = rates(order, Jacobian::Exact);
+        let frozen = rates(order, Jacobian::Frozen);
+        eprintln!("order {order}: exact {exact:.2?}, frozen {frozen:.2?}");
+        for p in &exact[..halvings_held] {
+            assert!(
+                (p - order as f64).abs() <= 0.5,
+                "order {order} with the exact Jacobian: observed {p} ({exact:.2?})"
+            );
+        }
+    }
+}
+
 /// How far above the requested tolerance the global error may be (measured: see the test).
 const TOLERANCE_FACTOR: f64 = 3.0;
 
