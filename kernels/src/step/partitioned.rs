@@ -1385,7 +1385,7 @@ where
     report[0].admissible &= opening <= T::c(MAX_OPENING);
     // As the sequential sweep's: the certificate is proved for k_i = 1.
     report[0].certified = !needs_fixup
-        && !(REP && c.exact)
+        && (!REP || !c.exact)
         && energy_certified(
             REP,
             closing.to_f64(),

@@ -130,8 +130,11 @@ fn step<T: Real, const M: usize>(
     )
 }
 
+/// A variant: its label, gamma, clusters, forcing and whether the Jacobian is exact.
+type Variant = (String, Option<Gamma<L>>, bool, Option<Wave>, bool);
+
 /// Every combination of the terms the step specialises on or tests at run time.
-fn variants() -> Vec<(String, Option<Gamma<L>>, bool, Option<Wave>, bool)> {
+fn variants() -> Vec<Variant> {
     let gammas: [(&str, Option<Gamma<L>>); 5] = [
         ("none", None),
         ("2", Some(Gamma::Uniform(Power::Integer(2)))),
