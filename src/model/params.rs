@@ -67,6 +67,30 @@ pub enum Jacobian {
 /// against 0.083 s).
 pub const EXACT_JACOBIAN_TOLERANCE: f64 = 1e-7;
 
+impl Jacobian {
+    /// Whether a run of `order` with `stepping` keeps the exact Jacobian.
+    pub fn is_exact(self, order: Order, stepping: Stepping) -> bool {
+        order != Order::Fixed(1)
+            && match self {
+                Jacobian::Exact => true,
+                Jacobian::Frozen => false,
+                Jacobian::Auto => matches!(
+                    stepping,
+                    Stepping::Adaptive { tolerance, .. } if tolerance <= EXACT_JACOBIAN_TOLERANCE
+                ),
+            }
+    }
+
+    /// What the manifests record: the matrix the run used, "exact" or "frozen".
+    pub fn record(self, order: Order, stepping: Stepping) -> &'static str {
+        if self.is_exact(order, stepping) {
+            "exact"
+        } else {
+            "frozen"
+        }
+    }
+}
+
 /// The order of the time scheme: the linearly implicit Euler step (1) or its extrapolation from
 /// 1, 2, …, p substeps (Aitken–Neville; order p), fixed for the run; or chosen per member and
 /// step by the work per unit step (`Auto`, adaptive steps only, orders 2..=MAX_ORDER).

@@ -3,9 +3,7 @@
 //! no clusters → no contact bookkeeping) and which outputs are asked for.
 
 use crate::expr::Expr;
-use crate::model::params::{
-    Jacobian, MemberParams, Order, OutputFields, Stepping, EXACT_JACOBIAN_TOLERANCE,
-};
+use crate::model::params::{Jacobian, MemberParams, Order, OutputFields, Stepping};
 use crate::model::quadrature::GaussLegendre;
 use roughlub_kernels::overrides::Overrides;
 
@@ -111,25 +109,13 @@ impl Plan {
             forcing: self.forcing.as_ref().map(|f| f.expr.source().to_string()),
             quadrature_points: self.forcing.as_ref().map(|f| f.rule.nodes.len()),
             gamma_evaluation,
-            jacobian: if self.exact_jacobian() {
-                "exact"
-            } else {
-                "frozen"
-            },
+            jacobian: self.jacobian.record(self.order, self.stepping),
         }
     }
 
     /// Whether the extrapolated steps keep the exact Jacobian's -r_i (see [`Jacobian`]).
     pub fn exact_jacobian(&self) -> bool {
-        self.order != Order::Fixed(1)
-            && match self.jacobian {
-                Jacobian::Exact => true,
-                Jacobian::Frozen => false,
-                Jacobian::Auto => matches!(
-                    self.stepping,
-                    Stepping::Adaptive { tolerance, .. } if tolerance <= EXACT_JACOBIAN_TOLERANCE
-                ),
-            }
+        self.jacobian.is_exact(self.order, self.stepping)
     }
 }
 

@@ -124,6 +124,8 @@ pub struct StudyManifest {
     pub members_completed: u64,
     pub failed_members: Vec<u64>,
     pub error_estimate: ErrorEstimateRecord,
+    /// "exact" or "frozen": the matrix of the extrapolated steps (`[solver] jacobian`).
+    pub jacobian: &'static str,
     pub chunks: usize,
     pub chunks_reused: usize,
     /// Chunks solved a second time because a member failed after its point's rows had been

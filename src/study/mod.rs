@@ -302,6 +302,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
                 scene.error_estimate,
                 largest_error_estimate,
             ),
+            jacobian: scene.jacobian.record(scene.order, scene.stepping),
             chunks,
             chunks_reused: reused,
             chunks_solved_twice: costs.chunks_solved_twice,
