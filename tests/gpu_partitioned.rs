@@ -17,7 +17,7 @@ use roughlub::backend::shared::gaps::GAP_FLOOR;
 use roughlub::backend::{BatchSolver, MemberReport, MemberStatus, Precision};
 use roughlub::model::chain::Chain;
 use roughlub::model::observables::Snapshot;
-use roughlub::model::params::{MemberParams, Order, Stepping};
+use roughlub::model::params::{Jacobian, MemberParams, Order, Stepping};
 use roughlub::model::plan::Plan;
 
 /// The CPU's sequential sweep is what the GPU is compared with: every N here is below its
@@ -182,7 +182,7 @@ fn members_and_chains(n: usize, seed: u64) -> (Vec<MemberParams>, Vec<Chain>) {
 }
 
 /// Segments of 97 rows (N = 3001: 30 segments, some one row longer): roughness and forcing,
-/// order 1 with fixed steps and order 2 adaptive.
+/// order 1 with fixed steps and order 2 adaptive with either matrix.
 #[test]
 fn short_segments_agree_with_the_sequential_sweep() {
     let Some(ctx) = acquire_for_tests(true) else {
@@ -190,18 +190,25 @@ fn short_segments_agree_with_the_sequential_sweep() {
     };
     let n = 3001;
     let (members, chains) = members_and_chains(n, 31);
-    for (order, stepping) in [(1, FIXED), (2, ADAPTIVE)] {
-        let plan = plan_for(
-            &chains[0],
-            members.clone(),
-            order,
-            stepping,
-            vec![0.0, 0.02, 0.04],
-            Some(("0.3*sin(2*pi*x)*cos(3*t)", 3)),
-        );
+    for (order, stepping, jacobian) in [
+        (1, FIXED, Jacobian::Auto),
+        (2, ADAPTIVE, Jacobian::Frozen),
+        (2, ADAPTIVE, Jacobian::Exact),
+    ] {
+        let plan = Plan {
+            jacobian,
+            ..plan_for(
+                &chains[0],
+                members.clone(),
+                order,
+                stepping,
+                vec![0.0, 0.02, 0.04],
+                Some(("0.3*sin(2*pi*x)*cos(3*t)", 3)),
+            )
+        };
         assert_agreement(
             &ctx,
-            &format!("N = {n}, order {order}, {stepping:?}"),
+            &format!("N = {n}, order {order}, {stepping:?}, {jacobian:?}"),
             &plan,
             &chains,
             GpuPartition::SegmentRows(97),

@@ -13,7 +13,7 @@ use roughlub::backend::{BatchSolver, MemberReport, MemberStatus, Precision};
 use roughlub::expr::Expr;
 use roughlub::model::chain::Chain;
 use roughlub::model::observables::Snapshot;
-use roughlub::model::params::{MemberParams, Order, Stepping};
+use roughlub::model::params::{Jacobian, MemberParams, Order, Stepping};
 use roughlub::model::plan::Plan;
 use roughlub::scene::initial::chain_from_profiles;
 
@@ -371,6 +371,15 @@ fn higher_orders_and_auto_agree_including_order_choices() {
             (0..=3).map(|k| 0.05 * k as f64).collect(),
             Some(("0.3*sin(2*pi*x)*cos(3*t)", 3)),
         );
+        // The tight case takes the exact Jacobian (`Jacobian::Auto` at 1e-8), the others the
+        // frozen one; order 6 with fixed steps is also run with the exact one.
+        if order == Order::Fixed(6) {
+            let exact = Plan {
+                jacobian: Jacobian::Exact,
+                ..plan.clone()
+            };
+            assert_f64_agreement(&ctx, "order 6, fixed, exact Jacobian", &exact, &chains);
+        }
         let label = format!("order {}, {stepping:?}", order.label());
         assert_f64_agreement(&ctx, &label, &plan, &chains);
         if order == Order::Auto {
