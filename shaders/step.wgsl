@@ -251,7 +251,8 @@ fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerm
 // `jacobian_factor`: k = 1/(1 + x) where the gap opens (x >= 0) and 1 - x/(1 + x + 16 x^4)
 // where it closes (1/(1 + x) to O(x^5), bounded, back to 1 for fast closing), x = h (u_right -
 // u_left)/d, where the plan keeps the exact Jacobian (EXACT_JACOBIAN: the CPU's
-// `Terms::exact_jacobian`, `Plan::exact_jacobian`) and r is resolved, else 1. The CPU twin in kernels/src/step.rs says why this form.
+// `Terms::exact_jacobian`, `Plan::exact_jacobian`) and r is resolved, else 1. The CPU twin in
+// kernels/src/step.rs says why this form.
 fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
     let moved = h * (abs(u_left) + abs(u_right));
     let x = h * (u_right - u_left) / d;
@@ -428,8 +429,8 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         sum = lane_sum(b, dst);
     }
     report.admissible = report.admissible && opening <= MAX_OPENING;
-    // The energy is always computed here; the CPU skips it without repulsion, where the step
-    // provably does not raise it (`StepReport::certified`).
+    // The energy is always computed here; the CPU skips it for steps its certificate
+    // (`energy_certified`) proves acceptable, which the computed energy then passes too.
     report = conclude(b, dst, p, report, sum, h, true);
     return report;
 }

@@ -1123,14 +1123,10 @@ where
             sum[l] = lane_sum::<T, L>(n, l, gaps_out);
         }
         report[l].admissible &= opening[l] <= T::c(MAX_OPENING);
-        // The certificate is proved for k_i = 1: with k_i the step's energy balance has a term
-        // G d x h r(0) of either sign (the velocities do the work h G d r', the gap moves by
-        // d x = d h k r'), so with repulsion the energy is computed. Without repulsion the
-        // kinetic balance, E' - E - W <= -(mu/h) sum d x^2/k, holds for any k > 0.
         report[l].certified = needs_fixup[l] == T::Flag::default()
-            && !(REP && exact)
             && energy_certified(
                 REP,
+                exact,
                 closing[l].to_f64(),
                 opening[l].to_f64(),
                 (T::c(2.0) * eps).to_f64(),
@@ -1163,12 +1159,19 @@ where
 /// balance gives -mu/h sum d x^2 - sum k D^2/2, the projection at most G_max sum e_i, and
 /// sum e_i <= e^{max x} sum d x^2/2). The third derivative of Phi is negative, so R_i <= 0 for
 /// an opening gap, and R_i <= k_i D_i^2/2 for a closing one when
-/// (gamma + 1)|D_i| <= d_i + D_i + 2eps, i.e. when `closing` = max_i d_i ((gamma + 2)(-x_i) - 1) <= 2eps; the second term is
-/// <= 0 when e^{max x} G_max/2 <= mu/h, with G_max bounded by the contact repulsion. A mild step
+/// (gamma + 1)|D_i| <= d_i + D_i + 2eps, i.e. when
+/// `closing` = max_i d_i ((gamma + 2)(-x_i) - 1) <= 2eps; the second term is <= 0 when
+/// e^{max x} G_max/2 <= mu/h, with G_max bounded by the contact repulsion. A mild step
 /// is certified and skips the potential energy; any other is checked by computing E'.
+/// The bound is proved for the frozen matrix (`exact_jacobian` false: the factor of
+/// [`jacobian_factor`], here kappa_i, is 1): with kappa_i != 1 the step's energy balance has a
+/// term G d x h r(0) of either sign (the velocities do the work h G d r', the gap moves by
+/// d x = d h kappa r'), so with repulsion such a step is never certified. Without repulsion the
+/// kinetic balance, E' - E - W <= -(mu/h) sum d x^2/kappa, holds for any kappa > 0.
 #[inline(always)]
 pub fn energy_certified(
     repulsion: bool,
+    exact_jacobian: bool,
     closing: f64,
     opening: f64,
     eps2: f64,
@@ -1176,10 +1179,12 @@ pub fn energy_certified(
     mu_over_h: f64,
 ) -> bool {
     if !repulsion {
-        // Phi = 0: the kinetic balance alone, E' - E - W <= -mu/h sum d x^2.
+        // Phi = 0: the kinetic balance alone, E' - E - W <= -mu/h sum d x^2/kappa.
         return true;
     }
-    closing <= eps2 && 0.5 * f64_math::exp(opening.max(0.0)) * contact_repulsion <= mu_over_h
+    !exact_jacobian
+        && closing <= eps2
+        && 0.5 * f64_math::exp(opening.max(0.0)) * contact_repulsion <= mu_over_h
 }
 
 /// The hard failure of a lane whose forward sweep met a non-finite G or F (outside the hot loop).

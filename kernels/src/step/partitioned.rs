@@ -1383,11 +1383,11 @@ where
     gap_first[0] = grown;
     sum += fmax(grown, zero).to_f64();
     report[0].admissible &= opening <= T::c(MAX_OPENING);
-    // As the sequential sweep's: the certificate is proved for k_i = 1.
+    // As the sequential sweep's.
     report[0].certified = !needs_fixup
-        && (!REP || !c.exact)
         && energy_certified(
             REP,
+            c.exact,
             closing.to_f64(),
             opening.to_f64(),
             mass.to_f64(),
