@@ -1018,31 +1018,59 @@ fn failed_members_are_counted_and_listed_never_averaged() {
 }
 
 /// `store_members = true`: the per-member arrays land in --out (they are written into the
-/// staging directory that becomes --out), with one row per member.
+/// staging directory that becomes --out), with one row per member, and they hold the gaps and
+/// velocities whatever `[output] fields` asks the bands for: with `fields = ["energy"]` the
+/// arrays are the same, bit for bit (they once came out empty, with a wrapped shape).
 #[test]
 fn stored_member_arrays_land_in_out() {
     let tmp = tempfile::tempdir().unwrap();
-    let scene = scene_variant(
-        "study_basic.toml",
-        &[
-            ("plots = false", "plots = false"),
-            ("jitter = 0.05", "jitter = 0.05\nstore_members = true"),
-        ],
-        tmp.path(),
-        "store.toml",
-    );
-    let dir = tmp.path().join("stored");
-    assert_success(&run(&scene, &dir, &[]), "store_members run");
+    let stored = |fields: &str, name: &str| {
+        let scene = scene_variant(
+            "study_basic.toml",
+            &[
+                ("plots = false", fields),
+                ("jitter = 0.05", "jitter = 0.05\nstore_members = true"),
+            ],
+            tmp.path(),
+            &format!("{name}.toml"),
+        );
+        let dir = tmp.path().join(name);
+        assert_success(&run(&scene, &dir, &[]), "store_members run");
+        let mut arrays = std::collections::BTreeMap::new();
+        for e in std::fs::read_dir(dir.join("members")).unwrap() {
+            let p = e.unwrap().path();
+            let file = p.file_name().unwrap().to_string_lossy().into_owned();
+            if file.ends_with("_gaps.npy") || file.ends_with("_velocities.npy") {
+                arrays.insert(file, npy(&p));
+            }
+        }
+        arrays
+    };
+    let all = stored("plots = false", "stored");
     let mut total = 0;
-    for e in std::fs::read_dir(dir.join("members")).unwrap() {
-        let p = e.unwrap().path();
-        if p.to_string_lossy().ends_with("_gaps.npy") {
-            let (shape, _) = npy(&p);
-            assert_eq!(shape[1..], [3, 40], "[member, T, N] of {p:?}");
+    for (file, (shape, _)) in &all {
+        if file.ends_with("_gaps.npy") {
+            assert_eq!(shape[1..], [3, 40], "[member, T, N] of {file}");
             total += shape[0];
+        } else {
+            assert_eq!(shape[1..], [3, 39], "[member, T, N - 1] of {file}");
         }
     }
     assert_eq!(total, 96, "one stored row per member");
+    let energy_only = stored("plots = false\nfields = [\"energy\"]", "energy_only");
+    assert_eq!(energy_only.len(), all.len(), "the same chunk files");
+    for (file, (shape, values)) in &all {
+        let (other_shape, other_values) = &energy_only[file];
+        assert_eq!(
+            other_shape, shape,
+            "shape of {file} with fields = [\"energy\"]"
+        );
+        let same = values
+            .iter()
+            .zip(other_values)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "{file} differs with fields = [\"energy\"]");
+    }
 }
 
 /// An adaptive study records each member's error estimate at every output time: the stored

@@ -48,9 +48,10 @@ pub(super) fn chunk_plan(
     plan.fields.u &= detailed;
     plan.fields.rho = detailed || store_members;
     plan.peak_centre = detailed;
-    // Gaps and velocities per member are only read when the members' arrays are kept.
-    plan.fields.gaps &= store_members;
-    plan.fields.velocities &= store_members;
+    // Gaps and velocities per member are read only, and always, where the members' arrays are
+    // kept: `store_members` writes them whatever `[output] fields` lists for the bands.
+    plan.fields.gaps = store_members;
+    plan.fields.velocities = store_members;
     plan
 }
 

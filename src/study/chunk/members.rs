@@ -111,7 +111,7 @@ pub(super) fn write_kept_members(
     let (c, t, n) = (count as u64, t_count as u64, n as u64);
     let name = |what: &str| members_dir.join(format!("chunk_{first:012}_{end:012}_{what}.npy"));
     write_npy(name("gaps"), &[c, t, n], &kept_gaps)?;
-    write_npy(name("velocities"), &[c, t, n - 1], &kept_vel)?;
+    write_npy(name("velocities"), &[c, t, n.saturating_sub(1)], &kept_vel)?;
     write_npy(name("rho"), &[c, t, grid as u64], &kept_rho)?;
     let estimates: Vec<f64> = kept_estimates
         .iter()
