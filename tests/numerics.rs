@@ -646,6 +646,104 @@ fn extrapolation_orders_converge_at_their_order() {
     }
 }
 
+/// Fixed steps dt = 0.3 2^-k, k = 4..=12, to t = 0.3: the differences of successive runs (max
+/// over ln d plus max over the velocities at the end) and log2 of their successive ratios, the
+/// observed orders.
+fn fixed_step_rates(
+    chain: &Chain,
+    params: &[MemberParams],
+    order: u8,
+    jacobian: Jacobian,
+) -> (Vec<f64>, Vec<f64>) {
+    let t_end = 0.3;
+    let ends: Vec<(Vec<f64>, Vec<f64>)> = (4..=12)
+        .map(|k| {
+            let dt = t_end / f64::powi(2.0, k);
+            let stepping = Stepping::Fixed { dt, dt_min: 1e-14 };
+            let plan = Plan {
+                jacobian,
+                ..plan_for(
+                    chain,
+                    params.to_vec(),
+                    order,
+                    stepping,
+                    vec![0.0, t_end],
+                    None,
+                )
+            };
+            let (snaps, solver) = run_all(plan, vec![chain.clone()]);
+            assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
+            let end = &snaps[1][0];
+            (
+                end.gaps.iter().map(|d| d.ln()).collect(),
+                end.velocities.clone(),
+            )
+        })
+        .collect();
+    let differences: Vec<f64> = ends
+        .windows(2)
+        .map(|w| max_error(&w[0].0, &w[1].0) + max_error(&w[0].1, &w[1].1))
+        .collect();
+    let rates = differences
+        .windows(2)
+        .map(|w| (w[0] / w[1]).log2())
+        .collect();
+    (differences, rates)
+}
+
+/// The random chain's loss of order is the roughness's, not the code's: the same N = 200 chain
+/// with every d* equal (rho* = rho = 0.7, the same u0, mu and gamma, the same substeps, gap
+/// update, projection and energy check) keeps orders 3 to 5 within +-0.5 over at least three
+/// successive halvings of dt in their asymptotic range with the exact matrix, and orders 3 and
+/// 4 with the frozen one. Order 6 (exact) meets rounding while it still climbs (measured 5.46,
+/// 5.61, 5.73, then 1e-12), so it is held within +-0.6; frozen orders 5 and 6 meet it after two
+/// halvings inside (4.68, 4.79; 5.19, 5.46) and are printed, not held.
+/// The asymptotic range: halvings whose differences both lie above 5e-12, where the
+/// differences of successive runs level off at ~1e-12 (rounding of ln d and u over 4096 steps).
+#[test]
+fn orders_three_to_six_hold_on_a_chain_of_200_with_uniform_roughness() {
+    let profile = |text: &str| Expr::parse(text).unwrap();
+    let chain = chain_from_profiles(
+        200,
+        &profile("0.7"),
+        &profile("0.5*sin(2*pi*x)"),
+        Some(&profile("0.7")),
+    )
+    .unwrap();
+    let params = [MemberParams {
+        mu: 0.01,
+        gamma: 2.0,
+    }];
+    for (order, jacobian, within) in [
+        (3u8, Jacobian::Exact, 0.5),
+        (4, Jacobian::Exact, 0.5),
+        (5, Jacobian::Exact, 0.5),
+        (6, Jacobian::Exact, 0.6),
+        (3, Jacobian::Frozen, 0.5),
+        (4, Jacobian::Frozen, 0.5),
+        (5, Jacobian::Frozen, f64::INFINITY),
+        (6, Jacobian::Frozen, f64::INFINITY),
+    ] {
+        let (differences, rates) = fixed_step_rates(&chain, &params, order, jacobian);
+        let shown: Vec<String> = differences.iter().map(|d| format!("{d:.1e}")).collect();
+        eprintln!("order {order}, {jacobian:?}: differences {shown:?}, rates {rates:.2?}");
+        if within.is_infinite() {
+            continue;
+        }
+        let resolved: Vec<bool> = differences.windows(2).map(|w| w[1] > 5e-12).collect();
+        let held = rates
+            .iter()
+            .zip(&resolved)
+            .map(|(p, &r)| r && (p - order as f64).abs() <= within)
+            .collect::<Vec<bool>>();
+        assert!(
+            held.windows(3).any(|w| w.iter().all(|&h| h)),
+            "order {order}, {jacobian:?}: no three successive halvings within +-{within} \
+             above rounding: rates {rates:.2?}, differences {shown:?}"
+        );
+    }
+}
+
 /// Issue 22, item 1, on a realistic chain: N = 200, roughness radii uniform within ±30 % of the
 /// mean (d* of gap i from its two radii), rho 0.7, u0 = 0.5 sin 2πx, gamma 2, mu 0.01, to
 /// t = 0.3. Fixed steps dt = 0.3·2^-k, k = 4..12; the observed order of each halving is log2 of
@@ -674,41 +772,8 @@ fn orders_on_a_random_chain_of_200() {
         mu: 0.01,
         gamma: 2.0,
     }];
-    let t_end = 0.3;
-    let rates = |order: u8, jacobian: Jacobian| -> Vec<f64> {
-        let ends: Vec<(Vec<f64>, Vec<f64>)> = (4..=12)
-            .map(|k| {
-                let dt = t_end / f64::powi(2.0, k);
-                let stepping = Stepping::Fixed { dt, dt_min: 1e-14 };
-                let plan = Plan {
-                    jacobian,
-                    ..plan_for(
-                        &chain,
-                        params.clone(),
-                        order,
-                        stepping,
-                        vec![0.0, t_end],
-                        None,
-                    )
-                };
-                let (snaps, solver) = run_all(plan, vec![chain.clone()]);
-                assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
-                let end = &snaps[1][0];
-                (
-                    end.gaps.iter().map(|d| d.ln()).collect(),
-                    end.velocities.clone(),
-                )
-            })
-            .collect();
-        let differences: Vec<f64> = ends
-            .windows(2)
-            .map(|w| max_error(&w[0].0, &w[1].0) + max_error(&w[0].1, &w[1].1))
-            .collect();
-        differences
-            .windows(2)
-            .map(|w| (w[0] / w[1]).log2())
-            .collect()
-    };
+    let rates =
+        |order: u8, jacobian: Jacobian| fixed_step_rates(&chain, &params, order, jacobian).1;
     for (order, halvings_held) in [(2u8, 7), (3, 7), (4, 2), (6, 0)] {
         let exact = rates(order, Jacobian::Exact);
         let frozen = rates(order, Jacobian::Frozen);
