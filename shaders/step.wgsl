@@ -2,7 +2,7 @@
 // `i * batch + b`), each member with its own time, step size and status. WGSL twin of
 // kernels/src/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas
 // solve, the gap update exact in ln d, the projection onto sum d and the energy; read its header
-// for the equations), of the attempts and `extrapolate` in src/backend/cpu/block.rs and of
+// for the equations), of the attempts in src/backend/cpu/block.rs, of `extrapolate` in kernels/src/tableau.rs and of
 // `StepControl`, `step_factor` and `select_order` in kernels/src/shared/control.rs. Keep them in
 // sync, loop for loop.
 // Gaps are stored as in `crate::model::chain::stored_gap`: d, or ln d (< 0) below GAP_FLOOR, or 0
@@ -564,7 +564,7 @@ fn noted(err: real, e: real) -> real {
     return select(REAL_MAX, max(err, e), e <= REAL_MAX);
 }
 
-// `extrapolate` of src/backend/cpu/block.rs: the Aitken–Neville tableau of rows 1..=k (set
+// `extrapolate` of kernels/src/tableau.rs: the Aitken–Neville tableau of rows 1..=k (set
 // ROW_SET + j - 1), element by element, gaps in ln d (shifted by ln of row k), velocities
 // linearly; set `cand` <- T_kk (or row k itself when not EXTRAPOLATES: order 1). Returns
 // |T_jj - T_{j,j-1}| for j = 2..=k (gaps: of ln d; velocities: over 1 + |T_{j,j-1}|).

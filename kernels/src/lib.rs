@@ -14,6 +14,7 @@ pub mod shared;
 pub mod simd;
 pub mod step;
 pub mod stored_gap;
+pub mod tableau;
 
 pub use simd::SimdLevel;
 
@@ -41,6 +42,18 @@ pub trait BlockKernels<const L: usize>: Real {
         vel: &[Self],
         report: &mut [StepReport; L],
     );
+
+    #[allow(clippy::too_many_arguments)]
+    fn extrapolate(
+        simd: SimdLevel,
+        columns: &[usize; L],
+        extrapolating: bool,
+        row_gaps: &[Vec<Self>],
+        row_vel: &[Vec<Self>],
+        cand_gaps: &mut [Self],
+        cand_vel: &mut [Self],
+        bonded: Option<&[bool]>,
+    ) -> [tableau::Estimates; L];
 }
 
 macro_rules! block_kernels {
@@ -77,6 +90,29 @@ macro_rules! block_kernels {
                 report: &mut [StepReport; $l],
             ) {
                 step::conclude(terms, n, h, gaps, vel, report)
+            }
+
+            #[inline(never)]
+            fn extrapolate(
+                simd: SimdLevel,
+                columns: &[usize; $l],
+                extrapolating: bool,
+                row_gaps: &[Vec<$t>],
+                row_vel: &[Vec<$t>],
+                cand_gaps: &mut [$t],
+                cand_vel: &mut [$t],
+                bonded: Option<&[bool]>,
+            ) -> [tableau::Estimates; $l] {
+                tableau::extrapolate(
+                    simd,
+                    columns,
+                    extrapolating,
+                    row_gaps,
+                    row_vel,
+                    cand_gaps,
+                    cand_vel,
+                    bonded,
+                )
             }
         }
     )*};

@@ -669,7 +669,7 @@ fn fmin<T: Real>(a: T, b: T) -> T {
 /// The Taylor branch of [`gap_exp`] (|x| < GAP_EXP_TAYLOR), branch-free for the lane loop.
 #[allow(clippy::excessive_precision)]
 #[inline(always)]
-fn gap_exp_taylor<T: Real>(x: T) -> T {
+pub(crate) fn gap_exp_taylor<T: Real>(x: T) -> T {
     // Horner, 1/k! as the nearest f64 (the WGSL twin writes the same literals; in f32 both round
     // them once).
     let c = T::c;

@@ -1,6 +1,6 @@
 //! A block of L members advanced together: the CPU twin of one GPU invocation per member, with
 //! the L lanes' sweeps side by side (`step::euler_step`), the extrapolation tableau and its
-//! error estimates (`extrapolate`: twin of the same function in `shaders/step.wgsl`), and
+//! error estimates (`roughlub_kernels::tableau::extrapolate`, twin of the one in `shaders/step.wgsl`), and
 //! per-lane step and order control (`control`). The state and the step compute in T (f64 or
 //! f32, [`Real`]); the control (times, steps, energies, estimates) in f64 (see `real.rs`).
 
@@ -22,7 +22,7 @@ use crate::model::observables::{observe, set_peak_centres, Snapshot};
 use crate::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
 use crate::model::plan::{Plan, Power};
 use roughlub_kernels::BlockKernels;
-use tableau::{extrapolate, substep_buffers};
+use tableau::substep_buffers;
 
 #[derive(Debug, Clone)]
 pub(super) struct Lane {
@@ -482,7 +482,9 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
             }
         }
         let lane_columns: [usize; L] = std::array::from_fn(|l| lane_rows[l].min(rows));
-        let estimates = extrapolate(
+        let terms = self.model.terms(plan);
+        let estimates = T::extrapolate(
+            terms.simd,
             &lane_columns,
             scheme.extrapolates(),
             &self.row_gaps,
@@ -492,7 +494,6 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
             self.model.bonded.as_deref(),
         );
         let mut energy: [f64; L] = std::array::from_fn(|l| row_energy[lane_columns[l]][l]);
-        let terms = self.model.terms(plan);
         if scheme.extrapolates() {
             // The Euler substeps' certificates do not cover their extrapolation: the
             // projection computes its energy, which must not exceed the start's plus the

@@ -1,0 +1,490 @@
+//! The Aitken–Neville combination of a block's tableau rows with its error estimates
+//! (`extrapolate`, twin of the same function in `shaders/step.wgsl`), lane by lane inside each
+//! gap or velocity so that the lanes' arithmetic is packed. Each lane runs the operations the
+//! WGSL twin runs for one member, in the same order: the results do not depend on the lanes
+//! around it, on L or on the instruction set.
+
+use crate::real::Real;
+use crate::shared::control::MAX_ORDER;
+use crate::shared::gaps::{GAP_EXP_TAYLOR, LN_RATIO_SERIES};
+use crate::simd::SimdLevel;
+use crate::step::{encode_ln_gap, gap_exp, gap_exp_taylor, ln_ratio, stored_ln};
+
+const M: usize = MAX_ORDER as usize;
+
+/// Per column j = 2..=k, the max-norm of T_jj - T_{j,j-1} (index by column).
+pub type Estimates = [f64; M + 1];
+
+/// The tableau's weights (j + 1 - c)/c of the harmonic sequence, as constants: divided at run
+/// time they were a third of an order-8 step's cost. The same quotients, so the same bits.
+const NEVILLE_WEIGHTS: [[f64; M]; M] = {
+    let mut w = [[0.0; M]; M];
+    let mut c = 1;
+    while c < M {
+        let mut j = c;
+        while j < M {
+            w[c][j] = (j + 1 - c) as f64 / c as f64;
+            j += 1;
+        }
+        c += 1;
+    }
+    w
+};
+
+/// The Aitken–Neville tableau of the rows (harmonic sequence n_j = j), element by element:
+/// T_{j,c+1} = T_{j,c} + (T_{j,c} - T_{j-1,c}) · (j - c)/c. cand ← T_kk of each lane's column k
+/// (or row k itself when not `extrapolating`: order 1). Gaps are extrapolated in ln d (near
+/// contact the accuracy that matters is that of ln d, and the result is a positive gap by
+/// construction), velocities linearly. Returns per lane, for j = 2..=k, the max-norm of
+/// T_jj - T_{j,j-1}: on gaps of ln d (a relative error), on velocities over 1 + |T_{j,j-1}|;
+/// a NaN counts as infinite. Computed in T, the estimates returned in f64.
+///
+/// Lanes with fewer rows than the block's most see their last row repeated: a ratio of 1, so
+/// the rows they lack add nothing, and T_kk (which reads rows 1..=k only) is theirs alone.
+#[allow(clippy::too_many_arguments)]
+pub fn extrapolate<T: Real, const L: usize>(
+    simd: SimdLevel,
+    columns: &[usize; L],
+    extrapolating: bool,
+    row_gaps: &[Vec<T>],
+    row_vel: &[Vec<T>],
+    cand_gaps: &mut [T],
+    cand_vel: &mut [T],
+    bonded: Option<&[bool]>,
+) -> [Estimates; L] {
+    // SAFETY (both arms): a level is only chosen where the CPU has its features
+    // (`SimdLevel::widest_here`).
+    #[cfg(target_arch = "x86_64")]
+    match simd {
+        SimdLevel::Avx512 => {
+            return unsafe {
+                extrapolate_avx512::extrapolate_avx512(
+                    columns,
+                    extrapolating,
+                    row_gaps,
+                    row_vel,
+                    cand_gaps,
+                    cand_vel,
+                    bonded,
+                )
+            };
+        }
+        SimdLevel::Avx2Fma => {
+            return unsafe {
+                extrapolate_avx2::extrapolate_avx2(
+                    columns,
+                    extrapolating,
+                    row_gaps,
+                    row_vel,
+                    cand_gaps,
+                    cand_vel,
+                    bonded,
+                )
+            };
+        }
+        SimdLevel::Portable => {}
+    }
+    let _ = simd;
+    extrapolate_impl(
+        columns,
+        extrapolating,
+        row_gaps,
+        row_vel,
+        cand_gaps,
+        cand_vel,
+        bonded,
+    )
+}
+
+macro_rules! instance {
+    ($features:literal, $name:ident) => {
+        // In a module of its own: see `simd_versions!` in step.rs.
+        #[cfg(target_arch = "x86_64")]
+        mod $name {
+            use super::*;
+
+            #[target_feature(enable = $features)]
+            pub(super) unsafe fn $name<T: Real, const L: usize>(
+                columns: &[usize; L],
+                extrapolating: bool,
+                row_gaps: &[Vec<T>],
+                row_vel: &[Vec<T>],
+                cand_gaps: &mut [T],
+                cand_vel: &mut [T],
+                bonded: Option<&[bool]>,
+            ) -> [Estimates; L] {
+                extrapolate_impl(
+                    columns,
+                    extrapolating,
+                    row_gaps,
+                    row_vel,
+                    cand_gaps,
+                    cand_vel,
+                    bonded,
+                )
+            }
+        }
+    };
+}
+
+instance!("avx2,fma", extrapolate_avx2);
+instance!("avx2,fma,avx512f,avx512vl,avx512dq", extrapolate_avx512);
+
+#[inline(always)]
+fn extrapolate_impl<T: Real, const L: usize>(
+    columns: &[usize; L],
+    extrapolating: bool,
+    row_gaps: &[Vec<T>],
+    row_vel: &[Vec<T>],
+    cand_gaps: &mut [T],
+    cand_vel: &mut [T],
+    bonded: Option<&[bool]>,
+) -> [Estimates; L] {
+    let zero = T::ZERO;
+    let rows = columns.iter().copied().max().unwrap_or(1);
+    // Per column and lane the largest estimate so far, NaN once any was (it stays: no
+    // comparison with a NaN is true).
+    let mut est = [[zero; L]; M + 1];
+
+    for (g, out) in cand_gaps.chunks_exact_mut(L).enumerate() {
+        let base = g * L;
+        let last: [T; L] = std::array::from_fn(|l| row_gaps[columns[l] - 1][base + l]);
+        let mut y = [[zero; L]; M];
+        for (j, yj) in y.iter_mut().enumerate().take(rows) {
+            let row = &row_gaps[j][base..base + L];
+            for l in 0..L {
+                yj[l] = if j < columns[l] { row[l] } else { last[l] };
+            }
+        }
+        // rho_j = ln(Y_j / Y_k): the tableau in ln d, shifted by ln Y_k (the extrapolation's
+        // weights sum to 1, so the shift passes through, and the rows' ratios are near 1).
+        // The series of `ln_ratio` for every lane at once; the rare lane outside its range, or
+        // with a log-stored row (`plain` false), again on its own.
+        let mut plain = [true; L];
+        for yj in y.iter().take(rows) {
+            for l in 0..L {
+                plain[l] &= yj[l] > zero;
+            }
+        }
+        let mut rho = [[zero; L]; M];
+        let mut in_series = [true; L];
+        for j in 0..rows {
+            for l in 0..L {
+                let r = y[j][l] / last[l];
+                in_series[l] &= (r - T::ONE).abs() < T::c(LN_RATIO_SERIES);
+                rho[j][l] = ln_series(r);
+            }
+        }
+        for l in 0..L {
+            if !(plain[l] && in_series[l]) {
+                for j in 0..rows {
+                    rho[j][l] = if plain[l] {
+                        ln_ratio(y[j][l] / last[l])
+                    } else {
+                        stored_ln(y[j][l]) - stored_ln(last[l])
+                    };
+                }
+            }
+        }
+        let mut e = [[zero; L]; M + 1];
+        neville(&mut rho, rows, &mut e, |delta, _| delta.abs());
+        let bonded: [bool; L] = std::array::from_fn(|l| bonded.is_some_and(|b| b[base + l]));
+        let x: [T; L] = std::array::from_fn(|l| {
+            if extrapolating {
+                rho[columns[l] - 1][l]
+            } else {
+                zero
+            }
+        });
+        // `gap_exp`'s Taylor branch for every lane, its exp for the lane that needs it.
+        let mut grown = [zero; L];
+        for l in 0..L {
+            grown[l] = last[l] * gap_exp_taylor(x[l]);
+        }
+        for l in 0..L {
+            if bonded[l] {
+                out[l] = last[l];
+                continue;
+            }
+            if x[l].abs() >= T::c(GAP_EXP_TAYLOR) || x[l].is_nan() {
+                grown[l] = last[l] * gap_exp(x[l]);
+            }
+            out[l] = if plain[l] && grown[l] >= T::GAP_FLOOR && grown[l] < T::INFINITY {
+                grown[l]
+            } else {
+                encode_ln_gap(stored_ln(last[l]) + x[l])
+            };
+        }
+        note_columns(&mut est, &e, rows, columns, &bonded);
+    }
+
+    for (g, out) in cand_vel.chunks_exact_mut(L).enumerate() {
+        let base = g * L;
+        let last: [T; L] = std::array::from_fn(|l| row_vel[columns[l] - 1][base + l]);
+        let mut t = [[zero; L]; M];
+        for (j, tj) in t.iter_mut().enumerate().take(rows) {
+            let row = &row_vel[j][base..base + L];
+            for l in 0..L {
+                tj[l] = if j < columns[l] { row[l] } else { last[l] };
+            }
+        }
+        let mut e = [[zero; L]; M + 1];
+        neville(&mut t, rows, &mut e, |delta, t_j| {
+            delta.abs() / (T::ONE + t_j.abs())
+        });
+        for l in 0..L {
+            out[l] = if extrapolating {
+                t[columns[l] - 1][l]
+            } else {
+                last[l]
+            };
+        }
+        note_columns(&mut est, &e, rows, columns, &[false; L]);
+    }
+
+    std::array::from_fn(|l| {
+        let mut err = [0.0f64; M + 1];
+        for (j, e) in err.iter_mut().enumerate() {
+            *e = if est[j][l].is_nan() {
+                f64::INFINITY
+            } else {
+                est[j][l].to_f64()
+            };
+        }
+        err
+    })
+}
+
+/// Each lane's estimates of columns 2..=k into its running maxima (not a bonded gap's); a NaN
+/// counts as infinite.
+#[inline(always)]
+fn note_columns<T: Real, const L: usize>(
+    est: &mut [[T; L]; M + 1],
+    e: &[[T; L]; M + 1],
+    rows: usize,
+    columns: &[usize; L],
+    skip: &[bool; L],
+) {
+    let last_counted: [usize; L] = std::array::from_fn(|l| if skip[l] { 0 } else { columns[l] });
+    for j in 2..=rows {
+        for l in 0..L {
+            let v = e[j][l];
+            if j <= last_counted[l] && (v > est[j][l] || v.is_nan()) {
+                est[j][l] = v;
+            }
+        }
+    }
+}
+
+/// The series branch of `ln_ratio` (the same operations): 2 atanh z, z = (r - 1)/(r + 1).
+#[inline(always)]
+fn ln_series<T: Real>(r: T) -> T {
+    let one = T::ONE;
+    let z = (r - one) / (r + one);
+    let z2 = z * z;
+    T::c(2.0)
+        * z
+        * (one
+            + z2 * (T::c(1.0 / 3.0)
+                + z2 * (T::c(0.2)
+                    + z2 * (T::c(1.0 / 7.0) + z2 * (T::c(1.0 / 9.0) + z2 * T::c(1.0 / 11.0))))))
+}
+
+/// The tableau in place, every lane at once (t[j] ends as T_{j+1,j+1}), with
+/// e[c + 1] = `scale(T_{c+1,c+1} - T_{c+1,c}, T_{c+1,c})`.
+#[inline(always)]
+fn neville<T: Real, const L: usize>(
+    t: &mut [[T; L]; M],
+    rows: usize,
+    e: &mut [[T; L]; M + 1],
+    scale: impl Fn(T, T) -> T,
+) {
+    for c in 1..rows {
+        for j in (c..rows).rev() {
+            let w = T::c(NEVILLE_WEIGHTS[c][j]);
+            for l in 0..L {
+                let delta = (t[j][l] - t[j - 1][l]) * w;
+                if j == c {
+                    e[c + 1][l] = scale(delta, t[j][l]);
+                }
+                t[j][l] += delta;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// One member's tableau, element by element, as the WGSL twin computes it (and as this
+    /// crate did before the lanes were packed): the independent expectation.
+    fn one_member<T: Real>(
+        k: usize,
+        extrapolating: bool,
+        gap_rows: &[Vec<T>],
+        vel_rows: &[Vec<T>],
+        bonded: &[bool],
+    ) -> (Vec<T>, Vec<T>, Estimates) {
+        let mut err = [0.0f64; M + 1];
+        let mut note = |j: usize, e: T| {
+            let e = e.to_f64();
+            err[j] = if e.is_nan() {
+                f64::INFINITY
+            } else {
+                err[j].max(e)
+            };
+        };
+        let tableau = |t: &mut [T; M], e: &mut [T; M + 1], velocity: bool| {
+            for c in 1..k {
+                for j in (c..k).rev() {
+                    let delta = (t[j] - t[j - 1]) * T::c((j + 1 - c) as f64 / c as f64);
+                    if j == c {
+                        e[c + 1] = if velocity {
+                            delta.abs() / (T::ONE + t[j].abs())
+                        } else {
+                            delta.abs()
+                        };
+                    }
+                    t[j] += delta;
+                }
+            }
+        };
+        let mut gaps = Vec::new();
+        for i in 0..gap_rows[0].len() {
+            let y: Vec<T> = (0..k).map(|j| gap_rows[j][i]).collect();
+            let last = y[k - 1];
+            if bonded[i] {
+                gaps.push(last);
+                continue;
+            }
+            let plain = y.iter().all(|&v| v > T::ZERO);
+            let mut rho = [T::ZERO; M];
+            for j in 0..k {
+                rho[j] = if plain {
+                    ln_ratio(y[j] / last)
+                } else {
+                    stored_ln(y[j]) - stored_ln(last)
+                };
+            }
+            let mut e = [T::ZERO; M + 1];
+            tableau(&mut rho, &mut e, false);
+            let x = if extrapolating { rho[k - 1] } else { T::ZERO };
+            let grown = last * gap_exp(x);
+            gaps.push(if plain && grown >= T::GAP_FLOOR && grown < T::INFINITY {
+                grown
+            } else {
+                encode_ln_gap(stored_ln(last) + x)
+            });
+            for j in 2..=k {
+                note(j, e[j]);
+            }
+        }
+        let mut vel = Vec::new();
+        for i in 0..vel_rows[0].len() {
+            let mut t = [T::ZERO; M];
+            for j in 0..k {
+                t[j] = vel_rows[j][i];
+            }
+            let last = t[k - 1];
+            let mut e = [T::ZERO; M + 1];
+            tableau(&mut t, &mut e, true);
+            vel.push(if extrapolating { t[k - 1] } else { last });
+            for j in 2..=k {
+                note(j, e[j]);
+            }
+        }
+        (gaps, vel, err)
+    }
+
+    /// Eight lanes with columns 1..=8 (each its own k), rows near each other as in an accepted
+    /// step, and the elements that leave the packed path: a ratio outside the series' range, a
+    /// log-stored gap (negative: ln d), a bonded gap, a NaN row of one lane. Every SIMD level
+    /// gives, lane by lane and bit for bit, the one-member tableau of that lane's rows.
+    fn lanes_equal_one_member<T: Real>(level: SimdLevel) {
+        const L: usize = 8;
+        let (n, nv) = (37, 36);
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let columns: [usize; L] = [3, 8, 1, 5, 2, 7, 6, 4];
+        let mut gap_rows = vec![vec![T::ZERO; n * L]; M];
+        let mut vel_rows = vec![vec![T::ZERO; nv * L]; M];
+        for i in 0..n * L {
+            let d: f64 = rng.random_range(1e-4..1e-2);
+            for row in gap_rows.iter_mut() {
+                row[i] = T::c(d * (1.0 + rng.random_range(-1e-3..1e-3)));
+            }
+        }
+        for i in 0..nv * L {
+            let u: f64 = rng.random_range(-1.0..1.0);
+            for row in vel_rows.iter_mut() {
+                row[i] = T::c(u + rng.random_range(-1e-3..1e-3));
+            }
+        }
+        gap_rows[0][3 * L + 1] = gap_rows[7][3 * L + 1] * T::c(1.5); // outside the series
+        gap_rows[2][5 * L + 6] = T::c(-30.0); // log-stored: d = e^-30
+        vel_rows[1][7 * L + 4] = T::c(f64::NAN); // lane 4's column 2 sees a NaN
+        let mut bonded = vec![false; n * L];
+        bonded[9 * L + 5] = true;
+        for extrapolating in [true, false] {
+            let mut cand_gaps = vec![T::ZERO; n * L];
+            let mut cand_vel = vec![T::ZERO; nv * L];
+            let err = extrapolate(
+                level,
+                &columns,
+                extrapolating,
+                &gap_rows,
+                &vel_rows,
+                &mut cand_gaps,
+                &mut cand_vel,
+                Some(&bonded),
+            );
+            for l in 0..L {
+                let lane = |rows: &[Vec<T>], count: usize| -> Vec<Vec<T>> {
+                    rows.iter()
+                        .map(|r| (0..count).map(|i| r[i * L + l]).collect())
+                        .collect()
+                };
+                let lane_bonded: Vec<bool> = (0..n).map(|i| bonded[i * L + l]).collect();
+                let (gaps, vel, expected) = one_member(
+                    columns[l],
+                    extrapolating,
+                    &lane(&gap_rows, n),
+                    &lane(&vel_rows, nv),
+                    &lane_bonded,
+                );
+                let bits = |v: &[T]| v.iter().map(|x| x.to_f64().to_bits()).collect::<Vec<_>>();
+                let got_gaps: Vec<T> = (0..n).map(|i| cand_gaps[i * L + l]).collect();
+                let got_vel: Vec<T> = (0..nv).map(|i| cand_vel[i * L + l]).collect();
+                assert_eq!(bits(&got_gaps), bits(&gaps), "{level:?} lane {l} gaps");
+                assert_eq!(bits(&got_vel), bits(&vel), "{level:?} lane {l} velocities");
+                let cols = columns[l];
+                assert_eq!(
+                    err[l][2..=cols]
+                        .iter()
+                        .map(|e| e.to_bits())
+                        .collect::<Vec<_>>(),
+                    expected[2..=cols]
+                        .iter()
+                        .map(|e| e.to_bits())
+                        .collect::<Vec<_>>(),
+                    "{level:?} lane {l} estimates"
+                );
+            }
+            // The NaN reached lane 4's estimates (as infinite), and no other lane's.
+            assert_eq!(err[4][2], f64::INFINITY);
+            assert!(err[0][2].is_finite() && err[1][2].is_finite());
+        }
+    }
+
+    #[test]
+    fn packed_lanes_equal_the_one_member_tableau_bitwise() {
+        for level in [SimdLevel::Portable, SimdLevel::Avx2Fma, SimdLevel::Avx512] {
+            if level <= SimdLevel::widest_here() {
+                lanes_equal_one_member::<f64>(level);
+                lanes_equal_one_member::<f32>(level);
+            }
+        }
+    }
+}
