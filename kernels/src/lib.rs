@@ -43,17 +43,7 @@ pub trait BlockKernels<const L: usize>: Real {
         report: &mut [StepReport; L],
     );
 
-    #[allow(clippy::too_many_arguments)]
-    fn extrapolate(
-        simd: SimdLevel,
-        columns: &[usize; L],
-        extrapolating: bool,
-        row_gaps: &[Vec<Self>],
-        row_vel: &[Vec<Self>],
-        cand_gaps: &mut [Self],
-        cand_vel: &mut [Self],
-        bonded: Option<&[bool]>,
-    ) -> [tableau::Estimates; L];
+    fn extrapolate(simd: SimdLevel, io: tableau::TableauIo<Self, L>) -> [tableau::Estimates; L];
 }
 
 macro_rules! block_kernels {
@@ -95,24 +85,9 @@ macro_rules! block_kernels {
             #[inline(never)]
             fn extrapolate(
                 simd: SimdLevel,
-                columns: &[usize; $l],
-                extrapolating: bool,
-                row_gaps: &[Vec<$t>],
-                row_vel: &[Vec<$t>],
-                cand_gaps: &mut [$t],
-                cand_vel: &mut [$t],
-                bonded: Option<&[bool]>,
+                io: tableau::TableauIo<$t, $l>,
             ) -> [tableau::Estimates; $l] {
-                tableau::extrapolate(
-                    simd,
-                    columns,
-                    extrapolating,
-                    row_gaps,
-                    row_vel,
-                    cand_gaps,
-                    cand_vel,
-                    bonded,
-                )
+                tableau::extrapolate(simd, io)
             }
         }
     )*};

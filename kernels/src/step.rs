@@ -120,19 +120,25 @@ fn clamp<T: Real>(x: T, min: T, max: T) -> T {
 /// computes the same (`ln_ratio` in shaders/step.wgsl).
 #[inline(always)]
 pub fn ln_ratio<T: Real>(r: T) -> T {
-    let one = T::ONE;
-    if (r - one).abs() < T::c(LN_RATIO_SERIES) {
-        let z = (r - one) / (r + one);
-        let z2 = z * z;
-        T::c(2.0)
-            * z
-            * (one
-                + z2 * (T::c(1.0 / 3.0)
-                    + z2 * (T::c(0.2)
-                        + z2 * (T::c(1.0 / 7.0) + z2 * (T::c(1.0 / 9.0) + z2 * T::c(1.0 / 11.0))))))
+    if (r - T::ONE).abs() < T::c(LN_RATIO_SERIES) {
+        ln_ratio_series(r)
     } else {
         r.ln_real()
     }
+}
+
+/// The series branch of [`ln_ratio`], branch-free for the tableau's lane loop.
+#[inline(always)]
+pub(crate) fn ln_ratio_series<T: Real>(r: T) -> T {
+    let one = T::ONE;
+    let z = (r - one) / (r + one);
+    let z2 = z * z;
+    T::c(2.0)
+        * z
+        * (one
+            + z2 * (T::c(1.0 / 3.0)
+                + z2 * (T::c(0.2)
+                    + z2 * (T::c(1.0 / 7.0) + z2 * (T::c(1.0 / 9.0) + z2 * T::c(1.0 / 11.0))))))
 }
 
 /// The stored value of a gap given its logarithm.

@@ -8,7 +8,7 @@ use crate::real::Real;
 use crate::shared::control::MAX_ORDER;
 use crate::shared::gaps::{GAP_EXP_TAYLOR, LN_RATIO_SERIES};
 use crate::simd::SimdLevel;
-use crate::step::{encode_ln_gap, gap_exp, gap_exp_taylor, ln_ratio, stored_ln};
+use crate::step::{encode_ln_gap, gap_exp, gap_exp_taylor, ln_ratio, ln_ratio_series, stored_ln};
 
 const M: usize = MAX_ORDER as usize;
 
@@ -31,6 +31,19 @@ const NEVILLE_WEIGHTS: [[f64; M]; M] = {
     w
 };
 
+/// What the tableau reads and writes: each lane's column k (its rows 1..=k), whether the result
+/// is the extrapolated T_kk (else row k itself: order 1), the rows, the candidate state it
+/// writes, and which gaps are bonded (a cluster's: they keep their last row).
+pub struct TableauIo<'a, T, const L: usize> {
+    pub columns: &'a [usize; L],
+    pub extrapolating: bool,
+    pub row_gaps: &'a [Vec<T>],
+    pub row_vel: &'a [Vec<T>],
+    pub cand_gaps: &'a mut [T],
+    pub cand_vel: &'a mut [T],
+    pub bonded: Option<&'a [bool]>,
+}
+
 /// The Aitken–Neville tableau of the rows (harmonic sequence n_j = j), element by element:
 /// T_{j,c+1} = T_{j,c} + (T_{j,c} - T_{j-1,c}) · (j - c)/c. cand ← T_kk of each lane's column k
 /// (or row k itself when not `extrapolating`: order 1). Gaps are extrapolated in ln d (near
@@ -41,59 +54,20 @@ const NEVILLE_WEIGHTS: [[f64; M]; M] = {
 ///
 /// Lanes with fewer rows than the block's most see their last row repeated: a ratio of 1, so
 /// the rows they lack add nothing, and T_kk (which reads rows 1..=k only) is theirs alone.
-#[allow(clippy::too_many_arguments)]
 pub fn extrapolate<T: Real, const L: usize>(
     simd: SimdLevel,
-    columns: &[usize; L],
-    extrapolating: bool,
-    row_gaps: &[Vec<T>],
-    row_vel: &[Vec<T>],
-    cand_gaps: &mut [T],
-    cand_vel: &mut [T],
-    bonded: Option<&[bool]>,
+    io: TableauIo<T, L>,
 ) -> [Estimates; L] {
     // SAFETY (both arms): a level is only chosen where the CPU has its features
     // (`SimdLevel::widest_here`).
     #[cfg(target_arch = "x86_64")]
     match simd {
-        SimdLevel::Avx512 => {
-            return unsafe {
-                extrapolate_avx512::extrapolate_avx512(
-                    columns,
-                    extrapolating,
-                    row_gaps,
-                    row_vel,
-                    cand_gaps,
-                    cand_vel,
-                    bonded,
-                )
-            };
-        }
-        SimdLevel::Avx2Fma => {
-            return unsafe {
-                extrapolate_avx2::extrapolate_avx2(
-                    columns,
-                    extrapolating,
-                    row_gaps,
-                    row_vel,
-                    cand_gaps,
-                    cand_vel,
-                    bonded,
-                )
-            };
-        }
+        SimdLevel::Avx512 => return unsafe { extrapolate_avx512::extrapolate_avx512(io) },
+        SimdLevel::Avx2Fma => return unsafe { extrapolate_avx2::extrapolate_avx2(io) },
         SimdLevel::Portable => {}
     }
     let _ = simd;
-    extrapolate_impl(
-        columns,
-        extrapolating,
-        row_gaps,
-        row_vel,
-        cand_gaps,
-        cand_vel,
-        bonded,
-    )
+    extrapolate_impl(io)
 }
 
 macro_rules! instance {
@@ -105,23 +79,9 @@ macro_rules! instance {
 
             #[target_feature(enable = $features)]
             pub(super) unsafe fn $name<T: Real, const L: usize>(
-                columns: &[usize; L],
-                extrapolating: bool,
-                row_gaps: &[Vec<T>],
-                row_vel: &[Vec<T>],
-                cand_gaps: &mut [T],
-                cand_vel: &mut [T],
-                bonded: Option<&[bool]>,
+                io: TableauIo<T, L>,
             ) -> [Estimates; L] {
-                extrapolate_impl(
-                    columns,
-                    extrapolating,
-                    row_gaps,
-                    row_vel,
-                    cand_gaps,
-                    cand_vel,
-                    bonded,
-                )
+                extrapolate_impl(io)
             }
         }
     };
@@ -131,15 +91,16 @@ instance!("avx2,fma", extrapolate_avx2);
 instance!("avx2,fma,avx512f,avx512vl,avx512dq", extrapolate_avx512);
 
 #[inline(always)]
-fn extrapolate_impl<T: Real, const L: usize>(
-    columns: &[usize; L],
-    extrapolating: bool,
-    row_gaps: &[Vec<T>],
-    row_vel: &[Vec<T>],
-    cand_gaps: &mut [T],
-    cand_vel: &mut [T],
-    bonded: Option<&[bool]>,
-) -> [Estimates; L] {
+fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates; L] {
+    let TableauIo {
+        columns,
+        extrapolating,
+        row_gaps,
+        row_vel,
+        cand_gaps,
+        cand_vel,
+        bonded,
+    } = io;
     let zero = T::ZERO;
     let rows = columns.iter().copied().max().unwrap_or(1);
     // Per column and lane the largest estimate so far, NaN once any was (it stays: no
@@ -172,7 +133,7 @@ fn extrapolate_impl<T: Real, const L: usize>(
             for l in 0..L {
                 let r = y[j][l] / last[l];
                 in_series[l] &= (r - T::ONE).abs() < T::c(LN_RATIO_SERIES);
-                rho[j][l] = ln_series(r);
+                rho[j][l] = ln_ratio_series(r);
             }
         }
         for l in 0..L {
@@ -274,20 +235,6 @@ fn note_columns<T: Real, const L: usize>(
             }
         }
     }
-}
-
-/// The series branch of `ln_ratio` (the same operations): 2 atanh z, z = (r - 1)/(r + 1).
-#[inline(always)]
-fn ln_series<T: Real>(r: T) -> T {
-    let one = T::ONE;
-    let z = (r - one) / (r + one);
-    let z2 = z * z;
-    T::c(2.0)
-        * z
-        * (one
-            + z2 * (T::c(1.0 / 3.0)
-                + z2 * (T::c(0.2)
-                    + z2 * (T::c(1.0 / 7.0) + z2 * (T::c(1.0 / 9.0) + z2 * T::c(1.0 / 11.0))))))
 }
 
 /// The tableau in place, every lane at once (t[j] ends as T_{j+1,j+1}), with
@@ -432,13 +379,15 @@ mod tests {
             let mut cand_vel = vec![T::ZERO; nv * L];
             let err = extrapolate(
                 level,
-                &columns,
-                extrapolating,
-                &gap_rows,
-                &vel_rows,
-                &mut cand_gaps,
-                &mut cand_vel,
-                Some(&bonded),
+                TableauIo {
+                    columns: &columns,
+                    extrapolating,
+                    row_gaps: &gap_rows,
+                    row_vel: &vel_rows,
+                    cand_gaps: &mut cand_gaps,
+                    cand_vel: &mut cand_vel,
+                    bonded: Some(&bonded),
+                },
             );
             for l in 0..L {
                 let lane = |rows: &[Vec<T>], count: usize| -> Vec<Vec<T>> {

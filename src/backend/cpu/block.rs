@@ -21,6 +21,7 @@ use crate::model::chain::{stored_gap, Chain};
 use crate::model::observables::{observe, set_peak_centres, Snapshot};
 use crate::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
 use crate::model::plan::{Plan, Power};
+use roughlub_kernels::tableau::TableauIo;
 use roughlub_kernels::BlockKernels;
 use tableau::substep_buffers;
 
@@ -485,13 +486,15 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         let terms = self.model.terms(plan);
         let estimates = T::extrapolate(
             terms.simd,
-            &lane_columns,
-            scheme.extrapolates(),
-            &self.row_gaps,
-            &self.row_vel,
-            &mut self.cand_gaps,
-            &mut self.cand_vel,
-            self.model.bonded.as_deref(),
+            TableauIo {
+                columns: &lane_columns,
+                extrapolating: scheme.extrapolates(),
+                row_gaps: &self.row_gaps,
+                row_vel: &self.row_vel,
+                cand_gaps: &mut self.cand_gaps,
+                cand_vel: &mut self.cand_vel,
+                bonded: self.model.bonded.as_deref(),
+            },
         );
         let mut energy: [f64; L] = std::array::from_fn(|l| row_energy[lane_columns[l]][l]);
         if scheme.extrapolates() {
