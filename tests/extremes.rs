@@ -110,20 +110,7 @@ fn gaps_below_the_float_range_match_a_log_gap_reference() {
     let n = 24;
     let c = chain(n, "0.99", "0.5*sin(2*pi*x)", "0.995");
     let (mu, gamma, t_end) = (1e-5, 20.0, 0.05);
-    let dstar = c.dstar.clone().unwrap();
-    let log_gaps: Vec<f64> = c.gaps.iter().map(|d| d.ln()).collect();
-    let reference = |steps| {
-        log_gap_reference(
-            c.eps,
-            mu,
-            gamma,
-            &log_gaps,
-            &c.velocities,
-            &dstar,
-            t_end,
-            steps,
-        )
-    };
+    let reference = |steps| chain_log_gap_reference(&c, mu, gamma, t_end, steps);
     let ((coarse_s, coarse_u), (fine_s, fine_u)) = (reference(40_000), reference(80_000));
     let extrapolate = |fine: &[f64], coarse: &[f64]| -> Vec<f64> {
         fine.iter().zip(coarse).map(|(f, c)| 2.0 * f - c).collect()
@@ -496,18 +483,7 @@ fn f32_on_the_cpu_survives_gaps_below_its_range() {
     let n = 24;
     let c = chain(n, "0.99", "0.5*sin(2*pi*x)", "0.995");
     let (mu, gamma, t_end) = (1e-3, 20.0, 0.05);
-    let dstar = c.dstar.clone().unwrap();
-    let log_gaps: Vec<f64> = c.gaps.iter().map(|d| d.ln()).collect();
-    let (ref_s, _) = log_gap_reference(
-        c.eps,
-        mu,
-        gamma,
-        &log_gaps,
-        &c.velocities,
-        &dstar,
-        t_end,
-        10_000,
-    );
+    let (ref_s, _) = chain_log_gap_reference(&c, mu, gamma, t_end, 10_000);
     let smallest = ref_s.iter().cloned().fold(f64::INFINITY, f64::min);
     assert!(
         smallest < -88.0,
@@ -558,18 +534,7 @@ fn f32_on_the_gpu_survives_gaps_below_its_range() {
     let n = 24;
     let c = chain(n, "0.99", "0.5*sin(2*pi*x)", "0.995");
     let (mu, gamma, t_end) = (1e-3, 20.0, 0.05);
-    let dstar = c.dstar.clone().unwrap();
-    let log_gaps: Vec<f64> = c.gaps.iter().map(|d| d.ln()).collect();
-    let (ref_s, _) = log_gap_reference(
-        c.eps,
-        mu,
-        gamma,
-        &log_gaps,
-        &c.velocities,
-        &dstar,
-        t_end,
-        10_000,
-    );
+    let (ref_s, _) = chain_log_gap_reference(&c, mu, gamma, t_end, 10_000);
     let smallest = ref_s.iter().cloned().fold(f64::INFINITY, f64::min);
     assert!(
         smallest < -88.0,
@@ -609,4 +574,26 @@ fn f32_on_the_gpu_survives_gaps_below_its_range() {
         (sum - total).abs() <= 1e-6 * total,
         "sum d {sum} vs {total}"
     );
+}
+
+/// [`log_gap_reference`] of chain `c` from its own state (ln d, u, d*).
+fn chain_log_gap_reference(
+    c: &Chain,
+    mu: f64,
+    gamma: f64,
+    t_end: f64,
+    steps: usize,
+) -> (Vec<f64>, Vec<f64>) {
+    let log_gaps: Vec<f64> = c.gaps.iter().map(|d| d.ln()).collect();
+    let dstar = c.dstar.as_deref().expect("a chain with roughness");
+    log_gap_reference(
+        c.eps,
+        mu,
+        gamma,
+        &log_gaps,
+        &c.velocities,
+        dstar,
+        t_end,
+        steps,
+    )
 }

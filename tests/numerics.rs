@@ -10,7 +10,7 @@ use roughlub::backend::BatchSolver;
 use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
 use roughlub::model::chain::stored_gap;
-use roughlub::model::observables::{dissipation, energy, grid_points, observe};
+use roughlub::model::observables::{dissipation, energy, grid_points, observe, Snapshot};
 use roughlub::model::params::{Jacobian, MemberParams, Order, Stepping, MAX_ORDER};
 use roughlub::model::plan::{Forcing, Plan, Power};
 use roughlub::model::quadrature::GaussLegendre;
@@ -205,22 +205,38 @@ fn fixed_step_errors(
 ) -> Vec<f64> {
     dts.iter()
         .map(|&dt| {
-            let plan = Plan {
-                jacobian,
-                ..plan_for(
-                    chain,
-                    params.to_vec(),
-                    order,
-                    Stepping::Fixed { dt, dt_min: 1e-12 },
-                    vec![0.0, t_end],
-                    Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
-                )
-            };
-            let (snaps, _) = run_all(plan, vec![chain.clone()]);
-            let last = &snaps[1][0];
+            let stepping = Stepping::Fixed { dt, dt_min: 1e-12 };
+            let forcing = Some(("0.3*sin(2*pi*x)*cos(3*t)", 8));
+            let (last, _) =
+                fixed_step_end(chain, params, (order, jacobian), stepping, t_end, forcing);
             max_error(&last.gaps, ref_gaps) + max_error(&last.velocities, ref_vel)
         })
         .collect()
+}
+
+/// The state at t_end of one member run with fixed steps of `order` and `jacobian`, and its
+/// status.
+fn fixed_step_end(
+    chain: &Chain,
+    params: &[MemberParams],
+    (order, jacobian): (u8, Jacobian),
+    stepping: Stepping,
+    t_end: f64,
+    forcing: Option<(&str, usize)>,
+) -> (Snapshot, MemberStatus) {
+    let plan = Plan {
+        jacobian,
+        ..plan_for(
+            chain,
+            params.to_vec(),
+            order,
+            stepping,
+            vec![0.0, t_end],
+            forcing,
+        )
+    };
+    let (mut snaps, solver) = run_all(plan, vec![chain.clone()]);
+    (snaps[1].swap_remove(0), solver.reports()[0].status.clone())
 }
 
 #[test]
@@ -660,24 +676,10 @@ fn fixed_step_rates(
         .map(|k| {
             let dt = t_end / f64::powi(2.0, k);
             let stepping = Stepping::Fixed { dt, dt_min: 1e-14 };
-            let plan = Plan {
-                jacobian,
-                ..plan_for(
-                    chain,
-                    params.to_vec(),
-                    order,
-                    stepping,
-                    vec![0.0, t_end],
-                    None,
-                )
-            };
-            let (snaps, solver) = run_all(plan, vec![chain.clone()]);
-            assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
-            let end = &snaps[1][0];
-            (
-                end.gaps.iter().map(|d| d.ln()).collect(),
-                end.velocities.clone(),
-            )
+            let (end, status) =
+                fixed_step_end(chain, params, (order, jacobian), stepping, t_end, None);
+            assert_eq!(status, MemberStatus::Ok);
+            (end.gaps.iter().map(|d| d.ln()).collect(), end.velocities)
         })
         .collect();
     let differences: Vec<f64> = ends

@@ -109,18 +109,13 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
 
     for (g, out) in cand_gaps.chunks_exact_mut(L).enumerate() {
         let base = g * L;
-        let last: [T; L] = std::array::from_fn(|l| row_gaps[columns[l] - 1][base + l]);
-        let mut y = [[zero; L]; M];
-        for (j, yj) in y.iter_mut().enumerate().take(rows) {
-            let row = &row_gaps[j][base..base + L];
-            for l in 0..L {
-                yj[l] = if j < columns[l] { row[l] } else { last[l] };
-            }
-        }
+        let (last, y) = lane_rows(row_gaps, base, columns, rows);
+        let bonded: [bool; L] = std::array::from_fn(|l| bonded.is_some_and(|b| b[base + l]));
         // rho_j = ln(Y_j / Y_k): the tableau in ln d, shifted by ln Y_k (the extrapolation's
         // weights sum to 1, so the shift passes through, and the rows' ratios are near 1).
         // The series of `ln_ratio` for every lane at once; the rare lane outside its range, or
-        // with a log-stored row (`plain` false), again on its own.
+        // with a log-stored row (`plain` false), again on its own (not a bonded gap's lane: its
+        // row is kept as it is).
         let mut plain = [true; L];
         for yj in y.iter().take(rows) {
             for l in 0..L {
@@ -137,19 +132,19 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
             }
         }
         for l in 0..L {
-            if !(plain[l] && in_series[l]) {
-                for j in 0..rows {
-                    rho[j][l] = if plain[l] {
-                        ln_ratio(y[j][l] / last[l])
-                    } else {
-                        stored_ln(y[j][l]) - stored_ln(last[l])
-                    };
-                }
+            if bonded[l] || (plain[l] && in_series[l]) {
+                continue;
+            }
+            for j in 0..rows {
+                rho[j][l] = if plain[l] {
+                    ln_ratio(y[j][l] / last[l])
+                } else {
+                    stored_ln(y[j][l]) - stored_ln(last[l])
+                };
             }
         }
         let mut e = [[zero; L]; M + 1];
         neville(&mut rho, rows, &mut e, |delta, _| delta.abs());
-        let bonded: [bool; L] = std::array::from_fn(|l| bonded.is_some_and(|b| b[base + l]));
         let x: [T; L] = std::array::from_fn(|l| {
             if extrapolating {
                 rho[columns[l] - 1][l]
@@ -180,15 +175,7 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
     }
 
     for (g, out) in cand_vel.chunks_exact_mut(L).enumerate() {
-        let base = g * L;
-        let last: [T; L] = std::array::from_fn(|l| row_vel[columns[l] - 1][base + l]);
-        let mut t = [[zero; L]; M];
-        for (j, tj) in t.iter_mut().enumerate().take(rows) {
-            let row = &row_vel[j][base..base + L];
-            for l in 0..L {
-                tj[l] = if j < columns[l] { row[l] } else { last[l] };
-            }
-        }
+        let (last, mut t) = lane_rows(row_vel, g * L, columns, rows);
         let mut e = [[zero; L]; M + 1];
         neville(&mut t, rows, &mut e, |delta, t_j| {
             delta.abs() / (T::ONE + t_j.abs())
@@ -214,6 +201,26 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
         }
         err
     })
+}
+
+/// Element `base / L` of each lane's rows: its last row (row k), and rows 1..=`rows` with the
+/// rows beyond its own k repeating its last.
+#[inline(always)]
+fn lane_rows<T: Real, const L: usize>(
+    rows_in: &[Vec<T>],
+    base: usize,
+    columns: &[usize; L],
+    rows: usize,
+) -> ([T; L], [[T; L]; M]) {
+    let last: [T; L] = std::array::from_fn(|l| rows_in[columns[l] - 1][base + l]);
+    let mut y = [[T::ZERO; L]; M];
+    for (j, yj) in y.iter_mut().enumerate().take(rows) {
+        let row = &rows_in[j][base..base + L];
+        for l in 0..L {
+            yj[l] = if j < columns[l] { row[l] } else { last[l] };
+        }
+    }
+    (last, y)
 }
 
 /// Each lane's estimates of columns 2..=k into its running maxima (not a bonded gap's); a NaN
