@@ -50,7 +50,7 @@ struct PState {
     h: real,
     hj: real,
     ts: real,
-    // Energy before the current substep (`known` of try_step).
+    // Energy at the step's start, which each row's end is held to (try_step).
     known: real,
     // Factor of the pending projection.
     scale: real,
@@ -747,16 +747,16 @@ fn p_substep_end(@builtin(global_invocation_id) gid: vec3<u32>) {
         st.admissible = 0u;
     }
     st.row_work[st.j] = st.row_work[st.j] + r.work;
-    if !energy_acceptable(st.known, r.energy, r.work, gamma) {
-        st.energy_ok = 0u;
+    if st.s + 1u == st.j {
+        if !energy_acceptable(st.known, r.energy, st.row_work[st.j], gamma) {
+            st.energy_ok = 0u;
+        }
+        st.row_energy[st.j] = r.energy;
     }
-    st.known = r.energy;
-    st.row_energy[st.j] = r.energy;
     st.s += 1u;
     if st.s == st.j {
         st.j += 1u;
         st.s = 0u;
-        st.known = c.energy;
     }
     if st.j > st.rows {
         st.sub_active = 0u;

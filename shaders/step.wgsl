@@ -430,7 +430,8 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     }
     report.admissible = report.admissible && opening <= MAX_OPENING;
     // The energy is always computed here; the CPU skips it for steps its certificate
-    // (`energy_certified`) proves acceptable, which the computed energy then passes too.
+    // (`energy_certified`) proves acceptable, which the computed energy then passes too, and
+    // for a tableau's substeps inside a row, whose energy is not checked (`EnergyWanted::No`).
     report = conclude(b, dst, p, report, sum, h, true);
     return report;
 }
@@ -743,9 +744,8 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
     var row_energy: array<real, 9>;
     for (var j: u32 = 1u; j <= rows; j++) {
         let hj = h / real(j);
-        // The energy of the previous substep (every substep's energy is computed here), and
-        // the work since.
-        var known = c.energy;
+        // The row's end is held to the start's energy plus the row's work (not each substep:
+        // `extrapolated_attempt`).
         for (var s: u32 = 0u; s < j; s++) {
             let ts = c.t + real(s) * hj;
             // Substep s reads buffer (s - 1) % 2 and writes s % 2; the first reads the state,
@@ -767,9 +767,10 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
             }
             admissible = admissible && r.admissible;
             row_work[j] = row_work[j] + r.work;
-            energy_ok = energy_ok && energy_acceptable(known, r.energy, r.work, gamma);
-            known = r.energy;
-            row_energy[j] = r.energy;
+            if s + 1u == j {
+                energy_ok = energy_ok && energy_acceptable(c.energy, r.energy, row_work[j], gamma);
+                row_energy[j] = r.energy;
+            }
         }
     }
     let estimates = extrapolate(b, cand, rows);

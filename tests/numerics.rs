@@ -4,7 +4,7 @@ mod common;
 
 use common::reference::{dense_reference_step, rk4_reference};
 use common::{plan_for, random_chain, run_all, Rng};
-use roughlub::backend::cpu::step::{euler_step, Gamma, Scratch, StepBuffers, Terms};
+use roughlub::backend::cpu::step::{euler_step, EnergyWanted, Gamma, Scratch, StepBuffers, Terms};
 use roughlub::backend::cpu::SimdLevel;
 use roughlub::backend::BatchSolver;
 use roughlub::backend::MemberStatus;
@@ -108,6 +108,7 @@ fn batched_thomas_step_matches_dense_lu_on_random_spd_systems() {
                 // Large: the energy is always computed (and checked against the model's below).
                 contact_repulsion: [f64::INFINITY; L],
                 exact_jacobian: false,
+                energy: EnergyWanted::UnlessCertified,
                 repulsion: Some((&dstar, Gamma::PerLane(gammas))),
                 bonded: with_clusters.then_some(bonded.as_slice()),
                 forcing: Some(&forcing),

@@ -184,9 +184,26 @@ pub struct Terms<'a, const L: usize, T: Real = f64> {
     pub forcing_params: [&'a [f64]; L],
     /// The instruction set of the lane loops (at most [`SimdLevel::widest_here`]).
     pub simd: SimdLevel,
+    /// Whether the step computes the energy of its result (see [`EnergyWanted`]).
+    pub energy: EnergyWanted,
     /// Whether a one-member block with a long chain may take the partitioned solve
     /// (`ROUGHLUB_CPU_PARTITION=off` says no, through [`Overrides`](crate::overrides::Overrides)).
     pub partition: bool,
+}
+
+/// Whether a step computes the energy of its result ([`Terms::energy`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EnergyWanted {
+    /// Unless every lane's step is certified ([`StepReport::certified`]): a step on its own.
+    UnlessCertified,
+    /// For every lane: the end of a tableau's row whose earlier substeps were not certified,
+    /// so the certificate of the last alone does not bound the row's energy.
+    Always,
+    /// Not at all (the report's energy is -1): a tableau's substep inside a row, which the
+    /// caller does not check (`Block::extrapolated_attempt` in the root crate). The energy's
+    /// sums cost ~16 % of an exact-Jacobian substep, which is never certified
+    /// (docs/performance.md).
+    No,
 }
 
 /// gamma for a block: uniform across lanes (integer → multiplications), or per lane.
@@ -400,10 +417,19 @@ fn jacobian_factor<T: Real>(exact: bool, d: T, h: T, u_left: T, u_right: T) -> T
     let moved = h * (u_left.abs() + u_right.abs());
     let x = h * (u_right - u_left) / d;
     if exact && moved <= T::c(JACOBIAN_RESOLVED) * d {
-        if x >= T::ZERO {
-            T::ONE / (T::ONE + x)
+        // Both branches through one division (the lane loop computes both: two divisions cost
+        // ~5 % of the step, measured), the same bits as each written out.
+        let opens = x >= T::ZERO;
+        let (num, den) = if opens {
+            (T::ONE, T::ONE + x)
         } else {
-            T::ONE - x / (T::ONE + x + T::c(16.0) * ((x * x) * (x * x)))
+            (x, T::ONE + x + T::c(16.0) * ((x * x) * (x * x)))
+        };
+        let ratio = num / den;
+        if opens {
+            ratio
+        } else {
+            T::ONE - ratio
         }
     } else {
         T::ONE
@@ -1391,9 +1417,14 @@ fn conclude_impl<T: Real, const L: usize, const REP: bool, const CLU: bool, P, Q
     let mut logged = [T::Flag::default(); L];
     let mut nonfinite = [T::Flag::default(); L];
     let mut work = [0.0f64; L];
-    if report.iter().all(|r| r.certified) {
+    let skip_energy = match terms.energy {
+        EnergyWanted::No => true,
+        EnergyWanted::UnlessCertified => report.iter().all(|r| r.certified),
+        EnergyWanted::Always => false,
+    };
+    if skip_energy {
         // Only the projection (and the forcing's work, which a later energy check of a
-        // Richardson step adds up): no lane needs its energy.
+        // Richardson step or of a tableau's row adds up): no lane needs its energy.
         // Whole rows from chunks_exact: no per-row check, so that L = 1 vectorises over rows.
         for row in gaps.chunks_exact_mut(L) {
             for l in 0..L {

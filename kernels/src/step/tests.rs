@@ -96,6 +96,7 @@ fn step<T: Real, const M: usize>(
         }),
         contact_repulsion: [5.0; M],
         exact_jacobian: exact,
+        energy: EnergyWanted::UnlessCertified,
         repulsion: gamma.map(|g| (dstar.as_slice(), g)),
         bonded: clusters.then_some(bonded.as_slice()),
         forcing: forcing.map(|f| f as &dyn Forcing),

@@ -3,7 +3,8 @@ use rand_chacha::ChaCha8Rng;
 
 use super::super::tests::Wave;
 use super::super::{
-    default_layout, euler_step_as, stored_ln, Gamma, HardFailure, Scratch, StepBuffers, GAP_FLOOR,
+    default_layout, euler_step_as, stored_ln, EnergyWanted, Gamma, HardFailure, Scratch,
+    StepBuffers, GAP_FLOOR,
 };
 use super::*;
 use crate::power::Power;
@@ -87,6 +88,7 @@ fn step_as<T: Real>(
         total_gap: [gaps.iter().map(|&v| stored_gap::decode(v.to_f64())).sum()],
         contact_repulsion: [model.gamma.map_or(0.0, |g| 3f64.powf(g))],
         exact_jacobian: model.exact,
+        energy: EnergyWanted::UnlessCertified,
         repulsion: model
             .gamma
             .map(|g| (dstar.as_slice(), Gamma::Uniform(Power::of(g)))),
