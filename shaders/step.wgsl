@@ -257,10 +257,12 @@ fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
     let moved = h * (abs(u_left) + abs(u_right));
     let x = h * (u_right - u_left) / d;
     if EXACT_JACOBIAN && moved <= JACOBIAN_RESOLVED * d {
-        if x >= 0.0 {
-            return 1.0 / (1.0 + x);
+        // Both branches in one form (the CPU's lane loop computes both, so one division).
+        var closing: real = 0.0;
+        if x < 0.0 {
+            closing = 16.0 * ((x * x) * (x * x));
         }
-        return 1.0 - x / (1.0 + x + 16.0 * ((x * x) * (x * x)));
+        return 1.0 - x / (1.0 + x + closing);
     }
     return 1.0;
 }

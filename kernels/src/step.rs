@@ -417,20 +417,16 @@ fn jacobian_factor<T: Real>(exact: bool, d: T, h: T, u_left: T, u_right: T) -> T
     let moved = h * (u_left.abs() + u_right.abs());
     let x = h * (u_right - u_left) / d;
     if exact && moved <= T::c(JACOBIAN_RESOLVED) * d {
-        // Both branches through one division (the lane loop computes both: two divisions cost
-        // ~5 % of the step, measured), the same bits as each written out.
-        let opens = x >= T::ZERO;
-        let (num, den) = if opens {
-            (T::ONE, T::ONE + x)
+        // Both branches as 1 - x/(1 + x + [x < 0] 16 x^4), one division: the lane loop computes
+        // both branches, and written apart (1/(1 + x) for x >= 0) they cost two, ~5 % of the
+        // step (measured). For x >= 0 the form rounds 1 - x/(1 + x) instead of 1/(1 + x): a
+        // relative difference of at most x ulps, below 1e-12 for the resolved x < 1e4.
+        let closing = if x < T::ZERO {
+            T::c(16.0) * ((x * x) * (x * x))
         } else {
-            (x, T::ONE + x + T::c(16.0) * ((x * x) * (x * x)))
+            T::ZERO
         };
-        let ratio = num / den;
-        if opens {
-            ratio
-        } else {
-            T::ONE - ratio
-        }
+        T::ONE - x / (T::ONE + x + closing)
     } else {
         T::ONE
     }

@@ -49,8 +49,8 @@ pub const MAX_ORDER_F32: u8 = 6;
 /// (`roughlub_kernels::step`'s `jacobian_factor`). Measured on the N = 200 random chain of
 /// docs/accuracy.md: `Exact` takes 4 to 6 times fewer steps at tolerance 1e-10 (auto: 149
 /// against 683) and restores order 2, but the paper's scenes at an error of 1e-3 need 1.3 to 3
-/// times more work with it and each substep with repulsion costs ~17 % more (its energy is
-/// computed, not certified). `Auto` (the default) takes `Exact` for adaptive steps at
+/// times more work with it, and with repulsion its steps are never certified (each row's end
+/// computes its energy). `Auto` (the default) takes `Exact` for adaptive steps at
 /// tolerances up to [`EXACT_JACOBIAN_TOLERANCE`], else `Frozen`. Order 1 always keeps the
 /// frozen matrix and its energy certificate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
