@@ -293,7 +293,7 @@ pub struct StepReport {
     /// The step provably did not raise the energy beyond the forcing's work (see
     /// [`energy_certified`]); its energy was then not computed (`energy` is -1).
     pub certified: bool,
-    /// Discrete energy of the result (-1 when certified and not computed).
+    /// Discrete energy of the result (-1 when not computed: certified, or [`EnergyWanted::No`]).
     pub energy: f64,
     /// Work of the forcing over the step, h Σ u_i' F_i.
     pub work: f64,
