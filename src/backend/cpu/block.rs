@@ -431,10 +431,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         for j in 1..=rows {
             let hj: [f64; L] = std::array::from_fn(|l| h[l] / j as f64);
             let hj_real = hj.map(T::c);
-            // The start's energy (-1: the previous step was certified, not computed), the work
-            // done since, and whether a substep of the row so far was not certified.
-            let mut known: [f64; L] = std::array::from_fn(|l| self.lanes[l].control.energy);
-            let mut since = [0.0; L];
+            // Whether a substep of the row so far was not certified.
             let mut uncertified = false;
             for s in 0..j {
                 let ts: [f64; L] = std::array::from_fn(|l| t[l] + s as f64 * hj[l]);
@@ -478,22 +475,24 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                     admissible[l] &= r[l].admissible;
                     uncertified |= !r[l].certified;
                     row_work[j][l] += r[l].work;
-                    since[l] += r[l].work;
-                    if row_end && !r[l].certified {
-                        if known[l] < 0.0 {
-                            let e = *start.get_or_insert_with(|| self.start_energy(&terms, n));
-                            known[l] = e[l];
+                    if row_end {
+                        // The row's end against the start's energy (-1: the previous step was
+                        // certified, not computed) plus the row's work.
+                        if !r[l].certified {
+                            let mut before = self.lanes[l].control.energy;
+                            if before < 0.0 {
+                                before =
+                                    start.get_or_insert_with(|| self.start_energy(&terms, n))[l];
+                            }
+                            energy_ok[l] &= energy_acceptable(
+                                before,
+                                r[l].energy,
+                                row_work[j][l],
+                                self.model.energy_rtol[l],
+                            );
                         }
-                        energy_ok[l] &= energy_acceptable(
-                            known[l],
-                            r[l].energy,
-                            since[l],
-                            self.model.energy_rtol[l],
-                        );
-                        known[l] = r[l].energy;
-                        since[l] = 0.0;
+                        row_energy[j][l] = r[l].energy;
                     }
-                    row_energy[j][l] = r[l].energy;
                 }
             }
         }
