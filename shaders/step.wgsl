@@ -551,14 +551,29 @@ fn state_energy(b: u32, which: u32, p: Param) -> real {
     return potential_sum + config.eps * kinetic;
 }
 
-// `ln_ratio` of kernels/src/step.rs: ln r, by the series of 2 atanh((r - 1)/(r + 1)) near 1.
-fn ln_ratio(r: real) -> real {
-    if abs(r - 1.0) < LN_RATIO_SERIES {
-        let z = (r - 1.0) / (r + 1.0);
-        let z2 = z * z;
-        return 2.0 * z * (1.0 + z2 * (1.0 / 3.0 + z2 * (0.2 + z2 * (1.0 / 7.0 + z2 * (1.0 / 9.0 + z2 * (1.0 / 11.0))))));
+// `ln_gap_ratio` of kernels/src/step.rs: ln(y / last) for two rows' values of a gap (> 0), by
+// the series of ln(1 + delta), delta = (y - last)/last, near 1; `inv_last` = 1/last, one
+// division per gap.
+fn ln_gap_ratio(y: real, last: real, inv_last: real) -> real {
+    let delta = (y - last) * inv_last;
+    if abs(delta) < LN_RATIO_SERIES {
+        // `ln_1p_series`: to delta^13/13 by Horner.
+        var p: real = 1.0 / 13.0;
+        p = -1.0 / 12.0 + delta * p;
+        p = 1.0 / 11.0 + delta * p;
+        p = -1.0 / 10.0 + delta * p;
+        p = 1.0 / 9.0 + delta * p;
+        p = -1.0 / 8.0 + delta * p;
+        p = 1.0 / 7.0 + delta * p;
+        p = -1.0 / 6.0 + delta * p;
+        p = 1.0 / 5.0 + delta * p;
+        p = -1.0 / 4.0 + delta * p;
+        p = 1.0 / 3.0 + delta * p;
+        p = -1.0 / 2.0 + delta * p;
+        p = 1.0 + delta * p;
+        return delta * p;
     }
-    return ln_real(r);
+    return ln_real(y / last);
 }
 
 // A max-norm entry: a NaN or infinity counts as REAL_MAX (the CPU's infinity: both reject with
@@ -570,7 +585,7 @@ fn noted(err: real, e: real) -> real {
 // `extrapolate` of kernels/src/tableau.rs: the Aitken–Neville tableau of rows 1..=k (set
 // ROW_SET + j - 1), element by element, gaps in ln d (shifted by ln of row k), velocities
 // linearly; set `cand` <- T_kk (or row k itself when not EXTRAPOLATES: order 1). Returns
-// |T_jj - T_{j,j-1}| for j = 2..=k (gaps: of ln d; velocities: over 1 + |T_{j,j-1}|).
+// |T_jj - T_{j,j-1}| for j = 2..=k (gaps: of ln d; velocities: over 1 + |u| of row k).
 fn extrapolate(b: u32, cand: u32, k: u32) -> array<real, 9> {
     let batch = config.batch;
     let n = config.particles;
@@ -603,9 +618,10 @@ fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 9
         plain = plain && y[j] > 0.0;
     }
     var rho: array<real, 8>;
+    let inv_last = 1.0 / last;
     for (var j: u32 = 0u; j < k; j++) {
         if plain {
-            rho[j] = ln_ratio(y[j] / last);
+            rho[j] = ln_gap_ratio(y[j], last, inv_last);
         } else {
             rho[j] = stored_ln(y[j]) - stored_ln(last);
         }
@@ -644,12 +660,14 @@ fn extrapolate_velocity(idx: u32, cand: u32, k: u32, err: ptr<function, array<re
         t[j] = vel_sets[(ROW_SET + j) * rows + idx];
     }
     let last = t[k - 1u];
+    // Every column's estimate over the same 1 + |u| (row k's): one division per velocity.
+    let inv_scale = 1.0 / (1.0 + abs(last));
     var e: array<real, 9>;
     for (var c: u32 = 1u; c < k; c++) {
         for (var j: u32 = k - 1u; j >= c; j--) {
             let delta = (t[j] - t[j - 1u]) * (real(j + 1u - c) / real(c));
             if j == c {
-                e[c + 1u] = abs(delta) / (1.0 + abs(t[j]));
+                e[c + 1u] = abs(delta) * inv_scale;
             }
             t[j] = t[j] + delta;
         }

@@ -113,32 +113,41 @@ fn clamp<T: Real>(x: T, min: T, max: T) -> T {
     x
 }
 
-/// ln r as the extrapolation tableau computes it for the ratio of two rows' gaps: for r within
-/// 1/16 of 1 (the rows of an accepted step differ by its error) the series
-/// 2 atanh z = 2 (z + z³/3 + … + z¹¹/11), z = (r - 1)/(r + 1), |z| < 1/31, whose truncation
-/// error z¹²/13 < 1e-19 relative is below rounding; else the kernel's ln. The GPU kernel
-/// computes the same (`ln_ratio` in shaders/step.wgsl).
+/// ln(y / last) of two rows' values of a gap (both > 0), as the extrapolation tableau computes it:
+/// for y within 1/16 of `last` (the rows of an accepted step differ by its error) the series of
+/// ln(1 + δ), δ = (y - last)/last, with `last`'s reciprocal given (one division per gap, not
+/// one per row: the tableau's divisions were most of its cost); else the kernel's ln of the
+/// ratio. The GPU kernel computes the same (`ln_gap_ratio` in shaders/step.wgsl).
 #[inline(always)]
-pub fn ln_ratio<T: Real>(r: T) -> T {
-    if (r - T::ONE).abs() < T::c(LN_RATIO_SERIES) {
-        ln_ratio_series(r)
+pub fn ln_gap_ratio<T: Real>(y: T, last: T, inv_last: T) -> T {
+    let delta = (y - last) * inv_last;
+    if delta.abs() < T::c(LN_RATIO_SERIES) {
+        ln_1p_series(delta)
     } else {
-        r.ln_real()
+        (y / last).ln_real()
     }
 }
 
-/// The series branch of [`ln_ratio`], branch-free for the tableau's lane loop.
+/// The series branch of [`ln_gap_ratio`], branch-free for the tableau's lane loop: ln(1 + δ) to
+/// δ^13/13 by Horner; for |δ| < 1/16 the truncation, below |δ|^14/14, is under 2^-55 of the
+/// result (rounding).
 #[inline(always)]
-pub(crate) fn ln_ratio_series<T: Real>(r: T) -> T {
-    let one = T::ONE;
-    let z = (r - one) / (r + one);
-    let z2 = z * z;
-    T::c(2.0)
-        * z
-        * (one
-            + z2 * (T::c(1.0 / 3.0)
-                + z2 * (T::c(0.2)
-                    + z2 * (T::c(1.0 / 7.0) + z2 * (T::c(1.0 / 9.0) + z2 * T::c(1.0 / 11.0))))))
+pub(crate) fn ln_1p_series<T: Real>(delta: T) -> T {
+    let c = |v: f64| T::c(v);
+    let mut p = c(1.0 / 13.0);
+    p = c(-1.0 / 12.0) + delta * p;
+    p = c(1.0 / 11.0) + delta * p;
+    p = c(-1.0 / 10.0) + delta * p;
+    p = c(1.0 / 9.0) + delta * p;
+    p = c(-1.0 / 8.0) + delta * p;
+    p = c(1.0 / 7.0) + delta * p;
+    p = c(-1.0 / 6.0) + delta * p;
+    p = c(1.0 / 5.0) + delta * p;
+    p = c(-1.0 / 4.0) + delta * p;
+    p = c(1.0 / 3.0) + delta * p;
+    p = c(-1.0 / 2.0) + delta * p;
+    p = c(1.0) + delta * p;
+    delta * p
 }
 
 /// The stored value of a gap given its logarithm.

@@ -8,7 +8,7 @@ use crate::real::Real;
 use crate::shared::control::MAX_ORDER;
 use crate::shared::gaps::{GAP_EXP_TAYLOR, LN_RATIO_SERIES};
 use crate::simd::SimdLevel;
-use crate::step::{encode_ln_gap, gap_exp, gap_exp_taylor, ln_ratio, ln_ratio_series, stored_ln};
+use crate::step::{encode_ln_gap, gap_exp, gap_exp_taylor, ln_1p_series, ln_gap_ratio, stored_ln};
 
 const M: usize = MAX_ORDER as usize;
 
@@ -49,7 +49,7 @@ pub struct TableauIo<'a, T, const L: usize> {
 /// (or row k itself when not `extrapolating`: order 1). Gaps are extrapolated in ln d (near
 /// contact the accuracy that matters is that of ln d, and the result is a positive gap by
 /// construction), velocities linearly. Returns per lane, for j = 2..=k, the max-norm of
-/// T_jj - T_{j,j-1}: on gaps of ln d (a relative error), on velocities over 1 + |T_{j,j-1}|;
+/// T_jj - T_{j,j-1}: on gaps of ln d (a relative error), on velocities over 1 + |u| of row k;
 /// a NaN counts as infinite. Computed in T, the estimates returned in f64.
 ///
 /// Lanes with fewer rows than the block's most see their last row repeated: a ratio of 1, so
@@ -110,34 +110,33 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
     for (g, out) in cand_gaps.chunks_exact_mut(L).enumerate() {
         let base = g * L;
         let (last, y) = lane_rows(row_gaps, base, columns, rows);
-        let bonded: [bool; L] = std::array::from_fn(|l| bonded.is_some_and(|b| b[base + l]));
+        let bonded: Option<&[bool]> = bonded.map(|b| &b[base..base + L]);
+        let is_bonded = |l: usize| bonded.is_some_and(|b| b[l]);
         // rho_j = ln(Y_j / Y_k): the tableau in ln d, shifted by ln Y_k (the extrapolation's
         // weights sum to 1, so the shift passes through, and the rows' ratios are near 1).
-        // The series of `ln_ratio` for every lane at once; the rare lane outside its range, or
-        // with a log-stored row (`plain` false), again on its own (not a bonded gap's lane: its
-        // row is kept as it is).
-        let mut plain = [true; L];
-        for yj in y.iter().take(rows) {
-            for l in 0..L {
-                plain[l] &= yj[l] > zero;
-            }
-        }
+        // The series of `ln_gap_ratio` for every lane at once; the rare lane outside its range,
+        // or with a log-stored row, again on its own (not a bonded gap's lane: its row is kept
+        // as it is). Flags as 0/1 in lanes as wide as T, as in the step (bools cost packing).
+        let flag = T::Flag::from;
         let mut rho = [[zero; L]; M];
-        let mut in_series = [true; L];
+        let mut packed = [flag(true); L];
+        let inv_last: [T; L] = std::array::from_fn(|l| T::ONE / last[l]);
         for j in 0..rows {
             for l in 0..L {
-                let r = y[j][l] / last[l];
-                in_series[l] &= (r - T::ONE).abs() < T::c(LN_RATIO_SERIES);
-                rho[j][l] = ln_ratio_series(r);
+                let delta = (y[j][l] - last[l]) * inv_last[l];
+                packed[l] &= flag(y[j][l] > zero && delta.abs() < T::c(LN_RATIO_SERIES));
+                rho[j][l] = ln_1p_series(delta);
             }
         }
+        let plain = |l: usize| y.iter().take(rows).all(|yj| yj[l] > zero);
         for l in 0..L {
-            if bonded[l] || (plain[l] && in_series[l]) {
+            if packed[l] == flag(true) || is_bonded(l) {
                 continue;
             }
+            let plain = plain(l);
             for j in 0..rows {
-                rho[j][l] = if plain[l] {
-                    ln_ratio(y[j][l] / last[l])
+                rho[j][l] = if plain {
+                    ln_gap_ratio(y[j][l], last[l], inv_last[l])
                 } else {
                     stored_ln(y[j][l]) - stored_ln(last[l])
                 };
@@ -152,34 +151,53 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
                 zero
             }
         });
-        // `gap_exp`'s Taylor branch for every lane, its exp for the lane that needs it.
+        // `gap_exp`'s Taylor branch for every lane; on its own the lane that needs its exp, or
+        // has a log-stored row, or leaves the stored range.
         let mut grown = [zero; L];
         for l in 0..L {
             grown[l] = last[l] * gap_exp_taylor(x[l]);
+            packed[l] &= flag(
+                x[l].abs() < T::c(GAP_EXP_TAYLOR)
+                    && grown[l] >= T::GAP_FLOOR
+                    && grown[l] < T::INFINITY,
+            );
         }
+        out.copy_from_slice(&grown);
         for l in 0..L {
-            if bonded[l] {
-                out[l] = last[l];
+            if packed[l] == flag(true) {
                 continue;
             }
-            if x[l].abs() >= T::c(GAP_EXP_TAYLOR) || x[l].is_nan() {
-                grown[l] = last[l] * gap_exp(x[l]);
-            }
-            out[l] = if plain[l] && grown[l] >= T::GAP_FLOOR && grown[l] < T::INFINITY {
+            let g = if x[l].abs() >= T::c(GAP_EXP_TAYLOR) || x[l].is_nan() {
+                last[l] * gap_exp(x[l])
+            } else {
                 grown[l]
+            };
+            out[l] = if plain(l) && g >= T::GAP_FLOOR && g < T::INFINITY {
+                g
             } else {
                 encode_ln_gap(stored_ln(last[l]) + x[l])
             };
         }
-        note_columns(&mut est, &e, rows, columns, &bonded);
+        if let Some(bonded) = bonded {
+            for l in 0..L {
+                if bonded[l] {
+                    // A bonded gap keeps its row: nothing to extrapolate or estimate.
+                    out[l] = last[l];
+                    for ej in e.iter_mut() {
+                        ej[l] = zero;
+                    }
+                }
+            }
+        }
+        note_columns(&mut est, &e, rows);
     }
 
     for (g, out) in cand_vel.chunks_exact_mut(L).enumerate() {
         let (last, mut t) = lane_rows(row_vel, g * L, columns, rows);
+        // Every column's estimate over the same 1 + |u| (row k's): one division per velocity.
+        let inv_scale: [T; L] = std::array::from_fn(|l| T::ONE / (T::ONE + last[l].abs()));
         let mut e = [[zero; L]; M + 1];
-        neville(&mut t, rows, &mut e, |delta, t_j| {
-            delta.abs() / (T::ONE + t_j.abs())
-        });
+        neville(&mut t, rows, &mut e, |delta, l| delta.abs() * inv_scale[l]);
         for l in 0..L {
             out[l] = if extrapolating {
                 t[columns[l] - 1][l]
@@ -187,12 +205,12 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
                 last[l]
             };
         }
-        note_columns(&mut est, &e, rows, columns, &[false; L]);
+        note_columns(&mut est, &e, rows);
     }
 
     std::array::from_fn(|l| {
         let mut err = [0.0f64; M + 1];
-        for (j, e) in err.iter_mut().enumerate() {
+        for (j, e) in err.iter_mut().enumerate().take(columns[l] + 1) {
             *e = if est[j][l].is_nan() {
                 f64::INFINITY
             } else {
@@ -212,8 +230,15 @@ fn lane_rows<T: Real, const L: usize>(
     columns: &[usize; L],
     rows: usize,
 ) -> ([T; L], [[T; L]; M]) {
-    let last: [T; L] = std::array::from_fn(|l| rows_in[columns[l] - 1][base + l]);
     let mut y = [[T::ZERO; L]; M];
+    if columns.iter().all(|&k| k == rows) {
+        // Every lane has all the rows (a per-lane choice costs a select per element).
+        for (j, yj) in y.iter_mut().enumerate().take(rows) {
+            *yj = *<&[T; L]>::try_from(&rows_in[j][base..base + L]).unwrap();
+        }
+        return (y[rows - 1], y);
+    }
+    let last: [T; L] = std::array::from_fn(|l| rows_in[columns[l] - 1][base + l]);
     for (j, yj) in y.iter_mut().enumerate().take(rows) {
         let row = &rows_in[j][base..base + L];
         for l in 0..L {
@@ -223,35 +248,35 @@ fn lane_rows<T: Real, const L: usize>(
     (last, y)
 }
 
-/// Each lane's estimates of columns 2..=k into its running maxima (not a bonded gap's); a NaN
-/// counts as infinite.
+/// The estimates of columns 2..=rows into their running maxima, every lane (columns beyond a
+/// lane's own k are dropped at the end: a per-lane mask here was a fifth of the tableau's
+/// time); a NaN sticks (counts as infinite).
 #[inline(always)]
 fn note_columns<T: Real, const L: usize>(
     est: &mut [[T; L]; M + 1],
     e: &[[T; L]; M + 1],
     rows: usize,
-    columns: &[usize; L],
-    skip: &[bool; L],
 ) {
-    let last_counted: [usize; L] = std::array::from_fn(|l| if skip[l] { 0 } else { columns[l] });
     for j in 2..=rows {
         for l in 0..L {
             let v = e[j][l];
-            if j <= last_counted[l] && (v > est[j][l] || v.is_nan()) {
-                est[j][l] = v;
-            }
+            est[j][l] = if v > est[j][l] || v.is_nan() {
+                v
+            } else {
+                est[j][l]
+            };
         }
     }
 }
 
 /// The tableau in place, every lane at once (t[j] ends as T_{j+1,j+1}), with
-/// e[c + 1] = `scale(T_{c+1,c+1} - T_{c+1,c}, T_{c+1,c})`.
+/// e[c + 1] = `scale(T_{c+1,c+1} - T_{c+1,c}, lane)`.
 #[inline(always)]
 fn neville<T: Real, const L: usize>(
     t: &mut [[T; L]; M],
     rows: usize,
     e: &mut [[T; L]; M + 1],
-    scale: impl Fn(T, T) -> T,
+    scale: impl Fn(T, usize) -> T,
 ) {
     for c in 1..rows {
         for j in (c..rows).rev() {
@@ -259,7 +284,7 @@ fn neville<T: Real, const L: usize>(
             for l in 0..L {
                 let delta = (t[j][l] - t[j - 1][l]) * w;
                 if j == c {
-                    e[c + 1][l] = scale(delta, t[j][l]);
+                    e[c + 1][l] = scale(delta, l);
                 }
                 t[j][l] += delta;
             }
@@ -291,15 +316,15 @@ mod tests {
                 err[j].max(e)
             };
         };
-        let tableau = |t: &mut [T; M], e: &mut [T; M + 1], velocity: bool| {
+        // `velocity_scale`: the velocities' 1 + |u| of row k (None for gaps).
+        let tableau = |t: &mut [T; M], e: &mut [T; M + 1], velocity_scale: Option<T>| {
             for c in 1..k {
                 for j in (c..k).rev() {
                     let delta = (t[j] - t[j - 1]) * T::c((j + 1 - c) as f64 / c as f64);
                     if j == c {
-                        e[c + 1] = if velocity {
-                            delta.abs() / (T::ONE + t[j].abs())
-                        } else {
-                            delta.abs()
+                        e[c + 1] = match velocity_scale {
+                            Some(scale) => delta.abs() * (T::ONE / scale),
+                            None => delta.abs(),
                         };
                     }
                     t[j] += delta;
@@ -318,13 +343,13 @@ mod tests {
             let mut rho = [T::ZERO; M];
             for j in 0..k {
                 rho[j] = if plain {
-                    ln_ratio(y[j] / last)
+                    ln_gap_ratio(y[j], last, T::ONE / last)
                 } else {
                     stored_ln(y[j]) - stored_ln(last)
                 };
             }
             let mut e = [T::ZERO; M + 1];
-            tableau(&mut rho, &mut e, false);
+            tableau(&mut rho, &mut e, None);
             let x = if extrapolating { rho[k - 1] } else { T::ZERO };
             let grown = last * gap_exp(x);
             gaps.push(if plain && grown >= T::GAP_FLOOR && grown < T::INFINITY {
@@ -344,7 +369,7 @@ mod tests {
             }
             let last = t[k - 1];
             let mut e = [T::ZERO; M + 1];
-            tableau(&mut t, &mut e, true);
+            tableau(&mut t, &mut e, Some(T::ONE + last.abs()));
             vel.push(if extrapolating { t[k - 1] } else { last });
             for j in 2..=k {
                 note(j, e[j]);

@@ -26,7 +26,7 @@ pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 /// the rejections).
 pub const MAX_OPENING: f64 = 5.0;
 
-/// Below this |r - 1| [`ln_ratio`](crate::step::ln_ratio) uses its series.
+/// Below this |y - last|/last [`ln_gap_ratio`](crate::step::ln_gap_ratio) uses its series.
 pub const LN_RATIO_SERIES: f64 = 1.0 / 16.0;
 
 /// Below this |h r| the gap update uses the Taylor polynomial ([`gap_exp`](crate::step::gap_exp)).
