@@ -166,6 +166,7 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
     let eps = config.eps;
     let mass = 2.0 * eps;
     let eps2 = 2.0 * eps;
+    let scale = reciprocal_scale(eps2);
     let h = st.hj;
     let m_over_h = mass / h;
     let rows = (n - 1u) * batch;
@@ -184,8 +185,8 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
     var q: real = 0.0;
     if s == 0u {
         // The wall (u_0 = 0): ls_0 = 1/d_1, ys_0 = 0, no spike.
-        let first = gap_terms(b, gap_sets[gi + b], p, h, eps2);
-        a_prev = first.a * jacobian_factor(first.d, h, 0.0, velocity_or_wall(vi, 0u, b));
+        let first = gap_terms(b, gap_sets[gi + b], p, h, eps2, scale);
+        a_prev = first.a * jacobian_factor(first.d, first.inv_d, h, 0.0, velocity_or_wall(vi, 0u, b));
         g_prev = first.g;
         ls_prev = 1.0 / first.d;
         ys_prev = 0.0;
@@ -200,9 +201,9 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
         // The segment's first gap is the previous row's next gap (checked there), and its k
         // is that row's.
         let k = (range.x - 1u) * batch + b;
-        let first = gap_terms(k, gap_sets[gi + k], p, h, eps2);
+        let first = gap_terms(k, gap_sets[gi + k], p, h, eps2, scale);
         let u_left = vel_sets[vi + (range.x - 2u) * batch + b];
-        a_prev = first.a * jacobian_factor(first.d, h, u_left, velocity_or_wall(vi, range.x - 1u, b));
+        a_prev = first.a * jacobian_factor(first.d, first.inv_d, h, u_left, velocity_or_wall(vi, range.x - 1u, b));
         g_prev = first.g;
         ls_prev = 0.0;
         ys_prev = -tau;
@@ -214,7 +215,7 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
     for (var i: u32 = range.x; i < range.y; i++) {
         let row = (i - 1u) * batch + b;
         let next_gap = i * batch + b;
-        let next = gap_terms(next_gap, gap_sets[gi + next_gap], p, h, eps2);
+        let next = gap_terms(next_gap, gap_sets[gi + next_gap], p, h, eps2, scale);
         var f: real = 0.0;
 //@BEGIN FORCING
         if spike {
@@ -239,7 +240,7 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
         }
 //@END REPULSION
         let vel = vel_sets[vi + row];
-        let k = jacobian_factor(next.d, h, vel, velocity_or_wall(vi, i, b));
+        let k = jacobian_factor(next.d, next.inv_d, h, vel, velocity_or_wall(vi, i, b));
         let a_next = next.a * k;
         let rhs = m_over_h * vel + g_prev - next.g + f;
         // As in `euler`, operation for operation.
@@ -573,7 +574,9 @@ fn p_finish(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let old0 = gap_sets[st.src * n * batch + b];
     let d0 = max(old0, GAP_FLOOR);
-    let k_first = jacobian_factor(d0, st.hj, 0.0, velocity_or_wall(st.src * (n - 1u) * batch, 0u, b));
+    let eps2 = 2.0 * config.eps;
+    let inv_d0 = gap_reciprocals(d0, eps2, reciprocal_scale(eps2)).inv_d;
+    let k_first = jacobian_factor(d0, inv_d0, st.hj, 0.0, velocity_or_wall(st.src * (n - 1u) * batch, 0u, b));
     let rate_first = segs[b].u_first / d0 * k_first;
     let x0 = st.hj * rate_first;
     var grown0 = old0 * gap_exp(x0);

@@ -31,7 +31,8 @@
 //    (adaptive with a fixed order);
 //    terms the plan leaves out are not compiled at all;
 //  - the marker line GENERATED is replaced by the generated code: REAL_MAX, GAP_FLOOR,
-//    LN_GAP_FLOOR, ENERGY_RTOL, TIME_RESOLUTION, LN_RATIO_SERIES, EXTRAPOLATES (order >= 2: the result is the
+//    LN_GAP_FLOOR, ENERGY_RTOL, TIME_RESOLUTION, LN_RATIO_SERIES, ONE_DIVISION_RECIPROCALS (f64: see
+//    `gap_reciprocals`), EXTRAPOLATES (order >= 2: the result is the
 //    tableau's T_kk, else row k), EXACT_JACOBIAN (`Plan::exact_jacobian`), `exp_real`, `ln_real`, `power(r, gamma)`
 //    (integer gamma: a fixed square-and-multiply chain, the sequence of `powi_by_squaring`;
 //    per-member gamma: the same chain when gamma is an integer <= 1000 as `Power::of` does, else
@@ -102,6 +103,7 @@ struct GapTerms {
     a: real,
     g: real,
     d: real,
+    inv_d: real,
 }
 
 // `StepReport` of kernels/src/step.rs; `hard` is the Failure code of a hard failure (0: none).
@@ -229,23 +231,49 @@ fn gamma_of_member(p: Param) -> real {
 //@END NOREPULSION
 }
 
-// `gap_terms`: a = mu + h gamma G d/(d + 2eps) and G of one gap, at the effective gap d.
-fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerms {
+// `reciprocal_scale` of kernels/src/step.rs: 1/eps2, at most 1/GAP_FLOOR.
+fn reciprocal_scale(eps2: real) -> real {
+    return min(1.0 / eps2, 1.0 / GAP_FLOOR);
+}
+
+struct Reciprocals {
+    inv_d: real,
+    inv_s: real,
+}
+
+// `gap_reciprocals`: 1/d and 1/(d + eps2), in f64 from one division (`scale` =
+// reciprocal_scale(eps2); ONE_DIVISION_RECIPROCALS: f64); without repulsion 1/d alone.
+fn gap_reciprocals(d: real, eps2: real, scale: real) -> Reciprocals {
+//@BEGIN REPULSION
+    if ONE_DIVISION_RECIPROCALS {
+        let s_scaled = (d + eps2) * scale;
+        let inv_product = 1.0 / (d * s_scaled);
+        return Reciprocals(s_scaled * inv_product, d * scale * inv_product);
+    }
+    return Reciprocals(1.0 / d, 1.0 / (d + eps2));
+//@END REPULSION
+//@BEGIN NOREPULSION
+    return Reciprocals(1.0 / d, 0.0);
+//@END NOREPULSION
+}
+
+// `gap_terms`: a = mu + h gamma G d/(d + 2eps), G, d and 1/d of one gap, at the effective gap d.
+fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real, scale: real) -> GapTerms {
     let d = max(stored, GAP_FLOOR);
+    let inv = gap_reciprocals(d, eps2, scale);
 //@BEGIN CLUSTERS
     if bonded[index] != 0u {
-        return GapTerms(p.mu, 0.0, d);
+        return GapTerms(p.mu, 0.0, d, inv.inv_d);
     }
 //@END CLUSTERS
     var a: real = p.mu;
     var g: real = 0.0;
 //@BEGIN REPULSION
-    let inv_s = 1.0 / (d + eps2);
-    let ratio = (dstar[index] + eps2) * inv_s;
+    let ratio = (dstar[index] + eps2) * inv.inv_s;
     g = power(ratio, p.gamma);
-    a = a + h * gamma_of(p.gamma) * g * d * inv_s;
+    a = a + h * gamma_of(p.gamma) * g * d * inv.inv_s;
 //@END REPULSION
-    return GapTerms(a, g, d);
+    return GapTerms(a, g, d, inv.inv_d);
 }
 
 // `jacobian_factor`: k = 1/(1 + x) where the gap opens (x >= 0) and 1 - x/(1 + x + 16 x^4)
@@ -253,9 +281,9 @@ fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real) -> GapTerm
 // u_left)/d, where the plan keeps the exact Jacobian (EXACT_JACOBIAN: the CPU's
 // `Terms::exact_jacobian`, `Plan::exact_jacobian`) and r is resolved, else 1. The CPU twin in
 // kernels/src/step.rs says why this form.
-fn jacobian_factor(d: real, h: real, u_left: real, u_right: real) -> real {
+fn jacobian_factor(d: real, inv_d: real, h: real, u_left: real, u_right: real) -> real {
     let moved = h * (abs(u_left) + abs(u_right));
-    let x = h * (u_right - u_left) / d;
+    let x = h * (u_right - u_left) * inv_d;
     if EXACT_JACOBIAN && moved <= JACOBIAN_RESOLVED * d {
         // Both branches in one form (the CPU's lane loop computes both, so one division).
         var closing: real = 0.0;
@@ -303,6 +331,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     let eps = config.eps;
     let mass = 2.0 * eps;
     let eps2 = 2.0 * eps;
+    let scale = reciprocal_scale(eps2);
     let m_over_h = mass / h;
     let rows = (n - 1u) * batch;
     // Offsets of the two sets in the gap and velocity buffers.
@@ -313,9 +342,9 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     var report = StepReport(true, 0u, 0u, 0.0, 0.0, 0.0);
 
     // Forward sweep. The wall (u_0 = 0) has an infinite pivot: ls_0 = 1/d_1, ys_0 = 0.
-    let first = gap_terms(b, gap_sets[gi + b], p, h, eps2);
+    let first = gap_terms(b, gap_sets[gi + b], p, h, eps2, scale);
     // The first gap's k (the wall's side does not move); the others' go to the scratch.
-    let k_first = jacobian_factor(first.d, h, 0.0, velocity_or_wall(vi, 0u, b));
+    let k_first = jacobian_factor(first.d, first.inv_d, h, 0.0, velocity_or_wall(vi, 0u, b));
     var a_prev: real = first.a * k_first;
     var g_prev: real = first.g;
     var ls_prev: real = 1.0 / first.d;
@@ -332,7 +361,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     for (var i: u32 = 1u; i < n; i++) {
         let row = (i - 1u) * batch + b;
         let next_gap = i * batch + b;
-        let next = gap_terms(next_gap, gap_sets[gi + next_gap], p, h, eps2);
+        let next = gap_terms(next_gap, gap_sets[gi + next_gap], p, h, eps2, scale);
         var f: real = 0.0;
 //@BEGIN FORCING
         forcing_member = b;
@@ -353,7 +382,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         }
 //@END REPULSION
         let vel = vel_sets[vi + row];
-        let k = jacobian_factor(next.d, h, vel, velocity_or_wall(vi, i, b));
+        let k = jacobian_factor(next.d, next.inv_d, h, vel, velocity_or_wall(vi, i, b));
         let a_next = next.a * k;
         let rhs = m_over_h * vel + g_prev - next.g + f;
         // The pivot excess·d + a grouped as in the CPU twin (one multiply-add on the chain).

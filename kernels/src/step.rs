@@ -377,8 +377,35 @@ impl<'a, T: Real> Inputs<'a, T> {
     }
 }
 
-/// (a, G, d) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) at the effective gap d
-/// (eps2 = 2eps; `dstar` is d* of the gap, read only with repulsion).
+/// The scale of [`gap_reciprocals`]: 1/eps2, at most 1/GAP_FLOOR (finite for any radius).
+#[inline(always)]
+pub(crate) fn reciprocal_scale<T: Real>(eps2: T) -> T {
+    fmin(T::ONE / eps2, T::ONE / T::GAP_FLOOR)
+}
+
+/// (1/d, 1/(d + eps2)) of an effective gap d >= GAP_FLOOR. In f64 with one division: both from
+/// 1/(d (d + eps2) c), c = [`reciprocal_scale`]; the forward sweep's divisions bound its speed
+/// (four per row, measured: one fewer took a tenth off a step at N = 200), and c keeps the
+/// product within [GAP_FLOOR, ~1/GAP_FLOOR] (d (d + eps2) alone underflows for small d and
+/// eps2). The form rounds 1/(d + eps2) ~3 ulps off instead of 1, and G = ratio^gamma takes
+/// gamma times that: within f64's energy slack, not f32's (measured: f32 at order 4, gamma = 20,
+/// took 61 adaptive steps instead of 49, tests/cpu_f32.rs), so f32 divides twice. Without repulsion, 1/d alone.
+#[inline(always)]
+pub(crate) fn gap_reciprocals<T: Real, const REP: bool>(d: T, eps2: T, scale: T) -> (T, T) {
+    if !REP {
+        return (T::ONE / d, T::ZERO);
+    }
+    if !T::IS_F64 {
+        return (T::ONE / d, T::ONE / (d + eps2));
+    }
+    let s_scaled = (d + eps2) * scale;
+    let inv_product = T::ONE / (d * s_scaled);
+    (s_scaled * inv_product, d * scale * inv_product)
+}
+
+/// (a, G, d, 1/d) of one gap for one lane: a = mu + h gamma G d/(d + 2eps) at the effective gap
+/// d (eps2 = 2eps, `scale` its [`reciprocal_scale`]; `dstar` is d* of the gap, read only with
+/// repulsion).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn gap_terms<T: Real, const REP: bool, const CLU: bool, P, Q>(
@@ -386,26 +413,27 @@ fn gap_terms<T: Real, const REP: bool, const CLU: bool, P, Q>(
     l: usize,
     mu: T,
     eps2: T,
+    scale: T,
     stored: T,
     dstar: T,
     bonded: bool,
     h: T,
-) -> (T, T, T)
+) -> (T, T, T, T)
 where
     P: Fn(usize, T) -> T + Copy,
     Q: Fn(usize) -> T + Copy,
 {
     let d = fmax(stored, T::GAP_FLOOR);
+    let (inv_d, inv_s) = gap_reciprocals::<T, REP>(d, eps2, scale);
     if !REP {
-        return (mu, T::ZERO, d);
+        return (mu, T::ZERO, d, inv_d);
     }
-    let inv_s = T::ONE / (d + eps2);
     let ratio = (dstar + eps2) * inv_s;
     let mut g = (law.power)(l, ratio);
     if CLU && bonded {
         g = T::ZERO;
     }
-    (mu + h * (law.gamma)(l) * g * d * inv_s, g, d)
+    (mu + h * (law.gamma)(l) * g * d * inv_s, g, d, inv_d)
 }
 
 /// The factor k of a gap of (effective) size d whose ends move at u_left and u_right at the
@@ -422,9 +450,9 @@ where
 /// keeps x below 1e4, so x^4 is finite). k = 1 leaves every product it enters unchanged, bit for
 /// bit.
 #[inline(always)]
-fn jacobian_factor<T: Real>(exact: bool, d: T, h: T, u_left: T, u_right: T) -> T {
+fn jacobian_factor<T: Real>(exact: bool, d: T, inv_d: T, h: T, u_left: T, u_right: T) -> T {
     let moved = h * (u_left.abs() + u_right.abs());
-    let x = h * (u_right - u_left) / d;
+    let x = h * (u_right - u_left) * inv_d;
     if exact && moved <= T::c(JACOBIAN_RESOLVED) * d {
         // Both branches as 1 - x/(1 + x + [x < 0] 16 x^4), one division: the lane loop computes
         // both branches, and written apart (1/(1 + x) for x >= 0) they cost two, ~5 % of the
@@ -853,6 +881,7 @@ where
     let floor = T::GAP_FLOOR;
     let mass = T::c(2.0) * eps;
     let eps2 = T::c(2.0) * eps;
+    let scale = reciprocal_scale(eps2);
     let mu = terms.mu;
     let inputs = Inputs::of(terms, gaps_in);
     let mut report = [StepReport::START; L];
@@ -885,10 +914,10 @@ where
             [zero; L]
         };
         for l in 0..L {
-            let (a, g, d) = gap_terms::<T, REP, CLU, P, Q>(
-                law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
+            let (a, g, d, inv_d) = gap_terms::<T, REP, CLU, P, Q>(
+                law, l, mu[l], eps2, scale, stored[l], dstar[l], bonded[l], h[l],
             );
-            k_first[l] = jacobian_factor(exact, d, h[l], zero, u_right[l]);
+            k_first[l] = jacobian_factor(exact, d, inv_d, h[l], zero, u_right[l]);
             a_prev[l] = a * k_first[l];
             g_prev[l] = g;
             ls_prev[l] = T::ONE / d;
@@ -933,10 +962,10 @@ where
                 let mut w = [zero; L];
                 let mut k = [zero; L];
                 for l in 0..L {
-                    let (a_next, g_next, d_next) = gap_terms::<T, REP, CLU, P, Q>(
-                        law, l, mu[l], eps2, stored[l], dstar[l], bonded[l], h[l],
+                    let (a_next, g_next, d_next, inv_d) = gap_terms::<T, REP, CLU, P, Q>(
+                        law, l, mu[l], eps2, scale, stored[l], dstar[l], bonded[l], h[l],
                     );
-                    k[l] = jacobian_factor(exact, d_next, h[l], vel[l], vel_right[l]);
+                    k[l] = jacobian_factor(exact, d_next, inv_d, h[l], vel[l], vel_right[l]);
                     let a_next = a_next * k[l];
                     nonfinite[l] |= flag(!(g_next + f[l]).is_finite());
                     let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];
@@ -1263,11 +1292,13 @@ where
         }
         if let Some((dstar, _)) = terms.repulsion {
             if terms.bonded.is_none_or(|b| !b[k]) {
-                let (_, g, d) = gap_terms::<T, true, false, P, Q>(
+                let eps2 = T::c(2.0) * eps;
+                let (_, g, d, _) = gap_terms::<T, true, false, P, Q>(
                     law,
                     l,
                     terms.mu[l],
-                    T::c(2.0) * eps,
+                    eps2,
+                    reciprocal_scale(eps2),
                     gaps_in[k],
                     dstar[k],
                     false,

@@ -73,9 +73,9 @@
 use rayon::prelude::*;
 
 use super::{
-    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_terms, jacobian_factor,
-    particle_force, Law, Real, Scratch, SimdLevel, StepReport, Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR,
-    MAX_OPENING,
+    energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_reciprocals, gap_terms,
+    jacobian_factor, particle_force, reciprocal_scale, Law, Real, Scratch, SimdLevel, StepReport,
+    Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, MAX_OPENING,
 };
 
 /// Segments per group: the lanes of the partitioned lane loops (as many as the batched blocks,
@@ -615,14 +615,15 @@ where
     Q: Fn(usize) -> T + Copy,
 {
     let eps2 = T::c(2.0) * c.eps;
+    let scale = reciprocal_scale(eps2);
     let tiny = T::SPIKE_TINY;
     let mut w = [T::ZERO; S];
     let mut k = [T::ZERO; S];
     for l in 0..S {
-        let (a_next, g_next, d_next) = gap_terms::<T, REP, true, P, Q>(
-            law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
+        let (a_next, g_next, d_next, inv_d) = gap_terms::<T, REP, true, P, Q>(
+            law, 0, c.mu, eps2, scale, stored[l], dstar[l], bonded[l], c.h,
         );
-        k[l] = jacobian_factor(c.exact, d_next, c.h, vel[l], vel_right[l]);
+        k[l] = jacobian_factor(c.exact, d_next, inv_d, c.h, vel[l], vel_right[l]);
         let a_next = a_next * k[l];
         st.nonfinite[l] |= T::Flag::from(!(g_next + f[l]).is_finite());
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
@@ -736,6 +737,7 @@ where
     let main = layout.main_start(g);
     let off = main - chunk_at;
     let eps2 = T::c(2.0) * c.eps;
+    let scale = reciprocal_scale(eps2);
     {
         // The first gap of each segment (index main + l·m) is the previous row's.
         let stored = gather::<S, T>(gaps_in, main, m);
@@ -750,13 +752,13 @@ where
             [false; S]
         };
         for l in 0..S {
-            let (a, gg, d) = gap_terms::<T, REP, true, P, Q>(
-                law, 0, c.mu, eps2, stored[l], dstar[l], bonded[l], c.h,
+            let (a, gg, d, inv_d) = gap_terms::<T, REP, true, P, Q>(
+                law, 0, c.mu, eps2, scale, stored[l], dstar[l], bonded[l], c.h,
             );
             // The gap's k as the row before it computes it (index 0 is the left wall's gap).
             let at = main + l * m;
             let u_left = if at == 0 { zero } else { vel_in[at - 1] };
-            let k = jacobian_factor(c.exact, d, c.h, u_left, velocity_at(vel_in, at));
+            let k = jacobian_factor(c.exact, d, inv_d, c.h, u_left, velocity_at(vel_in, at));
             st.a_prev[l] = a * k;
             st.g_prev[l] = gg;
         }
@@ -765,17 +767,18 @@ where
         // Segment 0 starts from the left wall (lambda_0 = 1: ls_0 = 1/d_1, ys_0 = 0, no spike),
         // as the sequential sweep does, and sweeps the prologue's rows alone.
         let mut s0 = Sweep::<T, 1>::new([zero], zero);
-        let (a, gg, d) = gap_terms::<T, REP, true, P, Q>(
+        let (a, gg, d, inv_d) = gap_terms::<T, REP, true, P, Q>(
             law,
             0,
             c.mu,
             eps2,
+            scale,
             gaps_in[0],
             if REP { dstar_all[0] } else { zero },
             clu && bonded_all[0],
             c.h,
         );
-        s0.a_prev[0] = a * jacobian_factor(c.exact, d, c.h, zero, velocity_at(vel_in, 0));
+        s0.a_prev[0] = a * jacobian_factor(c.exact, d, inv_d, c.h, zero, velocity_at(vel_in, 0));
         s0.g_prev[0] = gg;
         s0.ls_prev[0] = T::ONE / d;
         s0.nonfinite[0] |= T::Flag::from(!gg.is_finite());
@@ -1365,7 +1368,9 @@ where
     let gamma2 = -((law.gamma)(0) + T::c(2.0));
     let old = gaps_in[0];
     let d = fmax(old, floor);
-    let k_first = jacobian_factor(c.exact, d, h0, zero, vel_in[0]);
+    let eps2 = T::c(2.0) * c.eps;
+    let (inv_d, _) = gap_reciprocals::<T, REP>(d, eps2, reciprocal_scale(eps2));
+    let k_first = jacobian_factor(c.exact, d, inv_d, h0, zero, vel_in[0]);
     let x = h0 * (u_first / d * k_first);
     let mut grown = old * gap_exp(x);
     if old > zero {

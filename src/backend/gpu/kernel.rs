@@ -263,8 +263,9 @@ fn generated(spec: &KernelSpec) -> String {
     );
     let _ = writeln!(
         out,
-        "const LN_RATIO_SERIES: real = {};\nconst EXTRAPOLATES: bool = {};\nconst EXACT_JACOBIAN: bool = {};",
+        "const LN_RATIO_SERIES: real = {};\nconst ONE_DIVISION_RECIPROCALS: bool = {};\nconst EXTRAPOLATES: bool = {};\nconst EXACT_JACOBIAN: bool = {};",
         literal(LN_RATIO_SERIES, float),
+        spec.precision == Precision::F64,
         spec.scheme.extrapolates,
         spec.scheme.exact_jacobian
     );
