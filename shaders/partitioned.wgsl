@@ -188,7 +188,7 @@ fn forward(b: u32, s: u32, spike: bool, tau: real, st: PState, p: Param) -> Ends
         let first = gap_terms(b, gap_sets[gi + b], p, h, eps2, scale);
         a_prev = first.a * jacobian_factor(first.d, first.inv_d, h, 0.0, velocity_or_wall(vi, 0u, b));
         g_prev = first.g;
-        ls_prev = 1.0 / first.d;
+        ls_prev = first.inv_d;
         ys_prev = 0.0;
 //@BEGIN REPULSION
         if spike && !is_finite_real(first.g) {

@@ -347,7 +347,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     let k_first = jacobian_factor(first.d, first.inv_d, h, 0.0, velocity_or_wall(vi, 0u, b));
     var a_prev: real = first.a * k_first;
     var g_prev: real = first.g;
-    var ls_prev: real = 1.0 / first.d;
+    var ls_prev: real = first.inv_d;
     var ys_prev: real = 0.0;
     var q: real = 0.0;
 //@BEGIN REPULSION

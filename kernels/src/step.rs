@@ -385,11 +385,12 @@ pub(crate) fn reciprocal_scale<T: Real>(eps2: T) -> T {
 
 /// (1/d, 1/(d + eps2)) of an effective gap d >= GAP_FLOOR. In f64 with one division: both from
 /// 1/(d (d + eps2) c), c = [`reciprocal_scale`]; the forward sweep's divisions bound its speed
-/// (four per row, measured: one fewer took a tenth off a step at N = 200), and c keeps the
-/// product within [GAP_FLOOR, ~1/GAP_FLOOR] (d (d + eps2) alone underflows for small d and
+/// (four per row; measured: one fewer took 5-12 % off a batch's run at N = 200), and c keeps
+/// the product within [GAP_FLOOR, ~1/GAP_FLOOR] (d (d + eps2) alone underflows for small d and
 /// eps2). The form rounds 1/(d + eps2) ~3 ulps off instead of 1, and G = ratio^gamma takes
-/// gamma times that: within f64's energy slack, not f32's (measured: f32 at order 4, gamma = 20,
-/// took 61 adaptive steps instead of 49, tests/cpu_f32.rs), so f32 divides twice. Without repulsion, 1/d alone.
+/// gamma times that: within f64's energy slack, not f32's (measured: f32 at order 4, gamma =
+/// 20, took 61 adaptive steps instead of 49, tests/cpu_f32.rs), so f32 divides twice. Without
+/// repulsion, 1/d alone.
 #[inline(always)]
 pub(crate) fn gap_reciprocals<T: Real, const REP: bool>(d: T, eps2: T, scale: T) -> (T, T) {
     if !REP {
@@ -920,7 +921,7 @@ where
             k_first[l] = jacobian_factor(exact, d, inv_d, h[l], zero, u_right[l]);
             a_prev[l] = a * k_first[l];
             g_prev[l] = g;
-            ls_prev[l] = T::ONE / d;
+            ls_prev[l] = inv_d;
             nonfinite[l] |= flag(!g.is_finite());
         }
     }

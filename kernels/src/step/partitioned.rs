@@ -780,7 +780,7 @@ where
         );
         s0.a_prev[0] = a * jacobian_factor(c.exact, d, inv_d, c.h, zero, velocity_at(vel_in, 0));
         s0.g_prev[0] = gg;
-        s0.ls_prev[0] = T::ONE / d;
+        s0.ls_prev[0] = inv_d;
         s0.nonfinite[0] |= T::Flag::from(!gg.is_finite());
         for row in 1..=layout.rem {
             let f = match (terms.forcing.is_some(), SPIKE) {
