@@ -883,11 +883,15 @@ fn smallest_gap(b: u32, which: u32) -> vec2<real> {
     return best;
 }
 
-// StepControl::trial_step: dt, or exactly what is left when that is within rounding of dt.
+// StepControl::trial_step: dt, or exactly what is left when that is within rounding of dt;
+// adaptive steps take what is left in two halves when it is less than two steps (no slivers).
 fn trial_step(c: Control) -> real {
     let remaining = config.t_end - c.t;
     if remaining <= c.dt * (1.0 + 1e-9) {
         return remaining;
+    }
+    if config.fixed_h == 0.0 && remaining < 2.0 * c.dt {
+        return 0.5 * remaining;
     }
     return c.dt;
 }

@@ -111,7 +111,7 @@ fn differences(a: &Run, b: &Run) -> (f64, f64) {
 }
 
 /// Fixed steps (order 1, 20 steps) and a short adaptive run (order 2, tolerance 1e-3, a first
-/// trial step too large; with either matrix of the extrapolated steps): the partitioned and sequential solves agree to 1e-12 on gaps
+/// trial step too large; with either matrix of the extrapolated steps): the partitioned and sequential solves agree to 4e-12 on gaps
 /// (relatively) and 1e-11 on velocities (relative to max |u|) with the same step counts.
 #[test]
 fn partitioned_run_equals_sequential_run() {
@@ -147,7 +147,9 @@ fn partitioned_run_equals_sequential_run() {
         // The two solves round differently, so some value differs (the partitioned path ran).
         assert_ne!(part.gaps, seq.gaps, "{label}: identical bits");
         let (gap, vel) = differences(&part, &seq);
-        assert!(gap <= 1e-12, "{label}: gaps differ by {gap:e} (relative)");
+        // Each step's roundings add up: 1.4e-12 measured in the adaptive case, whose steps
+        // land on the output times in halves (far below the 1e-3 of its tolerance either way).
+        assert!(gap <= 4e-12, "{label}: gaps differ by {gap:e} (relative)");
         // The velocity solve's condition number grows with N (~ 4 mu h/(d·2eps)): at
         // N = 300000 the two roundings differ by 1.4e-12 of max |u| (4e-14 at N = 20000).
         assert!(

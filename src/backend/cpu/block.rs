@@ -195,7 +195,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         };
         let lane = |member| Lane {
             member,
-            control: StepControl::new(dt0, plan.order.initial()),
+            control: StepControl::new(dt0, plan.order.initial(&plan.stepping)),
             error_estimates: Vec::new(),
         };
         let scheme = Scheme::of(plan);

@@ -256,7 +256,7 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         failure: 0,
         parity: 0,
         failure_index: 0,
-        order: u32::from(plan.order.initial()),
+        order: u32::from(plan.order.initial(&plan.stepping)),
     }
 }
 
