@@ -87,6 +87,9 @@ struct Control {
     energy: real,
     // Sum of the accepted steps' local error estimates.
     error_sum: real,
+    // The last accepted step and its scaled estimate (`StepControl::h_previous`; 0: none).
+    h_previous: real,
+    err_previous: real,
     accepted: u32,
     rejected: u32,
     regular_steps: u32,
@@ -732,6 +735,29 @@ fn step_factor(err_in: real, q: u32) -> real {
     return clamp(SAFETY / root, MAX_SHRINK, MAX_GROWTH);
 }
 
+// `root` of kernels/src/shared/control.rs: x^(1/q) as `step_factor` takes it.
+fn root_of(x: real, q: u32) -> real {
+    if q == 1u {
+        return x;
+    } else if q == 2u {
+        return sqrt(x);
+    }
+    return exp_real(ln_real(x) / real(q));
+}
+
+// `predictive_factor` of kernels/src/shared/control.rs: the factor times the trend of the last
+// two accepted steps where that is below 1 (Gustafsson), within [MAX_SHRINK, factor].
+fn predictive_factor(factor: real, h: real, err: real, q: u32, h_previous: real, err_previous: real) -> real {
+    if h_previous <= 0.0 {
+        return factor;
+    }
+    let trend = h / h_previous * root_of(err_previous / max(err, 1e-10), q);
+    if trend >= 1.0 {
+        return factor;
+    }
+    return max(factor * trend, MAX_SHRINK);
+}
+
 // `tableau_work`: substeps of the tableau's first k rows.
 fn tableau_work(k: u32) -> real {
     return real(k * (k + 1u) / 2u);
@@ -903,6 +929,7 @@ fn conclude_attempt(c: ptr<function, Control>, h: real, r: Attempt) -> bool {
         (*c).accepted += 1u;
         (*c).error_sum = (*c).error_sum + r.estimate;
         let landed = h == config.t_end - (*c).t;
+        let shortened = h < (*c).dt * (1.0 - 1e-9);
         (*c).regular_steps += 1u;
         if landed {
             (*c).t = config.t_end;
@@ -914,12 +941,22 @@ fn conclude_attempt(c: ptr<function, Control>, h: real, r: Attempt) -> bool {
         if config.fixed_h > 0.0 {
             (*c).dt = min(2.0 * (*c).dt, config.fixed_h);
         } else {
+            var factor = r.factor;
+            if !shortened {
+                factor = predictive_factor(r.factor, h, r.err, max((*c).order, 2u), (*c).h_previous, (*c).err_previous);
+            }
+            if shortened || r.order_next != (*c).order {
+                (*c).h_previous = 0.0;
+            } else {
+                (*c).h_previous = h;
+            }
+            (*c).err_previous = max(r.err, 1e-2);
             (*c).order = r.order_next;
             // A step shortened to land on an output time says little about dt.
             if landed {
-                (*c).dt = max((*c).dt, h * r.factor);
+                (*c).dt = max((*c).dt, h * factor);
             } else {
-                (*c).dt = h * r.factor;
+                (*c).dt = h * factor;
             }
         }
         return true;
@@ -927,6 +964,9 @@ fn conclude_attempt(c: ptr<function, Control>, h: real, r: Attempt) -> bool {
     (*c).rejected += 1u;
     (*c).regular = 0u;
     if r.admissible && r.energy_ok {
+        if r.order_next != (*c).order {
+            (*c).h_previous = 0.0;
+        }
         (*c).order = r.order_next;
         (*c).dt = h * min(r.factor, 1.0);
     } else {

@@ -249,6 +249,8 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         // Negative: `begin_interval` computes the initial energy on the GPU (E >= 0 otherwise).
         energy: -1.0,
         error_sum: 0.0,
+        h_previous: 0.0,
+        err_previous: 0.0,
         accepted: 0,
         rejected: 0,
         regular_steps: 0,

@@ -60,6 +60,10 @@ macro_rules! mirror_structs {
             pub energy: $real,
             /// `StepControl::error_sum`.
             pub error_sum: $real,
+            /// `StepControl::h_previous`.
+            pub h_previous: $real,
+            /// `StepControl::err_previous`.
+            pub err_previous: $real,
             pub accepted: u32,
             pub rejected: u32,
             pub regular_steps: u32,
@@ -91,12 +95,12 @@ const _: () = {
     assert!(offset_of!(ConfigF32, tail) == 40);
     assert!(size_of::<ConfigF32>() == CONFIG_BUFFER_SIZE as usize);
     assert!(size_of::<ConfigF64>() == CONFIG_BUFFER_SIZE as usize);
-    assert!(size_of::<ControlF64>() == 80);
-    assert!(offset_of!(ControlF64, accepted) == 48);
-    assert!(offset_of!(ControlF64, parity) == 68);
-    assert!(size_of::<ControlF32>() == 56);
-    assert!(offset_of!(ControlF32, accepted) == 24);
-    assert!(offset_of!(ControlF32, parity) == 44);
+    assert!(size_of::<ControlF64>() == 96);
+    assert!(offset_of!(ControlF64, accepted) == 64);
+    assert!(offset_of!(ControlF64, parity) == 84);
+    assert!(size_of::<ControlF32>() == 64);
+    assert!(offset_of!(ControlF32, accepted) == 32);
+    assert!(offset_of!(ControlF32, parity) == 52);
 };
 
 impl ConfigF64 {
@@ -128,6 +132,8 @@ impl ControlF64 {
             failure_detail: self.failure_detail as f32,
             energy: self.energy as f32,
             error_sum: self.error_sum as f32,
+            h_previous: self.h_previous as f32,
+            err_previous: self.err_previous as f32,
             accepted: self.accepted,
             rejected: self.rejected,
             regular_steps: self.regular_steps,
@@ -149,6 +155,8 @@ impl From<ControlF32> for ControlF64 {
             failure_detail: c.failure_detail.into(),
             energy: c.energy.into(),
             error_sum: c.error_sum.into(),
+            h_previous: c.h_previous.into(),
+            err_previous: c.err_previous.into(),
             accepted: c.accepted,
             rejected: c.rejected,
             regular_steps: c.regular_steps,
