@@ -723,19 +723,10 @@ fn energy_acceptable(before: real, after: real, work: real, gamma: real) -> bool
 
 // `step_factor` of kernels/src/shared/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].
 fn step_factor(err_in: real, q: u32) -> real {
-    let err = max(err_in, 1e-10);
-    var root: real;
-    if q == 1u {
-        root = err;
-    } else if q == 2u {
-        root = sqrt(err);
-    } else {
-        root = exp_real(ln_real(err) / real(q));
-    }
-    return clamp(SAFETY / root, MAX_SHRINK, MAX_GROWTH);
+    return clamp(SAFETY / root_of(max(err_in, 1e-10), q), MAX_SHRINK, MAX_GROWTH);
 }
 
-// `root` of kernels/src/shared/control.rs: x^(1/q) as `step_factor` takes it.
+// `root` of kernels/src/shared/control.rs: x^(1/q) (sqrt for q = 2).
 fn root_of(x: real, q: u32) -> real {
     if q == 1u {
         return x;

@@ -267,13 +267,7 @@ impl StepControl {
 /// SAFETY·err^(-1/q), within [MAX_SHRINK, MAX_GROWTH].
 #[inline]
 pub fn step_factor(err: f64, q: u8) -> f64 {
-    let err = err.max(1e-10);
-    let root = match q {
-        1 => err,
-        2 => err.sqrt(),
-        _ => f64_math::exp(f64_math::ln(err) / q as f64),
-    };
-    (SAFETY / root).clamp(MAX_SHRINK, MAX_GROWTH)
+    (SAFETY / root(err.max(1e-10), q)).clamp(MAX_SHRINK, MAX_GROWTH)
 }
 
 /// Gustafsson's predictive controller (Hairer and Wanner II, section IV.8, as RADAU5 has it):
@@ -304,7 +298,7 @@ pub fn predictive_factor(
     }
 }
 
-/// x^(1/q) as `step_factor` takes it (sqrt for q = 2, the twin exp and ln of `f64_math` above).
+/// x^(1/q): sqrt for q = 2, else the twin exp and ln of `f64_math` (see the module's docs).
 #[inline]
 fn root(x: f64, q: u8) -> f64 {
     match q {
