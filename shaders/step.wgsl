@@ -669,6 +669,17 @@ fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 9
             rho[j] = rho[j] + delta;
         }
     }
+    if !plain {
+        // `log_stored_allowance`: what ln d's rounding alone gives does not count.
+        let allowance = LOG_STORED_ROUNDING * REAL_EPSILON * abs(stored_ln(last));
+        for (var j: u32 = 2u; j <= k; j++) {
+            if e[j] <= allowance {
+                e[j] = 0.0;
+            } else {
+                e[j] = e[j] - allowance;
+            }
+        }
+    }
     var x: real = 0.0;
     if EXTRAPOLATES {
         x = rho[k - 1u];

@@ -55,6 +55,8 @@ pub trait Real:
     const ONE: Self;
     const INFINITY: Self;
     const NEG_INFINITY: Self;
+    /// The type's machine epsilon (2^-52, 2^-23).
+    const EPSILON: Self;
     /// Gaps below this are stored as ln d and enter the sweep as this value.
     const GAP_FLOOR: Self;
     /// [`Real::GAP_FLOOR`] as the f64 the initial data are encoded with (`stored_gap::encode`).
@@ -111,6 +113,7 @@ impl Real for f64 {
     const ONE: f64 = 1.0;
     const INFINITY: f64 = f64::INFINITY;
     const NEG_INFINITY: f64 = f64::NEG_INFINITY;
+    const EPSILON: f64 = f64::EPSILON;
     const GAP_FLOOR: f64 = GAP_FLOOR;
     const GAP_FLOOR_F64: f64 = GAP_FLOOR;
     const LN_GAP_FLOOR: f64 = LN_GAP_FLOOR;
@@ -187,6 +190,7 @@ impl Real for f32 {
     const ONE: f32 = 1.0;
     const INFINITY: f32 = f32::INFINITY;
     const NEG_INFINITY: f32 = f32::NEG_INFINITY;
+    const EPSILON: f32 = f32::EPSILON;
     const GAP_FLOOR: f32 = GAP_FLOOR_F32 as f32;
     const GAP_FLOOR_F64: f64 = GAP_FLOOR_F32;
     const LN_GAP_FLOOR: f32 = LN_GAP_FLOOR_F32 as f32;

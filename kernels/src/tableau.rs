@@ -6,7 +6,7 @@
 
 use crate::real::Real;
 use crate::shared::control::MAX_ORDER;
-use crate::shared::gaps::{GAP_EXP_TAYLOR, LN_RATIO_SERIES};
+use crate::shared::gaps::{log_stored_allowance, GAP_EXP_TAYLOR, LN_RATIO_SERIES};
 use crate::simd::SimdLevel;
 use crate::step::{encode_ln_gap, gap_exp, gap_exp_taylor, ln_1p_series, ln_gap_ratio, stored_ln};
 
@@ -129,11 +129,13 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
             }
         }
         let plain = |l: usize| y.iter().take(rows).all(|yj| yj[l] > zero);
+        let mut log_stored = [false; L];
         for l in 0..L {
             if packed[l] == flag(true) || is_bonded(l) {
                 continue;
             }
             let plain = plain(l);
+            log_stored[l] = !plain;
             for j in 0..rows {
                 rho[j][l] = if plain {
                     ln_gap_ratio(y[j][l], last[l], inv_last[l])
@@ -144,6 +146,14 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
         }
         let mut e = [[zero; L]; M + 1];
         neville(&mut rho, rows, &mut e, |delta, _| delta.abs());
+        if log_stored.contains(&true) {
+            for l in (0..L).filter(|&l| log_stored[l]) {
+                let ln_last = stored_ln(last[l]);
+                for ej in e.iter_mut().take(rows + 1).skip(2) {
+                    ej[l] = log_stored_allowance(ej[l], ln_last);
+                }
+            }
+        }
         let x: [T; L] = std::array::from_fn(|l| {
             if extrapolating {
                 rho[columns[l] - 1][l]
@@ -295,6 +305,7 @@ fn neville<T: Real, const L: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::shared::gaps::LOG_STORED_ROUNDING;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -350,6 +361,11 @@ mod tests {
             }
             let mut e = [T::ZERO; M + 1];
             tableau(&mut rho, &mut e, None);
+            if !plain {
+                for ej in e.iter_mut().take(k + 1).skip(2) {
+                    *ej = log_stored_allowance(*ej, stored_ln(last));
+                }
+            }
             let x = if extrapolating { rho[k - 1] } else { T::ZERO };
             let grown = last * gap_exp(x);
             gaps.push(if plain && grown >= T::GAP_FLOOR && grown < T::INFINITY {
@@ -457,6 +473,56 @@ mod tests {
             assert_eq!(err[4][2], f64::INFINITY);
             assert!(err[0][2].is_finite() && err[1][2].is_finite());
         }
+    }
+
+    /// One gap's estimates (one lane, column = rows given), stored values as given.
+    fn one_gap_estimates(stored_rows: &[f64]) -> Estimates {
+        let k = stored_rows.len();
+        let mut gap_rows = vec![vec![0.0f64; 1]; M];
+        for (row, &v) in gap_rows.iter_mut().zip(stored_rows) {
+            row[0] = v;
+        }
+        let vel_rows = vec![Vec::<f64>::new(); M];
+        let (mut cand_gaps, mut cand_vel) = (vec![0.0; 1], Vec::new());
+        extrapolate::<f64, 1>(
+            SimdLevel::Portable,
+            TableauIo {
+                columns: &[k],
+                extrapolating: true,
+                row_gaps: &gap_rows,
+                row_vel: &vel_rows,
+                cand_gaps: &mut cand_gaps,
+                cand_vel: &mut cand_vel,
+                bonded: None,
+            },
+        )[0]
+    }
+
+    /// Rows ln d_j = L + c/j (an error of first order in the substep H/j): column 2 removes it,
+    /// so e_2 = c/2 and the later columns see rounding only. A gap stored as ln d (L = -709,
+    /// where one ulp is 1.1e-13) gets e_2 = c/2 less LOG_STORED_ROUNDING eps |L| (5.0e-12), and
+    /// e_3, e_4 exactly 0; a gap stored as d (L = -7) keeps c/2 whole.
+    #[test]
+    fn log_stored_gaps_estimates_leave_out_their_rounding() {
+        let c = 1e-9;
+        let rows = |l: f64| -> Vec<f64> { (1..=4).map(|j| l + c / j as f64).collect() };
+        let allowance = LOG_STORED_ROUNDING * f64::EPSILON * 709.0;
+        let log_stored = one_gap_estimates(&rows(-709.0));
+        assert!(
+            (log_stored[2] - (c / 2.0 - allowance)).abs() <= 1e-12,
+            "log-stored e_2 = {:e}, expected {:e}",
+            log_stored[2],
+            c / 2.0 - allowance
+        );
+        assert_eq!((log_stored[3], log_stored[4]), (0.0, 0.0));
+        let plain: Vec<f64> = rows(-7.0).iter().map(|x| x.exp()).collect();
+        let plain = one_gap_estimates(&plain);
+        assert!(
+            (plain[2] - c / 2.0).abs() <= 1e-15,
+            "plain e_2 = {:e}, expected {:e}",
+            plain[2],
+            c / 2.0
+        );
     }
 
     #[test]

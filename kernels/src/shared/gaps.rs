@@ -26,6 +26,27 @@ pub const LN_GAP_FLOOR_F32: f64 = -55.262_042_231_857_1;
 /// the rejections).
 pub const MAX_OPENING: f64 = 5.0;
 
+/// How many of its rounding units, eps |ln d|, a log-stored gap's ln d carries into the
+/// tableau's estimates, which count only above it ([`log_stored_allowance`]). Each substep
+/// rounds ln d' = ln d + h r to eps |ln d|, and the Aitken-Neville weights amplify the rows'
+/// differences: on `docs/work_precision_extreme.toml` (gaps down to e^-1536) the estimates at
+/// tolerance 1e-12 were whole multiples of ulp(ln d)/6 at ln d ~ -709, up to 6.6 eps |ln d|,
+/// whatever the step, and the step collapsed (t = 0.0046, 105545 + 119279 steps).
+pub const LOG_STORED_ROUNDING: f64 = 32.0;
+
+/// The part of a log-stored gap's estimate e that is rounding, LOG_STORED_ROUNDING eps |ln d|,
+/// taken off e (a NaN stays NaN): e counts only where it exceeds what ln d's rounding alone
+/// gives. A gap stored as d has none: its rows' ratios are exact to eps.
+#[inline(always)]
+pub fn log_stored_allowance<T: crate::real::Real>(e: T, ln_d: T) -> T {
+    let allowance = T::c(LOG_STORED_ROUNDING) * T::EPSILON * ln_d.abs();
+    if e <= allowance {
+        T::ZERO
+    } else {
+        e - allowance
+    }
+}
+
 /// Below this |y - last|/last [`ln_gap_ratio`](crate::step::ln_gap_ratio) uses its series.
 pub const LN_RATIO_SERIES: f64 = 1.0 / 16.0;
 

@@ -11,7 +11,7 @@ use crate::backend::shared::control::{
     ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32,
 };
 use crate::backend::shared::gaps::{
-    GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32, LN_RATIO_SERIES,
+    GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32, LN_RATIO_SERIES, LOG_STORED_ROUNDING,
 };
 use crate::backend::Precision;
 use crate::expr::{Expr, WgslFloat};
@@ -246,6 +246,16 @@ fn generated(spec: &KernelSpec) -> String {
         Precision::F64 => (GAP_FLOOR, LN_GAP_FLOOR, ENERGY_RTOL_F64),
     };
     let _ = writeln!(out, "const GAP_FLOOR: real = {};", literal(floor, float));
+    let epsilon = match spec.precision {
+        Precision::F32 => f32::EPSILON as f64,
+        Precision::F64 => f64::EPSILON,
+    };
+    let _ = writeln!(
+        out,
+        "const REAL_EPSILON: real = {};\nconst LOG_STORED_ROUNDING: real = {};",
+        literal(epsilon, float),
+        literal(LOG_STORED_ROUNDING, float)
+    );
     let _ = writeln!(
         out,
         "const LN_GAP_FLOOR: real = {};",
