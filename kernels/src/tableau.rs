@@ -146,12 +146,10 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
         }
         let mut e = [[zero; L]; M + 1];
         neville(&mut rho, rows, &mut e, |delta, _| delta.abs());
-        if log_stored.contains(&true) {
-            for l in (0..L).filter(|&l| log_stored[l]) {
-                let ln_last = stored_ln(last[l]);
-                for ej in e.iter_mut().take(rows + 1).skip(2) {
-                    ej[l] = log_stored_allowance(ej[l], ln_last);
-                }
+        for l in (0..L).filter(|&l| log_stored[l]) {
+            let ln_last = stored_ln(last[l]);
+            for ej in e.iter_mut().take(rows + 1).skip(2) {
+                ej[l] = log_stored_allowance(ej[l], ln_last);
             }
         }
         let x: [T; L] = std::array::from_fn(|l| {
