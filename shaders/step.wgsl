@@ -2,16 +2,17 @@
 // `i * batch + b`), each member with its own time, step size and status. WGSL twin of
 // kernels/src/step.rs (`euler`: the linearly implicit Euler step fused with the Thomas
 // solve, the gap update exact in ln d, the projection onto sum d and the energy; read its header
-// for the equations), of the attempts in src/backend/cpu/block.rs, of `extrapolate` in kernels/src/tableau.rs and of
-// `StepControl`, `step_factor` and `select_order` in kernels/src/shared/control.rs. Keep them in
-// sync, loop for loop.
+// for the equations), of the attempts in src/backend/cpu/block.rs and of `extrapolate` in
+// kernels/src/tableau.rs; the step control (`StepControl`, `step_factor`, `select_order` of
+// kernels/src/shared/control.rs) is in shaders/control.wgsl, appended at generation. Keep them
+// in sync, loop for loop.
 // Gaps are stored as in `crate::model::chain::stored_gap`: d, or ln d (< 0) below GAP_FLOOR, or 0
 // when bonded.
 //
 // Over 700 lines on purpose: WGSL has no modules (one source string per pipeline), and the
 // kernel is generated from this one template (one pass over its marker blocks); its functions
-// follow kernels/src/step.rs, src/backend/cpu/block.rs and shared/control.rs in the same order,
-// to be read side by side. The f64 math it shares with partitioned.wgsl is in f64_math.wgsl,
+// follow kernels/src/step.rs and src/backend/cpu/block.rs in the same order, to be read side
+// by side. The f64 math it shares with partitioned.wgsl is in f64_math.wgsl,
 // prepended at generation.
 //
 // Entry points: `begin_interval` (StepControl::begin_interval), `advance` (up to
@@ -155,14 +156,8 @@ const SUB_SET: u32 = 2u;
 const ROW_SET: u32 = 4u;
 // `MAX_ORDER` of kernels/src/shared/control.rs: the tableau's largest column. Its rows (array<real, 8>)
 // and their estimates by column (array<real, 9>, index 0..=MAX_ORDER) are sized with literals
-// here and in shaders/partitioned.wgsl: change them with it.
+// here, in shaders/control.wgsl and in shaders/partitioned.wgsl: change them with it.
 const MAX_ORDER: u32 = 8u;
-
-// Step control constants of kernels/src/shared/control.rs.
-const REJECT_SHRINK: real = 0.25;
-const SAFETY: real = 0.9;
-const MAX_GROWTH: real = 5.0;
-const MAX_SHRINK: real = 0.2;
 
 // GAP_EXP_TAYLOR, EXP_FAST_MAX of kernels/src/shared/gaps.rs.
 const GAP_EXP_TAYLOR: real = 0.0625;
@@ -171,9 +166,6 @@ const EXP_FAST_MAX: real = 700.0;
 // MAX_OPENING and JACOBIAN_RESOLVED of kernels/src/shared/gaps.rs.
 const MAX_OPENING: real = 5.0;
 const JACOBIAN_RESOLVED: real = 10000.0;
-
-// WORK_SLACK of kernels/src/shared/control.rs.
-const WORK_SLACK: real = 0.1;
 
 //@GENERATED
 
@@ -614,6 +606,16 @@ fn noted(err: real, e: real) -> real {
     return select(REAL_MAX, max(err, e), e <= REAL_MAX);
 }
 
+// `log_stored_allowance` of kernels/src/shared/gaps.rs: a log-stored gap's estimate e less the
+// rounding of its ln d, LOG_STORED_ROUNDING eps |ln d| (0 below it; a NaN stays NaN).
+fn log_stored_allowance(e: real, ln_d: real) -> real {
+    let allowance = LOG_STORED_ROUNDING * REAL_EPSILON * abs(ln_d);
+    if e <= allowance {
+        return 0.0;
+    }
+    return e - allowance;
+}
+
 // `extrapolate` of kernels/src/tableau.rs: the Aitken–Neville tableau of rows 1..=k (set
 // ROW_SET + j - 1), element by element, gaps in ln d (shifted by ln of row k), velocities
 // linearly; set `cand` <- T_kk (or row k itself when not EXTRAPOLATES: order 1). Returns
@@ -670,14 +672,9 @@ fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 9
         }
     }
     if !plain {
-        // `log_stored_allowance`: what ln d's rounding alone gives does not count.
-        let allowance = LOG_STORED_ROUNDING * REAL_EPSILON * abs(stored_ln(last));
+        let ln_last = stored_ln(last);
         for (var j: u32 = 2u; j <= k; j++) {
-            if e[j] <= allowance {
-                e[j] = 0.0;
-            } else {
-                e[j] = e[j] - allowance;
-            }
+            e[j] = log_stored_allowance(e[j], ln_last);
         }
     }
     var x: real = 0.0;
@@ -723,72 +720,6 @@ fn extrapolate_velocity(idx: u32, cand: u32, k: u32, err: ptr<function, array<re
     for (var j: u32 = 2u; j <= k; j++) {
         (*err)[j] = noted((*err)[j], e[j]);
     }
-}
-
-// `energy_acceptable` of kernels/src/shared/control.rs, with the rounding of G (about gamma ulps)
-// added to the slack (ENERGY_RTOL_PER_GAMMA: 0 in f64, where ENERGY_RTOL covers it).
-fn energy_acceptable(before: real, after: real, work: real, gamma: real) -> bool {
-    let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma;
-    return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
-}
-
-// `step_factor` of kernels/src/shared/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].
-fn step_factor(err_in: real, q: u32) -> real {
-    return clamp(SAFETY / root_of(max(err_in, 1e-10), q), MAX_SHRINK, MAX_GROWTH);
-}
-
-// `root` of kernels/src/shared/control.rs: x^(1/q) (sqrt for q = 2).
-fn root_of(x: real, q: u32) -> real {
-    if q == 1u {
-        return x;
-    } else if q == 2u {
-        return sqrt(x);
-    }
-    return exp_real(ln_real(x) / real(q));
-}
-
-// `predictive_factor` of kernels/src/shared/control.rs: the factor times the trend of the last
-// two accepted steps where that is below 1 (Gustafsson), within [MAX_SHRINK, factor].
-fn predictive_factor(factor: real, h: real, err: real, q: u32, h_previous: real, err_previous: real) -> real {
-    if h_previous <= 0.0 {
-        return factor;
-    }
-    let trend = h / h_previous * root_of(err_previous / max(err, 1e-10), q);
-    if trend >= 1.0 {
-        return factor;
-    }
-    return max(factor * trend, MAX_SHRINK);
-}
-
-// `tableau_work`: substeps of the tableau's first k rows.
-fn tableau_work(k: u32) -> real {
-    return real(k * (k + 1u) / 2u);
-}
-
-// `select_order` of kernels/src/shared/control.rs: (next column, step factor) from the scaled
-// estimates of columns 2..=k.
-fn select_order(k: u32, errs: array<real, 9>, accepted: bool) -> vec2<real> {
-    var e = errs;
-    var work_k = tableau_work(k) / step_factor(e[k], k);
-    if k > 2u {
-        let work_lower = tableau_work(k - 1u) / step_factor(e[k - 1u], k - 1u);
-        if work_lower < 0.8 * work_k {
-            return vec2<real>(real(k - 1u), step_factor(e[k - 1u], k - 1u));
-        }
-    }
-    var raise = false;
-    if accepted && k < MAX_ORDER {
-        if k == 2u {
-            raise = true;
-        } else {
-            raise = work_k < 0.9 * (tableau_work(k - 1u) / step_factor(e[k - 1u], k - 1u));
-        }
-    }
-    if raise {
-        let f = min(step_factor(e[k], k) * tableau_work(k + 1u) / tableau_work(k), MAX_GROWTH);
-        return vec2<real>(real(k + 1u), f);
-    }
-    return vec2<real>(real(k), step_factor(e[k], k));
 }
 
 // Block::euler_attempt (EULER: order 1, fixed steps) or Block::extrapolated_attempt (TABLEAU):
@@ -909,88 +840,6 @@ fn smallest_gap(b: u32, which: u32) -> vec2<real> {
         }
     }
     return best;
-}
-
-// StepControl::trial_step: dt, or exactly what is left when that is within rounding of dt;
-// adaptive steps take what is left in two halves when it is less than two steps (no slivers).
-fn trial_step(c: Control) -> real {
-    let remaining = config.t_end - c.t;
-    if remaining <= c.dt * (1.0 + 1e-9) {
-        return remaining;
-    }
-    if config.fixed_h == 0.0 && remaining < 2.0 * c.dt {
-        return 0.5 * remaining;
-    }
-    return c.dt;
-}
-
-// StepControl::conclude_attempt. Returns whether the step is accepted. On failure the caller
-// fills in the smallest gap.
-fn conclude_attempt(c: ptr<function, Control>, h: real, r: Attempt) -> bool {
-    if r.admissible && r.energy_ok && r.err <= 1.0 {
-        (*c).accepted += 1u;
-        (*c).error_sum = (*c).error_sum + r.estimate;
-        let landed = h == config.t_end - (*c).t;
-        let shortened = h < (*c).dt * (1.0 - 1e-9);
-        (*c).regular_steps += 1u;
-        if landed {
-            (*c).t = config.t_end;
-        } else if config.fixed_h > 0.0 && (*c).regular == 1u {
-            (*c).t = config.t_start + real((*c).regular_steps) * config.fixed_h;
-        } else {
-            (*c).t = (*c).t + h;
-        }
-        if config.fixed_h > 0.0 {
-            (*c).dt = min(2.0 * (*c).dt, config.fixed_h);
-        } else {
-            var factor = r.factor;
-            if !shortened {
-                factor = predictive_factor(r.factor, h, r.err, max((*c).order, 2u), (*c).h_previous, (*c).err_previous);
-            }
-            if shortened || r.order_next != (*c).order {
-                (*c).h_previous = 0.0;
-            } else {
-                (*c).h_previous = h;
-            }
-            (*c).err_previous = max(r.err, 1e-2);
-            (*c).order = r.order_next;
-            // A step shortened to land on an output time says little about dt.
-            if landed {
-                (*c).dt = max((*c).dt, h * factor);
-            } else {
-                (*c).dt = h * factor;
-            }
-        }
-        return true;
-    }
-    (*c).rejected += 1u;
-    (*c).regular = 0u;
-    if r.admissible && r.energy_ok {
-        if r.order_next != (*c).order {
-            (*c).h_previous = 0.0;
-        }
-        (*c).order = r.order_next;
-        (*c).dt = h * min(r.factor, 1.0);
-    } else {
-        (*c).dt = h * REJECT_SHRINK;
-    }
-    // Rules::step_floor: dt_min, or the time resolution at t where larger.
-    if (*c).dt < max(config.dt_min, TIME_RESOLUTION * abs((*c).t)) {
-        // Failure::Inadmissible = 1, ErrorTooLarge = 2, EnergyRose = 3.
-        if !r.admissible {
-            (*c).failure = 1u;
-        } else if !r.energy_ok {
-            (*c).failure = 3u;
-        } else {
-            (*c).failure = 2u;
-        }
-        (*c).failure_time = (*c).t;
-    }
-    return false;
-}
-
-fn is_running(c: Control) -> bool {
-    return c.failure == 0u && c.t < config.t_end;
 }
 
 @compute @workgroup_size(64)

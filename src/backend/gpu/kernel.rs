@@ -21,6 +21,9 @@ use roughlub_kernels::power::INTEGER_GAMMA_BITS;
 
 /// The template (`shaders/step.wgsl`).
 pub const STEP_TEMPLATE_WGSL: &str = include_str!("../../../shaders/step.wgsl");
+/// The step control (`shaders/control.wgsl`, twin of `kernels/src/shared/control.rs`), appended
+/// to the step kernel.
+pub const CONTROL_WGSL: &str = include_str!("../../../shaders/control.wgsl");
 
 /// Entry points of the generated kernel.
 pub const BEGIN_ENTRY: &str = "begin_interval";
@@ -413,6 +416,7 @@ pub fn generate_step_wgsl(spec: &KernelSpec) -> String {
         }
         out.push('\n');
     }
+    out.push_str(CONTROL_WGSL);
     let body = out;
     if needs_f64_math(spec) {
         format!("{}\n{body}", super::F64_MATH_WGSL)
