@@ -94,8 +94,16 @@ fn trial_step(c: Control) -> real {
 
 // StepControl::conclude_attempt. Returns whether the step is accepted. On failure the caller
 // fills in the smallest gap.
-fn conclude_attempt(c: ptr<function, Control>, h: real, r: Attempt) -> bool {
-    if r.admissible && r.energy_ok && r.err <= 1.0 {
+fn conclude_attempt(c: ptr<function, Control>, h: real, r_in: Attempt) -> bool {
+    let accepted = r_in.admissible && r_in.energy_ok && r_in.err <= 1.0;
+    // The step accepted right after a rejection raises neither the step nor the column.
+    var r = r_in;
+    if accepted && (*c).after_rejection == 1u {
+        r.factor = min(r.factor, 1.0);
+        r.order_next = min(r.order_next, (*c).order);
+    }
+    (*c).after_rejection = select(1u, 0u, accepted);
+    if accepted {
         (*c).accepted += 1u;
         (*c).error_sum = (*c).error_sum + r.estimate;
         let landed = h == config.t_end - (*c).t;

@@ -100,6 +100,10 @@ struct Control {
     failure_index: u32,
     // The tableau column (order) of the next step.
     order: u32,
+    // 1: the last attempt was rejected (`StepControl::after_rejection`).
+    after_rejection: u32,
+    // Keeps the struct's size a multiple of 8 without implicit padding (f64).
+    padding: u32,
 }
 
 // (a, G, effective d) of one gap (`gap_terms`).

@@ -259,6 +259,8 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         parity: 0,
         failure_index: 0,
         order: u32::from(plan.order.initial(&plan.stepping)),
+        after_rejection: 0,
+        padding: 0,
     }
 }
 

@@ -77,6 +77,10 @@ macro_rules! mirror_structs {
             pub failure_index: u32,
             /// `StepControl::order`: the tableau column of the next step.
             pub order: u32,
+            /// `StepControl::after_rejection` (1: the last attempt was rejected).
+            pub after_rejection: u32,
+            /// Keeps the size a multiple of 8 (WGSL field `padding`).
+            pub padding: u32,
         }
     };
 }
@@ -95,10 +99,10 @@ const _: () = {
     assert!(offset_of!(ConfigF32, tail) == 40);
     assert!(size_of::<ConfigF32>() == CONFIG_BUFFER_SIZE as usize);
     assert!(size_of::<ConfigF64>() == CONFIG_BUFFER_SIZE as usize);
-    assert!(size_of::<ControlF64>() == 96);
+    assert!(size_of::<ControlF64>() == 104);
     assert!(offset_of!(ControlF64, accepted) == 64);
     assert!(offset_of!(ControlF64, parity) == 84);
-    assert!(size_of::<ControlF32>() == 64);
+    assert!(size_of::<ControlF32>() == 72);
     assert!(offset_of!(ControlF32, accepted) == 32);
     assert!(offset_of!(ControlF32, parity) == 52);
 };
@@ -142,6 +146,8 @@ impl ControlF64 {
             parity: self.parity,
             failure_index: self.failure_index,
             order: self.order,
+            after_rejection: self.after_rejection,
+            padding: 0,
         }
     }
 }
@@ -165,6 +171,8 @@ impl From<ControlF32> for ControlF64 {
             parity: c.parity,
             failure_index: c.failure_index,
             order: c.order,
+            after_rejection: c.after_rejection,
+            padding: 0,
         }
     }
 }
