@@ -79,10 +79,23 @@ fn select_order(k: u32, errs: array<real, 9>, accepted: bool) -> vec2<real> {
     return vec2<real>(real(k), step_factor(e[k], k));
 }
 
+// `two_sum` of kernels/src/shared/control.rs: (a + b rounded, what the rounding left out).
+fn two_sum(a: real, b: real) -> vec2<real> {
+    let s = a + b;
+    let b_taken = s - a;
+    let a_taken = s - b_taken;
+    return vec2<real>(s, (a - a_taken) + (b - b_taken));
+}
+
+// StepControl::remaining: t_end - (t + t_low).
+fn remaining_time(c: Control) -> real {
+    return (config.t_end - c.t) - c.t_low;
+}
+
 // StepControl::trial_step: dt, or exactly what is left when that is within rounding of dt;
 // adaptive steps take what is left in two halves when it is less than two steps (no slivers).
 fn trial_step(c: Control) -> real {
-    let remaining = config.t_end - c.t;
+    let remaining = remaining_time(c);
     if remaining <= c.dt * (1.0 + 1e-9) {
         return remaining;
     }
@@ -106,15 +119,19 @@ fn conclude_attempt(c: ptr<function, Control>, h: real, r_in: Attempt) -> bool {
     if accepted {
         (*c).accepted += 1u;
         (*c).error_sum = (*c).error_sum + r.estimate;
-        let landed = h == config.t_end - (*c).t;
+        let landed = h == remaining_time(*c);
         let shortened = h < (*c).dt * (1.0 - 1e-9);
         (*c).regular_steps += 1u;
         if landed {
             (*c).t = config.t_end;
+            (*c).t_low = 0.0;
         } else if config.fixed_h > 0.0 && (*c).regular == 1u {
             (*c).t = config.t_start + real((*c).regular_steps) * config.fixed_h;
+            (*c).t_low = 0.0;
         } else {
-            (*c).t = (*c).t + h;
+            let t = two_sum((*c).t, h + (*c).t_low);
+            (*c).t = t.x;
+            (*c).t_low = t.y;
         }
         if config.fixed_h > 0.0 {
             (*c).dt = min(2.0 * (*c).dt, config.fixed_h);

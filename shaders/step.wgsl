@@ -91,6 +91,8 @@ struct Control {
     // The last accepted step and its scaled estimate (`StepControl::h_previous`; 0: none).
     h_previous: real,
     err_previous: real,
+    // What the rounding of t left out (`StepControl::t_low`): the time is t + t_low.
+    t_low: real,
     accepted: u32,
     rejected: u32,
     regular_steps: u32,

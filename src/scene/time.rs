@@ -28,8 +28,9 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
             )?;
             (v, format!("{v:e}"))
         }
-        // Far below any step a run needs: in practice the floor is the time resolution
-        // (control::step_floor), which follows t.
+        // Far below the steps of most runs; near-contact collisions of heavy particles can need
+        // smaller ones (docs/accuracy.md), where a scene lowers it down to the time resolution
+        // (control::step_floor, 2^-90 t).
         None => (1e-18 * end, "1e-18 end".to_string()),
     };
     let stepping =

@@ -251,6 +251,7 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         error_sum: 0.0,
         h_previous: 0.0,
         err_previous: 0.0,
+        t_low: 0.0,
         accepted: 0,
         rejected: 0,
         regular_steps: 0,

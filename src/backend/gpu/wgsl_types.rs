@@ -64,6 +64,8 @@ macro_rules! mirror_structs {
             pub h_previous: $real,
             /// `StepControl::err_previous`.
             pub err_previous: $real,
+            /// `StepControl::t_low`.
+            pub t_low: $real,
             pub accepted: u32,
             pub rejected: u32,
             pub regular_steps: u32,
@@ -99,12 +101,12 @@ const _: () = {
     assert!(offset_of!(ConfigF32, tail) == 40);
     assert!(size_of::<ConfigF32>() == CONFIG_BUFFER_SIZE as usize);
     assert!(size_of::<ConfigF64>() == CONFIG_BUFFER_SIZE as usize);
-    assert!(size_of::<ControlF64>() == 104);
-    assert!(offset_of!(ControlF64, accepted) == 64);
-    assert!(offset_of!(ControlF64, parity) == 84);
-    assert!(size_of::<ControlF32>() == 72);
-    assert!(offset_of!(ControlF32, accepted) == 32);
-    assert!(offset_of!(ControlF32, parity) == 52);
+    assert!(size_of::<ControlF64>() == 112);
+    assert!(offset_of!(ControlF64, accepted) == 72);
+    assert!(offset_of!(ControlF64, parity) == 92);
+    assert!(size_of::<ControlF32>() == 76);
+    assert!(offset_of!(ControlF32, accepted) == 36);
+    assert!(offset_of!(ControlF32, parity) == 56);
 };
 
 impl ConfigF64 {
@@ -138,6 +140,7 @@ impl ControlF64 {
             error_sum: self.error_sum as f32,
             h_previous: self.h_previous as f32,
             err_previous: self.err_previous as f32,
+            t_low: self.t_low as f32,
             accepted: self.accepted,
             rejected: self.rejected,
             regular_steps: self.regular_steps,
@@ -163,6 +166,7 @@ impl From<ControlF32> for ControlF64 {
             error_sum: c.error_sum.into(),
             h_previous: c.h_previous.into(),
             err_previous: c.err_previous.into(),
+            t_low: c.t_low.into(),
             accepted: c.accepted,
             rejected: c.rejected,
             regular_steps: c.regular_steps,
