@@ -79,10 +79,18 @@ fn select_order(k: u32, errs: array<real, 9>, accepted: bool) -> vec2<real> {
     return vec2<real>(real(k), step_factor(e[k], k));
 }
 
-// `two_sum` of kernels/src/shared/control.rs: (a + b rounded, what the rounding left out).
+// x, hidden from the driver compiler's value-unsafe algebra (`opaque_f64` of f64_math.wgsl,
+// for either real): Mesa NIR (lavapipe) folds (a + b) - a to b, which made two_sum's error 0
+// (measured: 256 of 256 cases on lavapipe f64, against ~1e-19 on the CPU).
+fn opaque_real(x: real) -> real {
+    return select(-x, x, x == x);
+}
+
+// `two_sum` of kernels/src/shared/control.rs: (a + b rounded, what the rounding left out), the
+// same operations with the intermediate sums kept opaque.
 fn two_sum(a: real, b: real) -> vec2<real> {
-    let s = a + b;
-    let b_taken = s - a;
+    let s = opaque_real(a + b);
+    let b_taken = opaque_real(s - a);
     let a_taken = s - b_taken;
     return vec2<real>(s, (a - a_taken) + (b - b_taken));
 }

@@ -635,3 +635,78 @@ fn gpu_error_free_transformations() {
         );
     }
 }
+
+/// The step control's `two_sum` (shaders/control.wgsl, which keeps the GPU's time as t plus
+/// what its rounding left out) against its CPU twin, bit for bit: times t in (1e-4, 1] plus
+/// steps from 1e-30 t to 1e-2 t, most below half an ulp of t, where only the error term moves
+/// the time. Written with plain sums, Mesa NIR (lavapipe) folded (a + b) - a to b and the GPU's
+/// error term was 0 in every case; the CPU's is the exact remainder.
+#[test]
+fn control_two_sum_equals_the_cpu_bitwise() {
+    use roughlub::backend::gpu::kernel::CONTROL_WGSL;
+    use roughlub::backend::shared::control::two_sum;
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    // control.wgsl's two functions, on their own: the rest of the file needs the step kernel.
+    let start = CONTROL_WGSL
+        .find("fn opaque_real")
+        .expect("opaque_real in control.wgsl");
+    let end = CONTROL_WGSL[start..]
+        .find("// StepControl::remaining")
+        .expect("two_sum before remaining_time")
+        + start;
+    let functions = &CONTROL_WGSL[start..end];
+    let mut rng = Rng(7);
+    let n = 512;
+    let ts = rng.log_uniform(1e-4, 1.0, n);
+    let steps: Vec<f64> = rng
+        .log_uniform(1e-30, 1e-2, n)
+        .iter()
+        .zip(&ts)
+        .map(|(f, t)| f * t)
+        .collect();
+    let wgsl = |part: &str| {
+        format!(
+            "alias real = f64;\n{functions}\n\
+@group(0) @binding(0) var<storage, read> xs: array<f64>;\n\
+@group(0) @binding(1) var<storage, read> ys: array<f64>;\n\
+@group(0) @binding(2) var<storage, read_write> out: array<f64>;\n\
+@compute @workgroup_size({WORKGROUP})\n\
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {{\n\
+    let i = gid.x;\n\
+    if (i >= arrayLength(&out)) {{\n\
+        return;\n\
+    }}\n\
+    out[i] = two_sum(xs[i], ys[i]).{part};\n\
+}}\n"
+        )
+    };
+    let groups = n.div_ceil(WORKGROUP) as u32;
+    let run = |part: &str| {
+        run_compute_f64(&ctx, &wgsl(part), "main", &[&ts, &steps], n, groups)
+            .unwrap_or_else(|e| panic!("two_sum: {e}"))
+    };
+    let (sums, errors) = (run("x"), run("y"));
+    let mut nonzero = 0;
+    for i in 0..n {
+        let (s, e) = two_sum(ts[i], steps[i]);
+        assert_eq!(
+            sums[i].to_bits(),
+            s.to_bits(),
+            "sum of {} + {}",
+            ts[i],
+            steps[i]
+        );
+        assert_eq!(
+            errors[i].to_bits(),
+            e.to_bits(),
+            "error of {} + {}",
+            ts[i],
+            steps[i]
+        );
+        nonzero += usize::from(e != 0.0);
+    }
+    // Nearly every case has a remainder (the sums are rarely exact): the test sees the fold.
+    assert!(nonzero > n * 9 / 10, "{nonzero} of {n} remainders nonzero");
+}

@@ -32,7 +32,11 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
         // (control::step_floor, 2^-90 t): collisions of heavy particles with little lubrication
         // need steps of 1e-18 t and below (docs/accuracy.md); with 1e-18 end two of twelve such
         // runs failed at dt_min that complete with it lower.
-        None => (1e-30 * end, "1e-30 end".to_string()),
+        // Never 0 (end below ~1e-278): at t = 0 the floor is dt_min alone.
+        None => (
+            (1e-30 * end).max(f64::MIN_POSITIVE),
+            "1e-30 end".to_string(),
+        ),
     };
     let stepping =
         match (t.dt, t.tolerance) {

@@ -121,7 +121,9 @@ impl ConfigF64 {
             t_start: self.t_start as f32,
             t_end: self.t_end as f32,
             fixed_h: self.fixed_h as f32,
-            dt_min: self.dt_min as f32,
+            // Never 0 in f32 (1e-30 end, dt_min's default, is for end < 1e-8): at t = 0 the
+            // floor is dt_min alone, and with 0 a member whose step collapses would never fail.
+            dt_min: (self.dt_min as f32).max(f32::MIN_POSITIVE),
             tolerance: self.tolerance as f32,
             tail: [0; 6],
         }
