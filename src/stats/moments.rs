@@ -1,16 +1,8 @@
 //! Moments: [`RunningStats`], count, mean, sample variance and extremes of a stream of values,
 //! merged pairwise (Chan et al.).
 
+use roughlub_kernels::shared::f64_math::two_sum;
 use serde::{Deserialize, Serialize};
-
-/// `a + b` as an unevaluated sum `s + e` with `s = fl(a + b)` (Knuth's TwoSum, exact).
-#[inline]
-fn two_sum(a: f64, b: f64) -> (f64, f64) {
-    let s = a + b;
-    let bb = s - a;
-    let e = (a - (s - bb)) + (b - bb);
-    (s, e)
-}
 
 /// Count, mean, sample variance, minimum and maximum of a stream of finite values.
 ///

@@ -1,12 +1,13 @@
 //! Per-member step-size control: which step to try next, and what to do with its outcome
 //! (accepted only when every value is finite, the energy did not rise beyond the forcing's work
 //! and the error estimate is within the tolerance).
-//! CPU twin of the control functions in `shaders/step.wgsl` (`trial_step`, `conclude_attempt`);
+//! CPU twin of `shaders/control.wgsl` (`trial_step`, `conclude_attempt`, `two_sum`, ...);
 //! keep the two in sync. (err^-1/2 is written 1/sqrt(err): sqrt is exact on every backend, pow
 //! is not, and the GPU must take the same accepted steps; other roots go through the twin exp
 //! and ln of `f64_math`, which the f64 kernel computes operation for operation.)
 
 use super::f64_math;
+use super::f64_math::two_sum;
 use crate::failure::Failure;
 
 /// The highest order the extrapolation tableau reaches (`order = 1..=MAX_ORDER`). 8, not 6: on
@@ -69,16 +70,6 @@ impl Rules {
 pub const TIME_RESOLUTION_F64: f64 = 1.0 / (1u128 << 90) as f64;
 /// The same for f32 time (2^-18 |t|: 32 to 64 units in the last place of an f32 t).
 pub const TIME_RESOLUTION_F32: f64 = 1.0 / (1u64 << 18) as f64;
-
-/// (s, e) with s = a + b rounded and e = a + b - s exactly (Knuth's two-sum: no condition on
-/// the sizes of a and b).
-#[inline]
-pub fn two_sum(a: f64, b: f64) -> (f64, f64) {
-    let s = a + b;
-    let b_taken = s - a;
-    let a_taken = s - b_taken;
-    (s, (a - a_taken) + (b - b_taken))
-}
 
 /// max(dt_min, time_resolution |t|): the step below which a member fails.
 #[inline]

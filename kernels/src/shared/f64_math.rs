@@ -89,9 +89,11 @@ pub fn exp_in_range(x: f64) -> f64 {
     y * f64::from_bits(biased << 52)
 }
 
-/// `two_sum_f64`.
+/// `two_sum_f64`: (s, e) with s = a + b rounded and e = a + b - s exactly (Knuth's TwoSum, no
+/// condition on the sizes of a and b). Also the step control's time (`control::StepControl`) and
+/// the moments' double-double mean (`roughlub::stats`).
 #[inline(always)]
-fn two_sum(a: f64, b: f64) -> (f64, f64) {
+pub fn two_sum(a: f64, b: f64) -> (f64, f64) {
     let s = a + b;
     let bb = s - a;
     let e = (a - (s - bb)) + (b - bb);
