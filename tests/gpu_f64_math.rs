@@ -30,10 +30,11 @@ const TOL_POW: f64 = 2e-15;
 
 const WORKGROUP: usize = 64;
 
-/// Kernel that applies `call` (an expression in `x` and `y`) to every element.
-fn kernel(call: &str) -> String {
+/// Kernel that applies `call` (an expression in `x` and `y`) to every element, with
+/// `prelude` (more WGSL) after the f64 functions.
+fn kernel(prelude: &str, call: &str) -> String {
     format!(
-        "{F64_MATH_WGSL}\n\
+        "{F64_MATH_WGSL}\n{prelude}\n\
 @group(0) @binding(0) var<storage, read> xs: array<f64>;\n\
 @group(0) @binding(1) var<storage, read> ys: array<f64>;\n\
 @group(0) @binding(2) var<storage, read_write> out: array<f64>;\n\
@@ -52,10 +53,22 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {{\n\
 }
 
 fn eval(ctx: &GpuContext, call: &str, xs: &[f64], ys: &[f64]) -> Vec<f64> {
+    eval_with(ctx, "", call, xs, ys)
+}
+
+/// [`eval`] with `prelude` in the kernel ([`kernel`]).
+fn eval_with(ctx: &GpuContext, prelude: &str, call: &str, xs: &[f64], ys: &[f64]) -> Vec<f64> {
     assert_eq!(xs.len(), ys.len());
     let groups = xs.len().div_ceil(WORKGROUP) as u32;
-    run_compute_f64(ctx, &kernel(call), "main", &[xs, ys], xs.len(), groups)
-        .unwrap_or_else(|e| panic!("{call}: {e}"))
+    run_compute_f64(
+        ctx,
+        &kernel(prelude, call),
+        "main",
+        &[xs, ys],
+        xs.len(),
+        groups,
+    )
+    .unwrap_or_else(|e| panic!("{call}: {e}"))
 }
 
 /// splitmix64, uniform in [0, 1).
@@ -239,7 +252,7 @@ fn trig_points(rng: &mut Rng) -> Vec<f64> {
 fn naga_validates_f64_math_wgsl() {
     // The library on its own (no entry point) and inside a kernel, on the CPU.
     validate_wgsl("f64_math.wgsl", F64_MATH_WGSL).unwrap_or_else(|e| panic!("{e}"));
-    let module = validate_wgsl("kernel", &kernel("pow_f64(x, y) + sin_f64(x)"))
+    let module = validate_wgsl("kernel", &kernel("", "pow_f64(x, y) + sin_f64(x)"))
         .unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(module.entry_points.len(), 1);
     let names: Vec<&str> = module
@@ -644,7 +657,7 @@ fn gpu_error_free_transformations() {
 #[test]
 fn control_two_sum_equals_the_cpu_bitwise() {
     use roughlub::backend::gpu::kernel::CONTROL_WGSL;
-    use roughlub::backend::shared::control::two_sum;
+    use roughlub::backend::shared::f64_math::two_sum;
     let Some(ctx) = acquire_for_tests(true) else {
         return;
     };
@@ -666,26 +679,15 @@ fn control_two_sum_equals_the_cpu_bitwise() {
         .zip(&ts)
         .map(|(f, t)| f * t)
         .collect();
-    let wgsl = |part: &str| {
-        format!(
-            "alias real = f64;\n{functions}\n\
-@group(0) @binding(0) var<storage, read> xs: array<f64>;\n\
-@group(0) @binding(1) var<storage, read> ys: array<f64>;\n\
-@group(0) @binding(2) var<storage, read_write> out: array<f64>;\n\
-@compute @workgroup_size({WORKGROUP})\n\
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {{\n\
-    let i = gid.x;\n\
-    if (i >= arrayLength(&out)) {{\n\
-        return;\n\
-    }}\n\
-    out[i] = two_sum(xs[i], ys[i]).{part};\n\
-}}\n"
-        )
-    };
-    let groups = n.div_ceil(WORKGROUP) as u32;
+    let prelude = format!("alias real = f64;\n{functions}");
     let run = |part: &str| {
-        run_compute_f64(&ctx, &wgsl(part), "main", &[&ts, &steps], n, groups)
-            .unwrap_or_else(|e| panic!("two_sum: {e}"))
+        eval_with(
+            &ctx,
+            &prelude,
+            &format!("two_sum(x, y).{part}"),
+            &ts,
+            &steps,
+        )
     };
     let (sums, errors) = (run("x"), run("y"));
     let mut nonzero = 0;
