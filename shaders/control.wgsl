@@ -86,8 +86,9 @@ fn opaque_real(x: real) -> real {
     return select(-x, x, x == x);
 }
 
-// `two_sum` of kernels/src/shared/control.rs: (a + b rounded, what the rounding left out), the
-// same operations with the intermediate sums kept opaque.
+// `two_sum` of kernels/src/shared/f64_math.rs: (a + b rounded, what the rounding left out), the
+// same operations with the intermediate sums kept opaque. `two_sum_f64` of f64_math.wgsl again,
+// for either real: the f32 kernel is generated without f64_math.wgsl.
 fn two_sum(a: real, b: real) -> vec2<real> {
     let s = opaque_real(a + b);
     let b_taken = opaque_real(s - a);

@@ -151,9 +151,11 @@ def cost_at(points, target, column=2):
 
 print("\nerror at most | Radau (s) | roughlub auto, per member of 64 (s) | ratio"
       " | with roughlub's start (s) | ratio")
+def show(value, form):
+    return form % value if value else "-"
+
 for target in (1e-4, 1e-6, 3e-8, 1e-8, 1e-9, 1e-10):
     a, b, c = cost_at(radau, target), cost_at(rl, target), cost_at(rl, target, 3)
-    show = lambda v, f: f % v if v else "-"
     print("%.0e | %s | %s | %s | %s | %s" % (
         target, show(a, "%.4f"), show(b, "%.5f"), show(a and b and a / b, "%.0fx"),
         show(c, "%.5f"), show(a and c and a / c, "%.0fx")))
