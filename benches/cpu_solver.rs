@@ -86,6 +86,7 @@ fn plan_and_chains(
         grid: 2,
         companion_estimate: false,
         jacobian: Default::default(),
+        sequence: Default::default(),
         peak_centre: false,
         // The bench is the top: `ROUGHLUB_CPU_PARTITION=off` and `ROUGHLUB_CPU_SIMD` apply.
         overrides: roughlub::backend::overrides::Overrides::from_env(),

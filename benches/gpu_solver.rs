@@ -171,6 +171,7 @@ fn plan(case: &Case, eps: f64) -> Plan {
         grid: 2,
         companion_estimate: false,
         jacobian: Default::default(),
+        sequence: Default::default(),
         peak_centre: false,
         overrides: roughlub::backend::overrides::Overrides::from_env(),
     }

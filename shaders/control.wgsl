@@ -48,9 +48,10 @@ fn predictive_factor(factor: real, h: real, err: real, q: u32, h_previous: real,
     return max(factor * trend, MAX_SHRINK);
 }
 
-// `tableau_work`: substeps of the tableau's first k rows.
+// `tableau_work`: substeps of a step's first k rows (n_1 + ... + n_k, `row_substeps`).
 fn tableau_work(k: u32) -> real {
-    return real(k * (k + 1u) / 2u);
+    let from_one = k * (k + 1u) / 2u;
+    return real(select(from_one, from_one + k, SEQUENCE_FROM_TWO));
 }
 
 // `select_order` of kernels/src/shared/control.rs: (next column, step factor) from the scaled

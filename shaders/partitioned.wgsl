@@ -297,7 +297,8 @@ fn set_substep(st: ptr<function, PState>, t: real) {
     (*st).dst = (*st).cand;
 //@END EULER
 //@BEGIN TABLEAU
-    let hj = (*st).h / real(j);
+    let substeps = row_substeps(j);
+    let hj = (*st).h / real(substeps);
     (*st).hj = hj;
     (*st).ts = t + real(s) * hj;
     var src = SUB_SET + (s + 1u) % 2u;
@@ -305,7 +306,7 @@ fn set_substep(st: ptr<function, PState>, t: real) {
         src = (*st).cur;
     }
     var dst = SUB_SET + s % 2u;
-    if s + 1u == j {
+    if s + 1u == substeps {
         dst = ROW_SET + j - 1u;
     }
     (*st).src = src;
@@ -750,14 +751,14 @@ fn p_substep_end(@builtin(global_invocation_id) gid: vec3<u32>) {
         st.admissible = 0u;
     }
     st.row_work[st.j] = st.row_work[st.j] + r.work;
-    if st.s + 1u == st.j {
+    if st.s + 1u == row_substeps(st.j) {
         if !energy_acceptable(st.known, r.energy, st.row_work[st.j], gamma) {
             st.energy_ok = 0u;
         }
         st.row_energy[st.j] = r.energy;
     }
     st.s += 1u;
-    if st.s == st.j {
+    if st.s == row_substeps(st.j) {
         st.j += 1u;
         st.s = 0u;
     }

@@ -18,8 +18,8 @@
 // Entry points: `begin_interval` (StepControl::begin_interval), `advance` (up to
 // config.max_attempts trial steps per member per dispatch, as the lane loop of Block::advance:
 // one Euler step for order 1 with fixed steps, else rows 1..=k of the extrapolation tableau
-// (row j: j substeps of h/j), the extrapolation and its error estimates, then accept or reject
-// and, for auto, the next order), `gather` (copies each member's
+// (row j: n_j substeps of h/n_j, `row_substeps`), the extrapolation and its error estimates,
+// then accept or reject and, for auto, the next order), `gather` (copies each member's
 // current state into the output buffers for read-back at output times).
 // A member's state lives in one of two buffer sets (its `parity`); the candidate goes to the
 // other set and an accepted step only flips the parity, so nothing is copied.
@@ -164,6 +164,12 @@ const ROW_SET: u32 = 4u;
 // and their estimates by column (array<real, 9>, index 0..=MAX_ORDER) are sized with literals
 // here, in shaders/control.wgsl and in shaders/partitioned.wgsl: change them with it.
 const MAX_ORDER: u32 = 8u;
+
+// `row_substeps` of kernels/src/shared/control.rs: Euler substeps n_j of tableau row j
+// (1-based), j + 1 where SEQUENCE_FROM_TWO (`sequence_from_two`: extrapolated schemes in f64).
+fn row_substeps(j: u32) -> u32 {
+    return select(j, j + 1u, SEQUENCE_FROM_TWO);
+}
 
 // GAP_EXP_TAYLOR, EXP_FAST_MAX of kernels/src/shared/gaps.rs.
 const GAP_EXP_TAYLOR: real = 0.0625;
@@ -670,7 +676,7 @@ fn extrapolate_gap(idx: u32, cand: u32, k: u32, err: ptr<function, array<real, 9
     // `neville`.
     for (var c: u32 = 1u; c < k; c++) {
         for (var j: u32 = k - 1u; j >= c; j--) {
-            let delta = (rho[j] - rho[j - 1u]) * (real(j + 1u - c) / real(c));
+            let delta = (rho[j] - rho[j - 1u]) * (real(row_substeps(j + 1u - c)) / real(c));
             if j == c {
                 e[c + 1u] = abs(delta);
             }
@@ -711,7 +717,7 @@ fn extrapolate_velocity(idx: u32, cand: u32, k: u32, err: ptr<function, array<re
     var e: array<real, 9>;
     for (var c: u32 = 1u; c < k; c++) {
         for (var j: u32 = k - 1u; j >= c; j--) {
-            let delta = (t[j] - t[j - 1u]) * (real(j + 1u - c) / real(c));
+            let delta = (t[j] - t[j - 1u]) * (real(row_substeps(j + 1u - c)) / real(c));
             if j == c {
                 e[c + 1u] = abs(delta) * inv_scale;
             }
@@ -757,10 +763,11 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
     var row_work: array<real, 9>;
     var row_energy: array<real, 9>;
     for (var j: u32 = 1u; j <= rows; j++) {
-        let hj = h / real(j);
+        let substeps = row_substeps(j);
+        let hj = h / real(substeps);
         // The row's end is held to the start's energy plus the row's work (not each substep:
         // `extrapolated_attempt`).
-        for (var s: u32 = 0u; s < j; s++) {
+        for (var s: u32 = 0u; s < substeps; s++) {
             let ts = c.t + real(s) * hj;
             // Substep s reads buffer (s - 1) % 2 and writes s % 2; the first reads the state,
             // the last writes the row's set.
@@ -769,7 +776,7 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
                 src = cur;
             }
             var dst = SUB_SET + s % 2u;
-            if s + 1u == j {
+            if s + 1u == substeps {
                 dst = ROW_SET + j - 1u;
             }
             let r = euler(b, src, dst, hj, ts, p);
@@ -781,7 +788,7 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
             }
             admissible = admissible && r.admissible;
             row_work[j] = row_work[j] + r.work;
-            if s + 1u == j {
+            if s + 1u == substeps {
                 energy_ok = energy_ok && energy_acceptable(c.energy, r.energy, row_work[j], gamma);
                 row_energy[j] = r.energy;
             }

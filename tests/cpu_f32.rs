@@ -38,6 +38,7 @@ fn plan(chain: &Chain, members: Vec<MemberParams>, order: Order, stepping: Stepp
         grid: 16,
         companion_estimate: false,
         jacobian: Default::default(),
+        sequence: Default::default(),
         peak_centre: false,
         overrides: Default::default(),
     }

@@ -11,7 +11,7 @@ use roughlub::backend::MemberStatus;
 use roughlub::expr::Expr;
 use roughlub::model::chain::stored_gap;
 use roughlub::model::observables::{dissipation, energy, grid_points, observe, Snapshot};
-use roughlub::model::params::{Jacobian, MemberParams, Order, Stepping, MAX_ORDER};
+use roughlub::model::params::{Jacobian, MemberParams, Order, Sequence, Stepping, MAX_ORDER};
 use roughlub::model::plan::{Forcing, Plan, Power};
 use roughlub::model::quadrature::GaussLegendre;
 use {roughlub::model::chain::Chain, roughlub::scene::initial::chain_from_profiles};
@@ -660,6 +660,63 @@ fn extrapolation_orders_converge_at_their_order() {
                 );
             }
         }
+    }
+}
+
+/// The rows from 2 (`[solver] sequence = "from_2"`: 2, 3, …, p + 1 substeps, weights
+/// n_{j-c}/c) converge at the same orders 2 to 6 against the same RK4 reference on the same
+/// chain, frozen matrix, over three steps each from the coarse steps of the test above.
+#[test]
+fn extrapolation_from_two_converges_at_its_order() {
+    let mut rng = Rng(7);
+    let chain = random_chain(&mut rng, 6, 0.05, Some(0.03));
+    let (mu, gamma, t_end) = (0.01, 2.0, 0.2);
+    let (ref_gaps, ref_vel) = rk4_reference(&chain, mu, gamma, t_end, 20_000);
+    let params = vec![MemberParams { mu, gamma }];
+    // Order 6 from 0.025: at 0.0125 its third step reached the floor (1.3e-12, rate 5.3).
+    for (order, coarse) in [
+        (2u8, 0.0125),
+        (3, 0.00625),
+        (4, 0.0125),
+        (5, 0.0125),
+        (6, 0.025),
+    ] {
+        let errors: Vec<f64> = [coarse, coarse / 2.0, coarse / 4.0]
+            .iter()
+            .map(|&dt| {
+                let plan = Plan {
+                    jacobian: Jacobian::Frozen,
+                    sequence: Sequence::FromTwo,
+                    ..plan_for(
+                        &chain,
+                        params.clone(),
+                        order,
+                        Stepping::Fixed { dt, dt_min: 1e-12 },
+                        vec![0.0, t_end],
+                        Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
+                    )
+                };
+                let (snaps, solver) = run_all(plan, vec![chain.clone()]);
+                assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
+                let last = &snaps[1][0];
+                max_error(&last.gaps, &ref_gaps) + max_error(&last.velocities, &ref_vel)
+            })
+            .collect();
+        let rates = [
+            (errors[0] / errors[1]).log2(),
+            (errors[1] / errors[2]).log2(),
+        ];
+        eprintln!("from 2, order {order}: errors {errors:?}, measured orders {rates:.3?}");
+        for p in rates {
+            assert!(
+                (p - order as f64).abs() <= 0.3,
+                "from 2, order {order}: measured {p} from errors {errors:?}"
+            );
+        }
+        assert!(
+            errors[2] > 1e-11,
+            "order {order}: {errors:?} at the reference's accuracy"
+        );
     }
 }
 

@@ -5,7 +5,7 @@
 //! around it, on L or on the instruction set.
 
 use crate::real::Real;
-use crate::shared::control::MAX_ORDER;
+use crate::shared::control::{row_substeps, MAX_ORDER};
 use crate::shared::gaps::{log_stored_allowance, GAP_EXP_TAYLOR, LN_RATIO_SERIES};
 use crate::simd::SimdLevel;
 use crate::step::{encode_ln_gap, gap_exp, gap_exp_taylor, ln_1p_series, ln_gap_ratio, stored_ln};
@@ -15,28 +15,34 @@ const M: usize = MAX_ORDER as usize;
 /// Per column j = 2..=k, the max-norm of T_jj - T_{j,j-1} (index by column).
 pub type Estimates = [f64; M + 1];
 
-/// The tableau's weights (j + 1 - c)/c of the harmonic sequence, as constants: divided at run
-/// time they were a third of an order-8 step's cost. The same quotients, so the same bits.
-const NEVILLE_WEIGHTS: [[f64; M]; M] = {
+/// The tableau's weights 1/(n_j/n_{j-c} - 1) = n_{j-c}/c (0-based row j, n from
+/// [`row_substeps`]), as constants: divided at run time they were a third of an order-8
+/// step's cost. The same quotients, so the same bits as the WGSL twin's. Index
+/// [from_two][c][j] ([`TableauIo::sequence_from_two`]).
+const NEVILLE_WEIGHTS: [[[f64; M]; M]; 2] = [neville_weights(false), neville_weights(true)];
+
+const fn neville_weights(from_two: bool) -> [[f64; M]; M] {
     let mut w = [[0.0; M]; M];
     let mut c = 1;
     while c < M {
         let mut j = c;
         while j < M {
-            w[c][j] = (j + 1 - c) as f64 / c as f64;
+            w[c][j] = row_substeps((j - c + 1) as u32, from_two) as f64 / c as f64;
             j += 1;
         }
         c += 1;
     }
     w
-};
+}
 
 /// What the tableau reads and writes: each lane's column k (its rows 1..=k), whether the result
-/// is the extrapolated T_kk (else row k itself: order 1), the rows, the candidate state it
-/// writes, and which gaps are bonded (a cluster's: they keep their last row).
+/// is the extrapolated T_kk (else row k itself: order 1), whether the rows took 2, 3, …
+/// substeps instead of 1, 2, … (`sequence_from_two` of the step control), the rows, the
+/// candidate state it writes, and which gaps are bonded (a cluster's: they keep their last row).
 pub struct TableauIo<'a, T, const L: usize> {
     pub columns: &'a [usize; L],
     pub extrapolating: bool,
+    pub sequence_from_two: bool,
     pub row_gaps: &'a [Vec<T>],
     pub row_vel: &'a [Vec<T>],
     pub cand_gaps: &'a mut [T],
@@ -44,8 +50,8 @@ pub struct TableauIo<'a, T, const L: usize> {
     pub bonded: Option<&'a [bool]>,
 }
 
-/// The Aitken–Neville tableau of the rows (harmonic sequence n_j = j), element by element:
-/// T_{j,c+1} = T_{j,c} + (T_{j,c} - T_{j-1,c}) · (j - c)/c. cand ← T_kk of each lane's column k
+/// The Aitken–Neville tableau of the rows (n_j substeps, [`row_substeps`]), element by element:
+/// T_{j,c+1} = T_{j,c} + (T_{j,c} - T_{j-1,c}) · n_{j-c}/c. cand ← T_kk of each lane's column k
 /// (or row k itself when not `extrapolating`: order 1). Gaps are extrapolated in ln d (near
 /// contact the accuracy that matters is that of ln d, and the result is a positive gap by
 /// construction), velocities linearly. Returns per lane, for j = 2..=k, the max-norm of
@@ -95,6 +101,7 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
     let TableauIo {
         columns,
         extrapolating,
+        sequence_from_two: from_two,
         row_gaps,
         row_vel,
         cand_gaps,
@@ -145,7 +152,7 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
             }
         }
         let mut e = [[zero; L]; M + 1];
-        neville(&mut rho, rows, &mut e, |delta, _| delta.abs());
+        neville(&mut rho, rows, from_two, &mut e, |delta, _| delta.abs());
         for l in (0..L).filter(|&l| log_stored[l]) {
             let ln_last = stored_ln(last[l]);
             for ej in e.iter_mut().take(rows + 1).skip(2) {
@@ -205,7 +212,9 @@ fn extrapolate_impl<T: Real, const L: usize>(io: TableauIo<T, L>) -> [Estimates;
         // Every column's estimate over the same 1 + |u| (row k's): one division per velocity.
         let inv_scale: [T; L] = std::array::from_fn(|l| T::ONE / (T::ONE + last[l].abs()));
         let mut e = [[zero; L]; M + 1];
-        neville(&mut t, rows, &mut e, |delta, l| delta.abs() * inv_scale[l]);
+        neville(&mut t, rows, from_two, &mut e, |delta, l| {
+            delta.abs() * inv_scale[l]
+        });
         for l in 0..L {
             out[l] = if extrapolating {
                 t[columns[l] - 1][l]
@@ -283,12 +292,14 @@ fn note_columns<T: Real, const L: usize>(
 fn neville<T: Real, const L: usize>(
     t: &mut [[T; L]; M],
     rows: usize,
+    from_two: bool,
     e: &mut [[T; L]; M + 1],
     scale: impl Fn(T, usize) -> T,
 ) {
+    let weights = &NEVILLE_WEIGHTS[usize::from(from_two)];
     for c in 1..rows {
         for j in (c..rows).rev() {
-            let w = T::c(NEVILLE_WEIGHTS[c][j]);
+            let w = T::c(weights[c][j]);
             for l in 0..L {
                 let delta = (t[j][l] - t[j - 1][l]) * w;
                 if j == c {
@@ -312,6 +323,7 @@ mod tests {
     fn one_member<T: Real>(
         k: usize,
         extrapolating: bool,
+        from_two: bool,
         gap_rows: &[Vec<T>],
         vel_rows: &[Vec<T>],
         bonded: &[bool],
@@ -329,7 +341,8 @@ mod tests {
         let tableau = |t: &mut [T; M], e: &mut [T; M + 1], velocity_scale: Option<T>| {
             for c in 1..k {
                 for j in (c..k).rev() {
-                    let delta = (t[j] - t[j - 1]) * T::c((j + 1 - c) as f64 / c as f64);
+                    let n = if from_two { j + 2 - c } else { j + 1 - c };
+                    let delta = (t[j] - t[j - 1]) * T::c(n as f64 / c as f64);
                     if j == c {
                         e[c + 1] = match velocity_scale {
                             Some(scale) => delta.abs() * (T::ONE / scale),
@@ -420,7 +433,7 @@ mod tests {
         vel_rows[1][7 * L + 4] = T::c(f64::NAN); // lane 4's column 2 sees a NaN
         let mut bonded = vec![false; n * L];
         bonded[9 * L + 5] = true;
-        for extrapolating in [true, false] {
+        for (extrapolating, from_two) in [(true, false), (true, true), (false, false)] {
             let mut cand_gaps = vec![T::ZERO; n * L];
             let mut cand_vel = vec![T::ZERO; nv * L];
             let err = extrapolate(
@@ -428,6 +441,7 @@ mod tests {
                 TableauIo {
                     columns: &columns,
                     extrapolating,
+                    sequence_from_two: from_two,
                     row_gaps: &gap_rows,
                     row_vel: &vel_rows,
                     cand_gaps: &mut cand_gaps,
@@ -445,6 +459,7 @@ mod tests {
                 let (gaps, vel, expected) = one_member(
                     columns[l],
                     extrapolating,
+                    from_two,
                     &lane(&gap_rows, n),
                     &lane(&vel_rows, nv),
                     &lane_bonded,
@@ -487,6 +502,7 @@ mod tests {
             TableauIo {
                 columns: &[k],
                 extrapolating: true,
+                sequence_from_two: false,
                 row_gaps: &gap_rows,
                 row_vel: &vel_rows,
                 cand_gaps: &mut cand_gaps,

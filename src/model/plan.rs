@@ -3,7 +3,7 @@
 //! no clusters → no contact bookkeeping) and which outputs are asked for.
 
 use crate::expr::Expr;
-use crate::model::params::{Jacobian, MemberParams, Order, OutputFields, Stepping};
+use crate::model::params::{Jacobian, MemberParams, Order, OutputFields, Sequence, Stepping};
 use crate::model::quadrature::GaussLegendre;
 use roughlub_kernels::overrides::Overrides;
 
@@ -55,6 +55,8 @@ pub struct Plan {
     pub companion_estimate: bool,
     /// The matrix of the extrapolated steps (`[solver] jacobian`); see [`Plan::exact_jacobian`].
     pub jacobian: Jacobian,
+    /// The substeps of the tableau's rows (`[solver] sequence`).
+    pub sequence: Sequence,
     /// Compute each snapshot's [`peak_centre`](crate::model::observables::peak_centre) (a
     /// study's detailed points: there the rho row is still in cache).
     pub peak_centre: bool,
@@ -74,6 +76,8 @@ pub struct PlanSummary {
     pub gamma_evaluation: Vec<Power>,
     /// "exact" or "frozen": the matrix the run's extrapolated steps used.
     pub jacobian: &'static str,
+    /// "from_1" or "from_2": the substeps of the tableau's rows ([`Sequence::record`]).
+    pub sequence: &'static str,
 }
 
 /// [`Power`] as the manifest records it (`{"kind": "integer", "value": 2}`). The kernels crate
@@ -110,6 +114,7 @@ impl Plan {
             quadrature_points: self.forcing.as_ref().map(|f| f.rule.nodes.len()),
             gamma_evaluation,
             jacobian: self.jacobian.record(self.order, self.stepping),
+            sequence: self.sequence.record(self.order),
         }
     }
 

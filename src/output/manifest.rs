@@ -126,6 +126,8 @@ pub struct StudyManifest {
     pub error_estimate: ErrorEstimateRecord,
     /// "exact" or "frozen": the matrix of the extrapolated steps (`[solver] jacobian`).
     pub jacobian: &'static str,
+    /// "from_1" or "from_2": the substeps of the tableau's rows (`[solver] sequence`).
+    pub sequence: &'static str,
     pub chunks: usize,
     pub chunks_reused: usize,
     /// Chunks solved a second time because a member failed after its point's rows had been

@@ -27,7 +27,7 @@ use crate::error::{Error, Result};
 use crate::expr::Expr;
 pub(crate) use crate::input::number_text;
 use crate::model::params::{
-    Jacobian, MemberParams, Order, OutputFields, Stepping, FIELD_NAMES, MAX_ORDER,
+    Jacobian, MemberParams, Order, OutputFields, Sequence, Stepping, FIELD_NAMES, MAX_ORDER,
 };
 use checks::{
     approx_text, check_gamma, check_mu, check_non_empty, check_profile, check_range, parse_expr,
@@ -79,6 +79,8 @@ pub struct Scene {
     pub error_estimate: bool,
     /// `[solver] jacobian`: the matrix of the extrapolated steps ([`Jacobian`]).
     pub jacobian: Jacobian,
+    /// `[solver] sequence`: the substeps of the tableau's rows ([`Sequence`]).
+    pub sequence: Sequence,
     pub grid: usize,
     pub fields: OutputFields,
     pub plots: bool,
@@ -168,6 +170,12 @@ impl Scene {
                 "matrix of the extrapolated steps",
                 file.solver.jacobian.as_deref(),
                 Jacobian::Auto,
+            )?,
+            sequence: parse_choice(
+                "solver.sequence",
+                "substeps of the tableau's rows",
+                file.solver.sequence.as_deref(),
+                Sequence::FromOne,
             )?,
             grid: output.grid,
             fields: output.fields,

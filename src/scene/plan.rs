@@ -31,6 +31,7 @@ impl Scene {
             grid: scene.grid,
             companion_estimate: scene.error_estimate,
             jacobian: scene.jacobian,
+            sequence: scene.sequence,
             peak_centre: false,
             overrides: scene.overrides.clone(),
         }

@@ -91,6 +91,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         ("backend", edit(BASE, "backend = \"cpu\"", "backend = \"tpu\""), "solver.backend = \"tpu\": unknown backend (allowed: \"cpu\", \"gpu\" or \"auto\")"),
         ("precision", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\nprecision = \"f16\""), "solver.precision = \"f16\": unknown precision (allowed: \"f64\" or \"f32\")"),
         ("jacobian", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\njacobian = \"newton\""), "solver.jacobian = \"newton\": unknown matrix of the extrapolated steps (allowed: \"auto\", \"exact\" or \"frozen\")"),
+        ("sequence", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\nsequence = \"from_3\""), "solver.sequence = \"from_3\": unknown substeps of the tableau's rows (allowed: \"from_1\" or \"from_2\")"),
         ("batch mu empty", format!("{BASE}\n[batch]\nmu = []\n"), "batch.mu = []: empty sweep (allowed: a non-empty list of 0 < mu <= 1e12)"),
         ("batch mu negative", format!("{BASE}\n[batch]\nmu = [1.0, -1.0]\n"), "batch.mu[1] = -1: the lubrication coefficient must be positive (allowed: 0 < mu <= 1e12)"),
         ("batch mu huge", format!("{BASE}\n[batch]\nmu = [1.0, 1e300]\n"), "batch.mu[1] = 1e300: the step's lubrication coefficients mu/d_i overflow f64 for every gap d_i < mu/f64::MAX = 5.563e-9; mu <= 1e12 keeps them finite down to gaps of 5.563e-297 (allowed: 0 < mu <= 1e12)"),

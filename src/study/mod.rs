@@ -303,6 +303,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
                 largest_error_estimate,
             ),
             jacobian: scene.jacobian.record(scene.order, scene.stepping),
+            sequence: scene.sequence.record(scene.order),
             chunks,
             chunks_reused: reused,
             chunks_solved_twice: costs.chunks_solved_twice,

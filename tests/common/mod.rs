@@ -46,6 +46,7 @@ pub fn plan_for(
         grid: 64,
         companion_estimate: false,
         jacobian: Default::default(),
+        sequence: Default::default(),
         peak_centre: false,
         overrides: Default::default(),
     }

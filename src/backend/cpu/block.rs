@@ -16,12 +16,13 @@ use crate::backend::report::{
     error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
 };
 use crate::backend::shared::control::{
-    energy_acceptable, select_order, step_factor, Outcome, Rules, StepControl, TIME_RESOLUTION_F64,
+    energy_acceptable, row_substeps, select_order, sequence_from_two, step_factor, Outcome, Rules,
+    StepControl, TIME_RESOLUTION_F64,
 };
 use crate::backend::OutputStatus;
 use crate::model::chain::{stored_gap, Chain};
 use crate::model::observables::{observe, set_peak_centres, Snapshot};
-use crate::model::params::{MemberParams, Order, Stepping, MAX_ORDER};
+use crate::model::params::{MemberParams, Order, Sequence, Stepping, MAX_ORDER};
 use crate::model::plan::{Plan, Power};
 use roughlub_kernels::tableau::TableauIo;
 use roughlub_kernels::BlockKernels;
@@ -36,7 +37,7 @@ pub(super) struct Lane {
 }
 
 /// How a trial step is made: one Euler step (order 1, fixed steps), or rows of the
-/// extrapolation tableau (row j: j Euler substeps of H/j) combined into the lane's column k
+/// extrapolation tableau (row j: n_j Euler substeps of H/n_j, `row_substeps`) combined into the lane's column k
 /// (order 1 adaptive: the two rows' difference is the error estimate, the result is row 2).
 #[derive(Debug, Clone, Copy)]
 struct Scheme {
@@ -131,7 +132,7 @@ pub(super) struct Block<T: Real, const L: usize> {
     vel: Vec<T>,
     cand_gaps: Vec<T>,
     cand_vel: Vec<T>,
-    /// The tableau's rows: row j's result (j substeps of H/j) at index j - 1 ...
+    /// The tableau's rows: row j's result (n_j substeps of H/n_j) at index j - 1 ...
     row_gaps: Vec<Vec<T>>,
     row_vel: Vec<Vec<T>>,
     /// ... and the states between a row's substeps (two, used in turn).
@@ -396,7 +397,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
     }
 
     /// One extrapolated trial step of every lane into the candidate buffers: rows 1..=k of the
-    /// tableau (row j: j Euler substeps of H/j), each substep held to the safeguards (finite,
+    /// tableau (row j: n_j Euler substeps of H/n_j, `row_substeps`), each substep held to the safeguards (finite,
     /// no gap opening beyond MAX_OPENING) and each row's result to the energy's (not above the
     /// start's plus the row's forcing work), then the tableau (`extrapolate`), the projection
     /// and energy of the extrapolated state (which must not rise either), the error estimates
@@ -416,6 +417,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         let n = plan.particles;
         let columns: [u8; L] = std::array::from_fn(|l| self.lanes[l].control.order);
         let lane_rows: [usize; L] = columns.map(|k| scheme.rows(k));
+        let from_two = sequence_from_two(plan.sequence == Sequence::FromTwo, scheme.extrapolates());
         let rows = (0..L)
             .filter(|&l| active[l])
             .map(|l| lane_rows[l])
@@ -429,13 +431,14 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         let mut row_work = [[0.0; L]; MAX_ORDER as usize + 1];
         let mut row_energy = [[0.0; L]; MAX_ORDER as usize + 1];
         for j in 1..=rows {
-            let hj: [f64; L] = std::array::from_fn(|l| h[l] / j as f64);
+            let substeps = row_substeps(j as u32, from_two) as usize;
+            let hj: [f64; L] = std::array::from_fn(|l| h[l] / substeps as f64);
             let hj_real = hj.map(T::c);
             // Whether a substep of the row so far was not certified.
             let mut uncertified = false;
-            for s in 0..j {
+            for s in 0..substeps {
                 let ts: [f64; L] = std::array::from_fn(|l| t[l] + s as f64 * hj[l]);
-                let row_end = s + 1 == j;
+                let row_end = s + 1 == substeps;
                 let mut terms = self.model.terms(plan);
                 terms.energy = match (row_end, uncertified) {
                     (false, _) => EnergyWanted::No,
@@ -447,7 +450,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                     (&mut self.sub_gaps, &mut self.sub_vel),
                     (&mut self.row_gaps[j - 1], &mut self.row_vel[j - 1]),
                     s,
-                    j,
+                    substeps,
                 );
                 let r = T::euler_step(
                     &terms,
@@ -503,6 +506,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
             TableauIo {
                 columns: &lane_columns,
                 extrapolating: scheme.extrapolates(),
+                sequence_from_two: from_two,
                 row_gaps: &self.row_gaps,
                 row_vel: &self.row_vel,
                 cand_gaps: &mut self.cand_gaps,
@@ -547,9 +551,12 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                     let scaled = estimates[l].map(|e| e / tol);
                     let err = scaled[lane_columns[l]];
                     let (order_next, factor) = match scheme.order {
-                        Order::Auto => {
-                            select_order(k, &scaled, admissible[l] && energy_ok[l] && err <= 1.0)
-                        }
+                        Order::Auto => select_order(
+                            k,
+                            &scaled,
+                            admissible[l] && energy_ok[l] && err <= 1.0,
+                            from_two,
+                        ),
                         Order::Fixed(_) => (k, step_factor(err, scheme.estimate_order(k))),
                     };
                     (err, factor, order_next)

@@ -8,14 +8,14 @@
 use std::fmt::Write as _;
 
 use crate::backend::shared::control::{
-    ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32,
+    row_substeps, sequence_from_two, ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32,
 };
 use crate::backend::shared::gaps::{
     GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32, LN_RATIO_SERIES, LOG_STORED_ROUNDING,
 };
 use crate::backend::Precision;
 use crate::expr::{Expr, WgslFloat};
-use crate::model::params::Order;
+use crate::model::params::{Order, Sequence};
 use crate::model::plan::MAX_INTEGER_GAMMA;
 use roughlub_kernels::power::INTEGER_GAMMA_BITS;
 
@@ -69,6 +69,9 @@ pub struct SchemeSpec {
     pub auto_order: bool,
     /// The extrapolated steps keep the exact Jacobian (`Plan::exact_jacobian`).
     pub exact_jacobian: bool,
+    /// The tableau's rows take 2, 3, … substeps, not 1, 2, … (`sequence_from_two`; `of` takes
+    /// 1, 2, …, `with_sequence` sets it).
+    pub sequence_from_two: bool,
 }
 
 impl SchemeSpec {
@@ -85,6 +88,15 @@ impl SchemeSpec {
             adaptive,
             auto_order: order == Order::Auto,
             exact_jacobian: false,
+            sequence_from_two: false,
+        }
+    }
+
+    /// The same scheme with the rows of `sequence`.
+    pub fn with_sequence(self, sequence: Sequence) -> SchemeSpec {
+        SchemeSpec {
+            sequence_from_two: sequence_from_two(sequence == Sequence::FromTwo, self.extrapolates),
+            ..self
         }
     }
 
@@ -96,7 +108,9 @@ impl SchemeSpec {
     /// Euler substeps of a trial step at most (the tableau's rows 1..=rows).
     pub fn substeps(&self) -> u32 {
         if self.tableau() {
-            self.rows * (self.rows + 1) / 2
+            (1..=self.rows)
+                .map(|j| row_substeps(j, self.sequence_from_two))
+                .sum()
         } else {
             1
         }
@@ -276,11 +290,12 @@ fn generated(spec: &KernelSpec) -> String {
     );
     let _ = writeln!(
         out,
-        "const LN_RATIO_SERIES: real = {};\nconst ONE_DIVISION_RECIPROCALS: bool = {};\nconst EXTRAPOLATES: bool = {};\nconst EXACT_JACOBIAN: bool = {};",
+        "const LN_RATIO_SERIES: real = {};\nconst ONE_DIVISION_RECIPROCALS: bool = {};\nconst EXTRAPOLATES: bool = {};\nconst EXACT_JACOBIAN: bool = {};\nconst SEQUENCE_FROM_TWO: bool = {};",
         literal(LN_RATIO_SERIES, float),
         spec.precision == Precision::F64,
         spec.scheme.extrapolates,
-        spec.scheme.exact_jacobian
+        spec.scheme.exact_jacobian,
+        spec.scheme.sequence_from_two
     );
     let per_gamma = match spec.precision {
         Precision::F32 => ENERGY_RTOL_PER_GAMMA_F32,

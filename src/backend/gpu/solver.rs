@@ -142,6 +142,7 @@ fn scheme_of(plan: &Plan) -> SchemeSpec {
             plan.order,
             matches!(plan.stepping, Stepping::Adaptive { .. }),
         )
+        .with_sequence(plan.sequence)
     }
 }
 

@@ -3,15 +3,16 @@
 //! kernels crate (`roughlub_kernels::tableau`, twin of the same function in
 //! `shaders/step.wgsl`).
 
-/// The source and destination of substep s (0-based) of tableau row j: the current state for
-/// the first, row j's slot for the last, the two substep buffers in turn between.
+/// The source and destination of substep s (0-based) of a tableau row of `substeps`: the
+/// current state for the first, the row's slot for the last, the two substep buffers in turn
+/// between.
 #[allow(clippy::type_complexity)]
 pub(super) fn substep_buffers<'a, T>(
     current: (&'a [T], &'a [T]),
     subs: (&'a mut [Vec<T>; 2], &'a mut [Vec<T>; 2]),
     row: (&'a mut [T], &'a mut [T]),
     s: usize,
-    j: usize,
+    substeps: usize,
 ) -> (&'a [T], &'a [T], &'a mut [T], &'a mut [T]) {
     let (sub_g, sub_v) = subs;
     let [g0, g1] = sub_g;
@@ -27,7 +28,7 @@ pub(super) fn substep_buffers<'a, T>(
     } else {
         (read_g.as_slice(), read_v.as_slice())
     };
-    if s + 1 == j {
+    if s + 1 == substeps {
         (src_g, src_v, row.0, row.1)
     } else {
         (src_g, src_v, write_g.as_mut_slice(), write_v.as_mut_slice())
