@@ -166,7 +166,8 @@ const ROW_SET: u32 = 4u;
 const MAX_ORDER: u32 = 8u;
 
 // `row_substeps` of kernels/src/shared/control.rs: Euler substeps n_j of tableau row j
-// (1-based), j + 1 where SEQUENCE_FROM_TWO (`sequence_from_two`: extrapolated schemes in f64).
+// (1-based), j + 1 where SEQUENCE_FROM_TWO (`sequence_from_two`: `[solver] sequence =
+// "from_2"` and an extrapolated scheme).
 fn row_substeps(j: u32) -> u32 {
     return select(j, j + 1u, SEQUENCE_FROM_TWO);
 }

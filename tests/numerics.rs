@@ -199,7 +199,7 @@ fn max_error(a: &[f64], b: &[f64]) -> f64 {
 fn fixed_step_errors(
     chain: &Chain,
     params: &[MemberParams],
-    (order, jacobian): (u8, Jacobian),
+    scheme: (u8, Jacobian, Sequence),
     dts: [f64; 3],
     t_end: f64,
     (ref_gaps, ref_vel): (&[f64], &[f64]),
@@ -208,25 +208,25 @@ fn fixed_step_errors(
         .map(|&dt| {
             let stepping = Stepping::Fixed { dt, dt_min: 1e-12 };
             let forcing = Some(("0.3*sin(2*pi*x)*cos(3*t)", 8));
-            let (last, _) =
-                fixed_step_end(chain, params, (order, jacobian), stepping, t_end, forcing);
+            let (last, _) = fixed_step_end(chain, params, scheme, stepping, t_end, forcing);
             max_error(&last.gaps, ref_gaps) + max_error(&last.velocities, ref_vel)
         })
         .collect()
 }
 
-/// The state at t_end of one member run with fixed steps of `order` and `jacobian`, and its
-/// status.
+/// The state at t_end of one member run with fixed steps of `order`, `jacobian` and the rows of
+/// `sequence`, and its status.
 fn fixed_step_end(
     chain: &Chain,
     params: &[MemberParams],
-    (order, jacobian): (u8, Jacobian),
+    (order, jacobian, sequence): (u8, Jacobian, Sequence),
     stepping: Stepping,
     t_end: f64,
     forcing: Option<(&str, usize)>,
 ) -> (Snapshot, MemberStatus) {
     let plan = Plan {
         jacobian,
+        sequence,
         ..plan_for(
             chain,
             params.to_vec(),
@@ -252,7 +252,7 @@ fn converges_to_independent_solution_with_orders_one_and_two() {
         let errors = fixed_step_errors(
             &chain,
             &params,
-            (order, Jacobian::Frozen),
+            (order, Jacobian::Frozen, Sequence::FromOne),
             dts,
             t_end,
             (&ref_gaps, &ref_vel),
@@ -600,7 +600,7 @@ fn extrapolation_orders_converge_at_their_order() {
             let errors = fixed_step_errors(
                 &chain,
                 &params,
-                (order, jacobian),
+                (order, jacobian, Sequence::FromOne),
                 dts,
                 t_end,
                 (&ref_gaps, &ref_vel),
@@ -631,9 +631,22 @@ fn extrapolation_orders_converge_at_their_order() {
         for (order, coarse) in [(7u8, 0.025), (8, 0.05)] {
             let dts = [coarse, coarse / 2.0, coarse / 4.0];
             let reference = (&ref_gaps[..], &ref_vel[..]);
-            let errors =
-                fixed_step_errors(&chain, &params, (order, jacobian), dts, t_end, reference);
-            let sixth = fixed_step_errors(&chain, &params, (6, jacobian), dts, t_end, reference);
+            let errors = fixed_step_errors(
+                &chain,
+                &params,
+                (order, jacobian, Sequence::FromOne),
+                dts,
+                t_end,
+                reference,
+            );
+            let sixth = fixed_step_errors(
+                &chain,
+                &params,
+                (6, jacobian, Sequence::FromOne),
+                dts,
+                t_end,
+                reference,
+            );
             let rates = [
                 (errors[0] / errors[1]).log2(),
                 (errors[1] / errors[2]).log2(),
@@ -684,21 +697,15 @@ fn extrapolation_from_two_converges_at_its_order() {
         let errors: Vec<f64> = [coarse, coarse / 2.0, coarse / 4.0]
             .iter()
             .map(|&dt| {
-                let plan = Plan {
-                    jacobian: Jacobian::Frozen,
-                    sequence: Sequence::FromTwo,
-                    ..plan_for(
-                        &chain,
-                        params.clone(),
-                        order,
-                        Stepping::Fixed { dt, dt_min: 1e-12 },
-                        vec![0.0, t_end],
-                        Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
-                    )
-                };
-                let (snaps, solver) = run_all(plan, vec![chain.clone()]);
-                assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
-                let last = &snaps[1][0];
+                let (last, status) = fixed_step_end(
+                    &chain,
+                    &params,
+                    (order, Jacobian::Frozen, Sequence::FromTwo),
+                    Stepping::Fixed { dt, dt_min: 1e-12 },
+                    t_end,
+                    Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
+                );
+                assert_eq!(status, MemberStatus::Ok);
                 max_error(&last.gaps, &ref_gaps) + max_error(&last.velocities, &ref_vel)
             })
             .collect();
@@ -734,8 +741,14 @@ fn fixed_step_rates(
         .map(|k| {
             let dt = t_end / f64::powi(2.0, k);
             let stepping = Stepping::Fixed { dt, dt_min: 1e-14 };
-            let (end, status) =
-                fixed_step_end(chain, params, (order, jacobian), stepping, t_end, None);
+            let (end, status) = fixed_step_end(
+                chain,
+                params,
+                (order, jacobian, Sequence::FromOne),
+                stepping,
+                t_end,
+                None,
+            );
             assert_eq!(status, MemberStatus::Ok);
             (end.gaps.iter().map(|d| d.ln()).collect(), end.velocities)
         })

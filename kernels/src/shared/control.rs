@@ -369,9 +369,9 @@ pub const fn sequence_from_two(chosen: bool, extrapolates: bool) -> bool {
 /// Substeps of a step's first k rows (n_1 + … + n_k, [`row_substeps`]): its cost.
 #[inline]
 pub fn tableau_work(k: u8, from_two: bool) -> f64 {
-    let k = k as u32;
-    let from_one = k * (k + 1) / 2;
-    (if from_two { from_one + k } else { from_one }) as f64
+    (1..=k as u32)
+        .map(|j| row_substeps(j, from_two))
+        .sum::<u32>() as f64
 }
 
 /// Auto order: the column for the next step and its step factor, from the scaled estimates

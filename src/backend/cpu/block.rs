@@ -37,8 +37,9 @@ pub(super) struct Lane {
 }
 
 /// How a trial step is made: one Euler step (order 1, fixed steps), or rows of the
-/// extrapolation tableau (row j: n_j Euler substeps of H/n_j, `row_substeps`) combined into the lane's column k
-/// (order 1 adaptive: the two rows' difference is the error estimate, the result is row 2).
+/// extrapolation tableau (row j: n_j Euler substeps of H/n_j, `row_substeps`) combined into the
+/// lane's column k (order 1 adaptive: the two rows' difference is the error estimate, the
+/// result is row 2).
 #[derive(Debug, Clone, Copy)]
 struct Scheme {
     order: Order,
@@ -397,11 +398,12 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
     }
 
     /// One extrapolated trial step of every lane into the candidate buffers: rows 1..=k of the
-    /// tableau (row j: n_j Euler substeps of H/n_j, `row_substeps`), each substep held to the safeguards (finite,
-    /// no gap opening beyond MAX_OPENING) and each row's result to the energy's (not above the
-    /// start's plus the row's forcing work), then the tableau (`extrapolate`), the projection
-    /// and energy of the extrapolated state (which must not rise either), the error estimates
-    /// and, for auto, the order of the next step. Lanes of one block may use different columns.
+    /// tableau (row j: n_j Euler substeps of H/n_j, `row_substeps`), each substep held to the
+    /// safeguards (finite, no gap opening beyond MAX_OPENING) and each row's result to the
+    /// energy's (not above the start's plus the row's forcing work), then the tableau
+    /// (`extrapolate`), the projection and energy of the extrapolated state (which must not rise
+    /// either), the error estimates and, for auto, the order of the next step. Lanes of one
+    /// block may use different columns.
     /// The energy is checked where the step produces a state a run can keep (a row's end, the
     /// extrapolation), not inside a row: there the sums cost ~16 % of an exact-Jacobian substep
     /// (never certified), and a row whose energy rises and falls back ends in a state as good.

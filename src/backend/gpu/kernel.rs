@@ -8,7 +8,7 @@
 use std::fmt::Write as _;
 
 use crate::backend::shared::control::{
-    row_substeps, sequence_from_two, ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32,
+    sequence_from_two, tableau_work, ENERGY_RTOL_F32, ENERGY_RTOL_F64, ENERGY_RTOL_PER_GAMMA_F32,
 };
 use crate::backend::shared::gaps::{
     GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32, LN_RATIO_SERIES, LOG_STORED_ROUNDING,
@@ -108,9 +108,7 @@ impl SchemeSpec {
     /// Euler substeps of a trial step at most (the tableau's rows 1..=rows).
     pub fn substeps(&self) -> u32 {
         if self.tableau() {
-            (1..=self.rows)
-                .map(|j| row_substeps(j, self.sequence_from_two))
-                .sum()
+            tableau_work(self.rows as u8, self.sequence_from_two) as u32
         } else {
             1
         }
