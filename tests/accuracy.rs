@@ -153,42 +153,83 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
         }
     }
 
-    // The recommendation, rerun as a user would.
+    // The recommendation, rerun as a user would, and auto with the other sequence (from_2) at
+    // the target's tolerance: each rerun's error, measured here from its files, is the one the
+    // manifest recorded for its setting (the same CPU run, to rounding: 1e-9 relative).
     let manifest: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap();
-    let rec = &manifest["recommended"]["setting"];
-    // A number, or "auto".
-    let order = rec["order"].to_string();
-    let stepping = &rec["stepping"];
-    let step_line = match stepping["kind"].as_str().unwrap() {
-        "fixed" => format!("dt = {:e}", stepping["dt"].as_f64().unwrap()),
-        _ => format!("tolerance = {:e}", stepping["tolerance"].as_f64().unwrap()),
+    let recorded = |m: &serde_json::Value| -> f64 {
+        ["gaps", "velocities", "rho"]
+            .iter()
+            .map(|k| m["errors"][k].as_f64().unwrap())
+            .fold(0.0, f64::max)
     };
-    let rerun_scene = SCENE
-        .replace("dt = 1e-3", &step_line)
-        .replace("[solver]", &format!("[solver]\norder = {order}"));
-    let rerun_path = tmp.path().join("rerun.toml");
-    std::fs::write(&rerun_path, rerun_scene).unwrap();
-    let rerun = tmp.path().join("rerun_out");
-    let o = Command::new(BIN)
-        .args([
-            "run",
-            rerun_path.to_str().unwrap(),
-            "--out",
-            rerun.to_str().unwrap(),
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let e = error(&rerun, &out, 24, 24);
-    eprintln!("recommended: order {order}, {step_line}: error {e:.2e} (target {TARGET:e})");
+    let rec = &manifest["recommended"];
+    let e = rerun(tmp.path(), "recommended", &out, &rec["setting"]);
     assert!(
         e <= TARGET,
         "the recommended setting misses the target: {e:e} > {TARGET:e}"
     );
-    let reported = manifest["recommended"]["errors"]["rho"].as_f64().unwrap();
-    assert!(reported <= TARGET);
+    assert!(
+        (e - recorded(rec)).abs() <= 1e-9 * e,
+        "{e} vs {}",
+        recorded(rec)
+    );
+    let from_two = manifest["measurements"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| {
+            let s = &m["setting"];
+            s["order"] == "auto"
+                && s["sequence"] == "from_2"
+                && s["stepping"]["tolerance"].as_f64() == Some(TARGET)
+        })
+        .expect("auto with sequence from_2 at the target's tolerance");
+    let e2 = rerun(tmp.path(), "from_2", &out, &from_two["setting"]);
+    assert!(
+        (e2 - recorded(from_two)).abs() <= 1e-9 * e2,
+        "{e2} vs {}",
+        recorded(from_two)
+    );
+    assert!(
+        (e2 - e).abs() > 1e-3 * e || rec["setting"]["sequence"] == "from_2",
+        "the from_2 rung ran as from_1: {e2} and {e}"
+    );
+}
+
+/// Runs `SCENE` at `setting` (a setting of accuracy's manifest) as a user would, into
+/// `tmp/name`, and returns its error against `acc`'s reference ([`error`]); its manifest must
+/// record the sequence that ran.
+fn rerun(tmp: &Path, name: &str, acc: &Path, setting: &serde_json::Value) -> f64 {
+    // A number, or "auto".
+    let order = setting["order"].to_string();
+    let sequence = setting["sequence"].as_str().unwrap();
+    let stepping = &setting["stepping"];
+    let step_line = match stepping["kind"].as_str().unwrap() {
+        "fixed" => format!("dt = {:e}", stepping["dt"].as_f64().unwrap()),
+        _ => format!("tolerance = {:e}", stepping["tolerance"].as_f64().unwrap()),
+    };
+    let scene = SCENE.replace("dt = 1e-3", &step_line).replace(
+        "[solver]",
+        &format!("[solver]\norder = {order}\nsequence = \"{sequence}\""),
+    );
+    let path = tmp.join(format!("{name}.toml"));
+    std::fs::write(&path, scene).unwrap();
+    let dir = tmp.join(format!("{name}_out"));
+    let o = Command::new(BIN)
+        .args(["run", path.to_str().unwrap(), "--out"])
+        .arg(&dir)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["plan"]["sequence"], sequence);
+    let e = error(&dir, acc, 24, 24);
+    eprintln!("{name}: order {order} {sequence}, {step_line}: error {e:.2e} (target {TARGET:e})");
+    e
 }
 
 /// On a parameter study the trade is measured at sweep points spread over the sweep (the first
@@ -226,8 +267,9 @@ fn accuracy_of_a_parameter_study_is_judged_by_its_worst_point() {
         for r in csv.records() {
             let r = r.unwrap();
             let key = format!(
-                "{} {} {}",
+                "{} {} {} {}",
                 &r[col("order")],
+                &r[col("sequence")],
                 &r[col("stepping")],
                 &r[col("dt_or_tolerance")]
             );

@@ -132,6 +132,7 @@ pub(super) fn solve(groups: &[MeasuredGroup], setting: &Setting) -> Result<Run> 
         let mut plan = group.plan.clone();
         plan.order = setting.order;
         plan.stepping = setting.stepping;
+        plan.sequence = setting.sequence;
         let engine = select(setting.backend, setting.precision, &plan)?;
         let started = Instant::now();
         let mut solver = engine.solver(plan, group.chains.clone())?;

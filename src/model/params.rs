@@ -95,12 +95,14 @@ impl Jacobian {
 /// default) or 2, 3, 4, … (`roughlub_kernels::shared::control::sequence_from_two`: on chains
 /// that stay away from contact 1.3-1.5 times less work at an error of 3e-8, not near contact;
 /// docs/accuracy.md).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
 pub enum Sequence {
     #[default]
     #[value(name = "from_1")]
+    #[serde(rename = "from_1")]
     FromOne,
     #[value(name = "from_2")]
+    #[serde(rename = "from_2")]
     FromTwo,
 }
 
