@@ -17,8 +17,21 @@ pub(super) fn draw(
     lines: &[(String, Vec<(f64, f64)>)],
     target: Option<f64>,
 ) -> Result<(), String> {
-    let n = lines.len();
-    let color = |i: usize| series_color(i, n);
+    // One colour per scheme family (order, sequence, backend and precision), the fixed-step line
+    // dashed and the adaptive one solid: 12 colours for 12 lines were too close to tell apart.
+    let family = |label: &str| label.replace(" adaptive", "").replace(" fixed dt", "");
+    let mut families: Vec<String> = Vec::new();
+    for (label, _) in lines {
+        if !families.contains(&family(label)) {
+            families.push(family(label));
+        }
+    }
+    let family_index: Vec<usize> = lines
+        .iter()
+        .map(|(l, _)| families.iter().position(|f| *f == family(l)).unwrap_or(0))
+        .collect();
+    let dashed: Vec<bool> = lines.iter().map(|(l, _)| l.contains("fixed dt")).collect();
+    let color = |i: usize| series_color(family_index[i], families.len());
     let log = |v: f64| if v > 0.0 { v.log10() } else { f64::NAN };
     let xs: Vec<Vec<f64>> = lines
         .iter()
@@ -37,7 +50,7 @@ pub(super) fn draw(
 
     draw_png(path, |root| {
         let body = figure(root, title)?;
-        let labels: Vec<String> = lines.iter().map(|(l, _)| shorten(l, 32)).collect();
+        let labels: Vec<String> = lines.iter().map(|(l, _)| shorten(l, 40)).collect();
         let width = legend_width(&body, &labels, 120)?;
         let (panel, legend_area) = body.split_horizontally(body.dim_in_pixel().0 as i32 - width);
         let mut chart = build_chart(
@@ -48,7 +61,7 @@ pub(super) fn draw(
             "log10 error",
         )?;
         for (i, (x, y)) in xs.iter().zip(&ys).enumerate() {
-            draw_line(&mut chart, x, y, color(i), false)?;
+            draw_line(&mut chart, x, y, color(i), dashed[i])?;
             chart
                 .draw_series(
                     x.iter()
@@ -64,7 +77,11 @@ pub(super) fn draw(
             .map(|(i, l)| LegendEntry {
                 label: l.clone(),
                 color: color(i),
-                mark: LegendMark::Line,
+                mark: if dashed[i] {
+                    LegendMark::Dashed
+                } else {
+                    LegendMark::Line
+                },
             })
             .collect();
         if let Some(t) = target {
