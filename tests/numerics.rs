@@ -878,7 +878,10 @@ const TOLERANCE_FACTOR: f64 = 3.0;
 /// auto at 1e-13, itself held to agree with 1e-12 within 1e-10 / 4. "Falls" allows 10 %: where
 /// the output spacing, not the tolerance, sets the last steps (two halves of 0.015 at order 8
 /// at both 3.16e-8 and 1e-8), the error is the same to four digits (2.514e-8 at both: 0.80 and
-/// 2.51 times the tolerance; measured 0.10 to 2.51 times over the range).
+/// 2.51 times the tolerance; measured 0.10 to 2.51 times over the range). With `[solver]
+/// sequence = "from_2"` the error stays within TOLERANCE_FACTOR too (measured 0.02 to 1.49
+/// times), but does not fall at every half decade: 5.6e-8 at 3.16e-7 (33 steps), 1.1e-7 at 1e-7
+/// (25 steps), so only the bound is asserted for it (docs/accuracy.md).
 #[test]
 fn auto_error_falls_with_the_tolerance_on_a_random_chain_of_200() {
     let chain = random_chain_of_200();
@@ -887,13 +890,13 @@ fn auto_error_falls_with_the_tolerance_on_a_random_chain_of_200() {
         gamma: 2.0,
     }];
     let outputs: Vec<f64> = (0..=10).map(|i| 0.03 * i as f64).collect();
-    let run = |tolerance: f64| {
+    let run = |tolerance: f64, sequence: Sequence| {
         let stepping = Stepping::Adaptive {
             tolerance,
             dt_initial: 3e-5,
             dt_min: 1e-14,
         };
-        let plan = plan_for(
+        let mut plan = plan_for(
             &chain,
             params.clone(),
             Order::Auto,
@@ -901,6 +904,7 @@ fn auto_error_falls_with_the_tolerance_on_a_random_chain_of_200() {
             outputs.clone(),
             None,
         );
+        plan.sequence = sequence;
         let (snaps, solver) = run_all(plan, vec![chain.clone()]);
         assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
         let steps = solver.reports()[0].steps_accepted + solver.reports()[0].steps_rejected;
@@ -928,31 +932,33 @@ fn auto_error_falls_with_the_tolerance_on_a_random_chain_of_200() {
         }
         worst
     };
-    let (reference, _) = run(1e-13);
-    let resolution = error(&run(1e-12).0, &reference);
+    let (reference, _) = run(1e-13, Sequence::FromOne);
+    let resolution = error(&run(1e-12, Sequence::FromOne).0, &reference);
     eprintln!("reference 1e-13 against 1e-12: {resolution:.1e}");
     assert!(
         resolution <= 1e-10 / 4.0,
         "reference unresolved: {resolution:e}"
     );
-    let mut previous = f64::INFINITY;
-    for k in 8..=20 {
-        let tolerance = 10f64.powf(-0.5 * k as f64);
-        let (snaps, steps) = run(tolerance);
-        let e = error(&snaps, &reference);
-        eprintln!(
-            "tolerance {tolerance:.2e}: error {e:.3e} ({:.2}x), {steps} steps",
-            e / tolerance
-        );
-        assert!(
-            e <= TOLERANCE_FACTOR * tolerance,
-            "tolerance {tolerance:e}: error {e:e}"
-        );
-        assert!(
-            e <= 1.1 * previous,
-            "tolerance {tolerance:e}: error {e:e} above the looser {previous:e}"
-        );
-        previous = e;
+    for sequence in [Sequence::FromOne, Sequence::FromTwo] {
+        let mut previous = f64::INFINITY;
+        for k in 8..=20 {
+            let tolerance = 10f64.powf(-0.5 * k as f64);
+            let (snaps, steps) = run(tolerance, sequence);
+            let e = error(&snaps, &reference);
+            eprintln!(
+                "{sequence:?} tolerance {tolerance:.2e}: error {e:.3e} ({:.2}x), {steps} steps",
+                e / tolerance
+            );
+            assert!(
+                e <= TOLERANCE_FACTOR * tolerance,
+                "{sequence:?} tolerance {tolerance:e}: error {e:e}"
+            );
+            assert!(
+                sequence == Sequence::FromTwo || e <= 1.1 * previous,
+                "{sequence:?} tolerance {tolerance:e}: error {e:e} above the looser {previous:e}"
+            );
+            previous = e;
+        }
     }
 }
 

@@ -121,7 +121,9 @@ impl FailureRecord {
         };
         match self.failure {
             Failure::None => "ok".into(),
-            Failure::Inadmissible => collapse("every smaller step gave a non-finite value"),
+            Failure::Inadmissible => collapse(
+                "every smaller step gave a non-finite value or opened a gap by more than e^5",
+            ),
             Failure::ErrorTooLarge => collapse("the error estimate stayed above the tolerance"),
             Failure::EnergyRose => {
                 collapse("every smaller step raised the energy beyond the work of the forcing")
