@@ -17,7 +17,7 @@ use roughlub::backend::shared::gaps::GAP_FLOOR;
 use roughlub::backend::{BatchSolver, MemberReport, MemberStatus, Precision};
 use roughlub::model::chain::Chain;
 use roughlub::model::observables::Snapshot;
-use roughlub::model::params::{Jacobian, MemberParams, Order, Stepping};
+use roughlub::model::params::{Jacobian, MemberParams, Order, Sequence, Stepping};
 use roughlub::model::plan::Plan;
 
 /// The CPU's sequential sweep is what the GPU is compared with: every N here is below its
@@ -343,6 +343,48 @@ fn higher_orders_and_auto_agree() {
             &plan,
             &chains,
             GpuPartition::SegmentRows(50),
+        );
+    }
+}
+
+/// A chain too long for one invocation per member on lavapipe with auto's 8 columns, and too
+/// short for the default cut to make two segments of it (N = 400: 399 rows, 178 loop iterations
+/// a row with the tableau, 71208 in all, above the driver's 65535): the default choice cuts it
+/// into segments that fit, on the default and the from_2 sequence, and agrees with the CPU (the
+/// tolerances of `assert_agreement`). Before, it failed with a loop-limit error that advised N
+/// <= 1503232.
+#[test]
+fn a_chain_too_long_for_the_default_cut_is_cut_to_fit() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let n = 400;
+    let (members, chains) = members_and_chains(n, 5);
+    let (members, chains) = (members[..1].to_vec(), chains[..1].to_vec());
+    let tight = Stepping::Adaptive {
+        tolerance: 1e-6,
+        dt_initial: 1e-4,
+        dt_min: 1e-12,
+    };
+    for sequence in [Sequence::FromOne, Sequence::FromTwo] {
+        let mut plan = plan_for(
+            &chains[0],
+            members.clone(),
+            Order::Auto,
+            tight,
+            vec![0.0, 0.01],
+            None,
+        );
+        plan.sequence = sequence;
+        let choice = GpuSolver::check(&ctx, &plan, Precision::F64).unwrap();
+        let segments = choice.segments.expect("the partitioned kernel");
+        assert_eq!(segments.segments, 2, "{segments:?}");
+        assert_agreement(
+            &ctx,
+            &format!("N = {n}, auto, {sequence:?}"),
+            &plan,
+            &chains,
+            GpuPartition::Auto,
         );
     }
 }

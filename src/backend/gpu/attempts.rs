@@ -18,7 +18,7 @@ pub const MAX_ATTEMPTS_PER_DISPATCH: u32 = 16;
 /// One invocation per member sweeps the whole chain, so on that driver N is bounded; other
 /// drivers have no such limit. Beyond it the solver takes the partitioned kernel
 /// (`super::partitioned`), whose invocations loop over one segment or one member's segments;
-/// [`check_loop_budget`] (and `partitioned::check_budget`) return a clear error instead of
+/// [`check_loop_budget`] (and `partitioned::fit_budget`) return a clear error instead of
 /// silently wrong results where a kernel still would not fit.
 pub const LAVAPIPE_LOOP_LIMIT: u64 = 65_535;
 

@@ -85,6 +85,17 @@ impl Segments {
         Segments::new(n, SEGMENT_ROWS.max(rows.div_ceil(MAX_SEGMENTS)))
     }
 
+    /// Segments of at most `max_rows` rows, as few as that allows.
+    pub fn at_most(n: usize, max_rows: usize) -> Segments {
+        let rows = n.saturating_sub(1).max(1);
+        let p = rows.div_ceil(max_rows.max(1)).max(1);
+        Segments {
+            segments: p as u32,
+            seg: (rows / p) as u32,
+            rem: (rows % p) as u32,
+        }
+    }
+
     /// Rows [first, last) of segment s (`seg_rows` in partitioned.wgsl).
     pub fn rows(&self, s: u32) -> std::ops::Range<u32> {
         let first = 1 + s * self.seg + s.min(self.rem);
@@ -153,35 +164,48 @@ fn loops_per_segment(scheme: SchemeSpec) -> u64 {
     (u64::from(scheme.rows) + 2).max(3)
 }
 
-/// On lavapipe, [`GpuError::LoopLimit`] when an invocation of the partitioned kernel would
-/// exceed [`LAVAPIPE_LOOP_LIMIT`] loop iterations: a segment's rows, or a member's segments.
-pub fn check_budget(
+/// Loop iterations of the longest invocation of the partitioned kernel with this cut: a
+/// segment's rows, or a member's segments.
+fn partitioned_iterations(scheme: SchemeSpec, segments: Segments) -> u64 {
+    let per_segment = loops_per_row(scheme) * u64::from(segments.seg + 1) + 8;
+    let per_member = loops_per_segment(scheme) * u64::from(segments.segments) + 8;
+    per_segment.max(per_member)
+}
+
+/// The cut the partitioned kernel runs on this device. Elsewhere than lavapipe `segments`
+/// itself. On lavapipe an invocation may not exceed [`LAVAPIPE_LOOP_LIMIT`] loop iterations:
+/// where `segments` does and `recut` allows (the default cut, not one the user set), the chain
+/// is cut into segments short enough to fit (the default cut's 256 rows and more take 178 loop
+/// iterations a row with auto's 8 columns: N = 400 needed 71208); where no cut fits,
+/// [`GpuError::LoopLimit`].
+pub fn fit_budget(
     ctx: &GpuContext,
     n: usize,
     scheme: SchemeSpec,
     segments: Segments,
-) -> Result<(), GpuError> {
-    if !super::attempts::is_lavapipe(ctx) {
-        return Ok(());
+    recut: bool,
+) -> Result<Segments, GpuError> {
+    if !super::attempts::is_lavapipe(ctx)
+        || partitioned_iterations(scheme, segments) <= LAVAPIPE_LOOP_LIMIT
+    {
+        return Ok(segments);
     }
-    let per_segment = loops_per_row(scheme) * u64::from(segments.seg + 1) + 8;
-    let per_member = loops_per_segment(scheme) * u64::from(segments.segments) + 8;
-    let iterations = per_segment.max(per_member);
-    if iterations > LAVAPIPE_LOOP_LIMIT {
-        // The longest chain the default cut runs: the longest segments that fit, as many as
-        // fit up to MAX_SEGMENTS.
-        let rows = (LAVAPIPE_LOOP_LIMIT - 8) / loops_per_row(scheme) - 1;
-        let count =
-            ((LAVAPIPE_LOOP_LIMIT - 8) / loops_per_segment(scheme)).min(MAX_SEGMENTS as u64);
-        return Err(GpuError::LoopLimit {
-            adapter: ctx.description.short(),
-            particles: n,
-            iterations,
-            limit: LAVAPIPE_LOOP_LIMIT,
-            max_particles: rows * count,
-        });
+    // The longest segments that fit, and as many of them as fit up to MAX_SEGMENTS.
+    let rows = ((LAVAPIPE_LOOP_LIMIT - 8) / loops_per_row(scheme)).saturating_sub(1);
+    let count = ((LAVAPIPE_LOOP_LIMIT - 8) / loops_per_segment(scheme)).min(MAX_SEGMENTS as u64);
+    if recut && rows > 0 {
+        let shorter = Segments::at_most(n, rows as usize);
+        if partitioned_iterations(scheme, shorter) <= LAVAPIPE_LOOP_LIMIT {
+            return Ok(shorter);
+        }
     }
-    Ok(())
+    Err(GpuError::LoopLimit {
+        adapter: ctx.description.short(),
+        particles: n,
+        iterations: partitioned_iterations(scheme, segments),
+        limit: LAVAPIPE_LOOP_LIMIT,
+        max_particles: rows * count,
+    })
 }
 
 /// Entry points of the partitioned kernel.
@@ -309,6 +333,19 @@ mod tests {
                 next = rows.end;
             }
             assert_eq!(next as usize, n, "n {n}: {s:?}");
+        }
+        // Segments of at most r rows, as few as that allows.
+        for (n, r) in [(2, 5), (400, 367), (400, 399), (401, 100), (1_000_000, 367)] {
+            let s = Segments::at_most(n, r);
+            let rows = n - 1;
+            assert_eq!(s.segments as usize, rows.div_ceil(r), "n {n}, r {r}: {s:?}");
+            let longest = s.seg + u32::from(s.rem > 0);
+            assert!(longest as usize <= r, "n {n}, r {r}: {s:?}");
+            assert_eq!(
+                s.segments * s.seg + s.rem,
+                rows as u32,
+                "n {n}, r {r}: {s:?}"
+            );
         }
         assert_eq!(Segments::default_for(1_000_001).segments, 3906);
         assert!(Segments::default_for(100_000_001).segments as usize <= MAX_SEGMENTS);

@@ -41,8 +41,8 @@ use super::kernel::{
 };
 pub use super::partitioned::GpuPartition;
 use super::partitioned::{
-    attempt_sequence, attempts_per_submit, check_budget, choose, entry_points, struct_size,
-    Dispatch, Over, Segments, BEGIN_SEQUENCE, SEGMENT_WORKGROUP_SIZE,
+    attempt_sequence, attempts_per_submit, choose, entry_points, fit_budget, struct_size, Dispatch,
+    Over, Segments, BEGIN_SEQUENCE, SEGMENT_WORKGROUP_SIZE,
 };
 use super::wgsl_types::{
     config_bytes, control_size, controls_from_bytes, reals_from_bytes, ConfigF64, ControlF64,
@@ -322,10 +322,16 @@ impl<'a> GpuSolver<'a> {
             sequential.is_ok(),
             overrides.gpu_partition_off,
         );
-        match segments {
-            Some(s) => check_budget(ctx, n, scheme, s)?,
-            None => sequential?,
-        }
+        let segments = match segments {
+            Some(s) => {
+                let recut = !matches!(partition, GpuPartition::SegmentRows(_));
+                Some(fit_budget(ctx, n, scheme, s, recut)?)
+            }
+            None => {
+                sequential?;
+                None
+            }
+        };
         Ok(KernelChoice {
             scheme,
             max_attempts,
