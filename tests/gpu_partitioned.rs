@@ -352,7 +352,7 @@ fn higher_orders_and_auto_agree() {
 /// a row with the tableau, 71208 in all, above the driver's 65535): the default choice cuts it
 /// into segments that fit, on the default and the from_2 sequence, and agrees with the CPU (the
 /// tolerances of `assert_agreement`). Before, it failed with a loop-limit error that advised N
-/// <= 1503232.
+/// <= 1503232. (Elsewhere than lavapipe one invocation per member runs it: nothing to test.)
 #[test]
 fn a_chain_too_long_for_the_default_cut_is_cut_to_fit() {
     let Some(ctx) = acquire_for_tests(true) else {
@@ -377,7 +377,15 @@ fn a_chain_too_long_for_the_default_cut_is_cut_to_fit() {
         );
         plan.sequence = sequence;
         let choice = GpuSolver::check(&ctx, &plan, Precision::F64).unwrap();
-        let segments = choice.segments.expect("the partitioned kernel");
+        let d = &ctx.description;
+        let lavapipe = format!("{} {}", d.name, d.driver)
+            .to_lowercase()
+            .contains("llvmpipe");
+        let Some(segments) = choice.segments else {
+            // Other drivers have no loop budget: one invocation per member runs it.
+            assert!(!lavapipe, "lavapipe needs the partitioned kernel here");
+            return;
+        };
         assert_eq!(segments.segments, 2, "{segments:?}");
         assert_agreement(
             &ctx,

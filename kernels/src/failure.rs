@@ -5,7 +5,8 @@
 #[repr(u32)]
 pub enum Failure {
     None = 0,
-    /// The step fell below dt_min while every trial gave a non-finite value.
+    /// The step fell below dt_min while every trial gave a non-finite value or opened a gap
+    /// beyond the MAX_OPENING safeguard.
     Inadmissible = 1,
     /// The step fell below dt_min while the error estimate stayed above the tolerance.
     ErrorTooLarge = 2,

@@ -107,13 +107,21 @@ pub enum Sequence {
 }
 
 impl Sequence {
+    /// The sequence a run of `order` takes: order 1 has no tableau, so always from_1.
+    pub fn of(self, order: Order) -> Sequence {
+        if order == Order::Fixed(1) {
+            Sequence::FromOne
+        } else {
+            self
+        }
+    }
+
     /// What the manifests record: the rows the run's extrapolated steps took, "from_1" or
     /// "from_2" (order 1 always "from_1").
     pub fn record(self, order: Order) -> &'static str {
-        if self == Sequence::FromTwo && order != Order::Fixed(1) {
-            "from_2"
-        } else {
-            "from_1"
+        match self.of(order) {
+            Sequence::FromTwo => "from_2",
+            Sequence::FromOne => "from_1",
         }
     }
 }

@@ -86,17 +86,18 @@ pub(super) fn draw(
             .collect();
         if let Some(t) = target {
             let ty = log(t);
+            // Black: the palette's grey is a family's colour, and fixed-step lines are dashed too.
             draw_line(
                 &mut chart,
                 &[x_range.start, x_range.end],
                 &[ty, ty],
-                RGBColor(120, 120, 120),
+                BLACK,
                 true,
             )?;
             entries.push(LegendEntry {
                 label: format!("target {t:e}"),
-                color: RGBColor(120, 120, 120),
-                mark: LegendMark::Line,
+                color: BLACK,
+                mark: LegendMark::Dashed,
             });
         }
         draw_legend(&legend_area, 22, "", &entries)?;

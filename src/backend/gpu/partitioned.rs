@@ -175,7 +175,8 @@ fn partitioned_iterations(scheme: SchemeSpec, segments: Segments) -> u64 {
 /// The cut the partitioned kernel runs on this device. Elsewhere than lavapipe `segments`
 /// itself. On lavapipe an invocation may not exceed [`LAVAPIPE_LOOP_LIMIT`] loop iterations:
 /// where `segments` does and `recut` allows (the default cut, not one the user set), the chain
-/// is cut into segments short enough to fit (the default cut's 256 rows and more take 178 loop
+/// is cut into segments short enough to fit, at most [`MAX_SEGMENTS`] as in the default cut, so
+/// that the longest chain is still the one the error names (the default cut's 256 rows and more take 178 loop
 /// iterations a row with auto's 8 columns: N = 400 needed 71208); where no cut fits,
 /// [`GpuError::LoopLimit`].
 pub fn fit_budget(
@@ -195,7 +196,9 @@ pub fn fit_budget(
     let count = ((LAVAPIPE_LOOP_LIMIT - 8) / loops_per_segment(scheme)).min(MAX_SEGMENTS as u64);
     if recut && rows > 0 {
         let shorter = Segments::at_most(n, rows as usize);
-        if partitioned_iterations(scheme, shorter) <= LAVAPIPE_LOOP_LIMIT {
+        if shorter.segments as usize <= MAX_SEGMENTS
+            && partitioned_iterations(scheme, shorter) <= LAVAPIPE_LOOP_LIMIT
+        {
             return Ok(shorter);
         }
     }
@@ -346,6 +349,12 @@ mod tests {
                 rows as u32,
                 "n {n}, r {r}: {s:?}"
             );
+            let mut next = 1;
+            for k in 0..s.segments {
+                assert_eq!(s.rows(k).start, next, "n {n}, r {r}, segment {k}");
+                next = s.rows(k).end;
+            }
+            assert_eq!(next as usize, n, "n {n}, r {r}: {s:?}");
         }
         assert_eq!(Segments::default_for(1_000_001).segments, 3906);
         assert!(Segments::default_for(100_000_001).segments as usize <= MAX_SEGMENTS);
