@@ -100,9 +100,9 @@ struct Seg {
     u_right: real,
     // Position of particle first_row - 1 (forcing only).
     pos: real,
-    // Sum of the new gaps, largest opening.
+    // Sum of the new gaps, largest h r of a gap whose new value is not negligible (`overshoot`).
     sum: real,
-    opening: real,
+    overshoot: real,
     // Energy parts and the forcing's work.
     pot: real,
     kin: real,
@@ -482,7 +482,8 @@ fn p_interface(@builtin(global_invocation_id) gid: vec3<u32>) {
 // The second pass (`solve_group_impl`, `back_row`): each segment swept forward from its tau,
 // then back from its right neighbour's first velocity: velocities, the gap update in rate form
 // with the log-form fix-up done in place (`fix_up`), the sum of the new gaps and the largest
-// opening; bodies glued to the left wall set to 0.
+// opening of a gap whose new value is not negligible (`overshoot`); bodies glued to the left
+// wall set to 0.
 @compute @workgroup_size(32)
 fn p_solve(@builtin(global_invocation_id) gid: vec3<u32>) {
     let v = seg_invocation(gid.x);
@@ -505,7 +506,8 @@ fn p_solve(@builtin(global_invocation_id) gid: vec3<u32>) {
     let go = st.dst * n * batch;
     let vo = st.dst * rows;
     let range = seg_rows(s);
-    var opening: real = 0.0;
+    var overshoot: real = 0.0;
+    let negligible = NEGLIGIBLE_OPENING * params[b].total_gap;
     var sum: real = 0.0;
     var u_next = segs[k].u_right;
     for (var i: u32 = range.y - 1u; i >= range.x; i--) {
@@ -522,8 +524,8 @@ fn p_solve(@builtin(global_invocation_id) gid: vec3<u32>) {
         let rate = (scratch[rows + row] * u_next - scratch[2u * rows + row]) * scratch[4u * rows + row];
         let x = h * rate;
         var grown = old * gap_exp(x);
-        if old > 0.0 {
-            opening = max(opening, x);
+        if grown > negligible {
+            overshoot = max(overshoot, x);
         }
         if !(grown >= GAP_FLOOR && grown <= REAL_MAX && x <= EXP_FAST_MAX) {
             // `fix_up` of this gap.
@@ -546,7 +548,7 @@ fn p_solve(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 //@END CLUSTERS
     segs[k].sum = sum;
-    segs[k].opening = opening;
+    segs[k].overshoot = overshoot;
     if s == 0u {
         segs[k].u_first = u_next;
     }
@@ -567,11 +569,11 @@ fn p_finish(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let n = config.particles;
     var sum: real = 0.0;
-    var opening: real = 0.0;
+    var overshoot: real = 0.0;
     for (var s: u32 = parts.segments; s >= 1u; s--) {
         let k = (s - 1u) * batch + b;
         sum = sum + segs[k].sum;
-        opening = max(opening, segs[k].opening);
+        overshoot = max(overshoot, segs[k].overshoot);
     }
     let old0 = gap_sets[st.src * n * batch + b];
     let d0 = max(old0, GAP_FLOOR);
@@ -581,8 +583,8 @@ fn p_finish(@builtin(global_invocation_id) gid: vec3<u32>) {
     let rate_first = segs[b].u_first / d0 * k_first;
     let x0 = st.hj * rate_first;
     var grown0 = old0 * gap_exp(x0);
-    if old0 > 0.0 {
-        opening = max(opening, x0);
+    if grown0 > NEGLIGIBLE_OPENING * params[b].total_gap {
+        overshoot = max(overshoot, x0);
     }
     if !(grown0 >= GAP_FLOOR && grown0 <= REAL_MAX && x0 <= EXP_FAST_MAX) {
         if is_free(b) {
@@ -593,7 +595,7 @@ fn p_finish(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     gap_sets[st.dst * n * batch + b] = grown0;
     sum = sum + max(grown0, 0.0);
-    st.sub_admissible = select(0u, 1u, opening <= MAX_OPENING);
+    st.sub_admissible = select(0u, 1u, overshoot <= MAX_OPENING);
     st.scale = params[b].total_gap / sum;
     st.proj_set = st.dst;
     st.proj_active = 1u;

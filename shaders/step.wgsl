@@ -176,8 +176,9 @@ fn row_substeps(j: u32) -> u32 {
 const GAP_EXP_TAYLOR: real = 0.0625;
 const EXP_FAST_MAX: real = 700.0;
 
-// MAX_OPENING and JACOBIAN_RESOLVED of kernels/src/shared/gaps.rs.
+// MAX_OPENING, NEGLIGIBLE_OPENING and JACOBIAN_RESOLVED of kernels/src/shared/gaps.rs.
 const MAX_OPENING: real = 5.0;
+const NEGLIGIBLE_OPENING: real = 1e-12;
 const JACOBIAN_RESOLVED: real = 10000.0;
 
 //@GENERATED
@@ -414,7 +415,11 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     // Back sweep from the right wall (u_N = 0): velocities, the rate k r of gap i+1 (left in the
     // ls slot for the fix-up) and its update ln d' = ln d + h k r.
     var needs_fixup = false;
-    var opening: real = 0.0;
+    // The largest h r of a gap whose new value is not negligible (the MAX_OPENING safeguard;
+    // NEGLIGIBLE_OPENING in kernels/src/shared/gaps.rs). The CPU keeps the opening of every gap
+    // stored as d too, for its energy certificate, which this kernel does not take.
+    var overshoot: real = 0.0;
+    let negligible = NEGLIGIBLE_OPENING * p.total_gap;
     var sum: real = 0.0;
     var u_next: real = 0.0;
     for (var i: u32 = n - 1u; i >= 1u; i--) {
@@ -437,8 +442,8 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         gap_sets[go + gap] = grown;
         scratch[rows + row] = rate;
         sum = sum + max(grown, 0.0);
-        if old > 0.0 {
-            opening = max(opening, x);
+        if grown > negligible {
+            overshoot = max(overshoot, x);
         }
         needs_fixup = needs_fixup || !(grown >= GAP_FLOOR && grown <= REAL_MAX && x <= EXP_FAST_MAX);
         u_next = u;
@@ -458,8 +463,8 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
     let grown0 = old0 * gap_exp(x0);
     gap_sets[go + b] = grown0;
     sum = sum + max(grown0, 0.0);
-    if old0 > 0.0 {
-        opening = max(opening, x0);
+    if grown0 > negligible {
+        overshoot = max(overshoot, x0);
     }
     needs_fixup = needs_fixup || !(grown0 >= GAP_FLOOR && grown0 <= REAL_MAX && x0 <= EXP_FAST_MAX);
 
@@ -467,7 +472,7 @@ fn euler(b: u32, src: u32, dst: u32, h: real, t: real, p: Param) -> StepReport {
         fix_up(b, src, dst, h, rate_first);
         sum = lane_sum(b, dst);
     }
-    report.admissible = report.admissible && opening <= MAX_OPENING;
+    report.admissible = report.admissible && overshoot <= MAX_OPENING;
     // The energy is always computed here; the CPU skips it for steps its certificate
     // (`energy_certified`) proves acceptable, which the computed energy then passes too, and
     // for a tableau's substeps inside a row, whose energy is not checked (`EnergyWanted::No`).

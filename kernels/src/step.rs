@@ -66,7 +66,7 @@ use crate::real::Real;
 use crate::shared::f64_math;
 pub use crate::shared::gaps::{
     EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, JACOBIAN_RESOLVED, LN_GAP_FLOOR,
-    LN_GAP_FLOOR_F32, LN_RATIO_SERIES, MAX_OPENING,
+    LN_GAP_FLOOR_F32, LN_RATIO_SERIES, MAX_OPENING, NEGLIGIBLE_OPENING,
 };
 use crate::SimdLevel;
 
@@ -1009,7 +1009,11 @@ where
     // gaps and gaps that leave [GAP_FLOOR, inf) are redone by the fix-up below (rare), from the rate
     // left in `ls`.
     let mut needs_fixup = [T::Flag::default(); L];
+    // The largest h r of a gap stored as d (for the energy's certificate), and of one whose new
+    // value is not negligible (the MAX_OPENING safeguard, see NEGLIGIBLE_OPENING).
     let mut opening = [zero; L];
+    let mut overshoot = [zero; L];
+    let negligible: [T; L] = std::array::from_fn(|l| T::c(NEGLIGIBLE_OPENING * terms.total_gap[l]));
     let mut closing = [T::NEG_INFINITY; L];
     // The new gaps' sum, for the projection: in f64 in either precision (see `conclude_impl`).
     let mut sum = [0.0f64; L];
@@ -1029,8 +1033,9 @@ where
         // all but the velocity recurrence runs in SIMD registers across gaps. The same
         // operations per gap as the loop below, and the sum in the same order.
         const W: usize = 4;
-        let (h0, gamma0) = (h[0], gamma2[0]);
+        let (h0, gamma0, negligible0) = (h[0], gamma2[0], negligible[0]);
         let mut open_w = [zero; W];
+        let mut over_w = [zero; W];
         let mut close_w = [T::NEG_INFINITY; W];
         let mut fixup_w = [T::Flag::default(); W];
         let mut un = u_next[0];
@@ -1073,6 +1078,10 @@ where
                 if old[j] > zero {
                     open_w[j] = fmax(x[j], open_w[j]);
                 }
+                // A log-stored gap (old <= 0) has grown <= 0 here, so it never counts.
+                if grown[j] > negligible0 {
+                    over_w[j] = fmax(x[j], over_w[j]);
+                }
                 let d = fmax(old[j], floor);
                 close_w[j] = fmax(d * (gamma0 * fmin(x[j], zero) - T::ONE), close_w[j]);
                 fixup_w[j] |= flag(!fast(grown[j], x[j]));
@@ -1089,6 +1098,7 @@ where
         // max and | do not depend on the order.
         for j in 0..W {
             opening[0] = fmax(open_w[j], opening[0]);
+            overshoot[0] = fmax(over_w[j], overshoot[0]);
             closing[0] = fmax(close_w[j], closing[0]);
             needs_fixup[0] |= fixup_w[j];
         }
@@ -1132,6 +1142,9 @@ where
             if old[l] > zero {
                 opening[l] = fmax(x[l], opening[l]);
             }
+            if grown > negligible[l] {
+                overshoot[l] = fmax(x[l], overshoot[l]);
+            }
             let d = fmax(old[l], floor);
             closing[l] = fmax(d * (gamma2[l] * fmin(x[l], zero) - T::ONE), closing[l]);
             // NaN fails the comparisons.
@@ -1170,6 +1183,9 @@ where
         if old > zero {
             opening[l] = fmax(x, opening[l]);
         }
+        if grown > negligible[l] {
+            overshoot[l] = fmax(x, overshoot[l]);
+        }
         let d = fmax(old, floor);
         closing[l] = fmax(d * (gamma2[l] * fmin(x, zero) - T::ONE), closing[l]);
         needs_fixup[l] |= flag(!fast(grown, x));
@@ -1189,7 +1205,7 @@ where
             );
             sum[l] = lane_sum::<T, L>(n, l, gaps_out);
         }
-        report[l].admissible &= opening[l] <= T::c(MAX_OPENING);
+        report[l].admissible &= overshoot[l] <= T::c(MAX_OPENING);
         report[l].certified = needs_fixup[l] == T::Flag::default()
             && energy_certified(
                 REP,

@@ -75,7 +75,7 @@ use rayon::prelude::*;
 use super::{
     energy_certified, find_hard_failure, fixed_up, fmax, fmin, gap_exp, gap_reciprocals, gap_terms,
     jacobian_factor, particle_force, reciprocal_scale, Law, Real, Scratch, SimdLevel, StepReport,
-    Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, MAX_OPENING,
+    Terms, EXP_FAST_MAX, GAP_EXP_TAYLOR, MAX_OPENING, NEGLIGIBLE_OPENING,
 };
 
 /// Segments per group: the lanes of the partitioned lane loops (as many as the batched blocks,
@@ -924,6 +924,8 @@ struct Back<T: Real, const S: usize> {
     /// The sums of the new gaps in f64 in either precision (as the sequential sweep's).
     sum: [f64; S],
     opening: [T; S],
+    /// As the sequential sweep's `overshoot`.
+    overshoot: [T; S],
     closing: [T; S],
     needs_fixup: [T::Flag; S],
 }
@@ -936,6 +938,7 @@ struct Back<T: Real, const S: usize> {
 fn back_row<T: Real, const S: usize, const CLU: bool>(
     h: T,
     gamma2: T,
+    negligible: T,
     st: &mut Back<T, S>,
     old: &[T; S],
     bonded: &[bool; S],
@@ -969,6 +972,9 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
         if old[l] > zero {
             st.opening[l] = fmax(x[l], st.opening[l]);
         }
+        if grown[l] > negligible {
+            st.overshoot[l] = fmax(x[l], st.overshoot[l]);
+        }
         let d = fmax(old[l], floor);
         st.closing[l] = fmax(d * (gamma2 * fmin(x[l], zero) - T::ONE), st.closing[l]);
         // NaN fails the comparisons.
@@ -999,6 +1005,7 @@ fn back_row<T: Real, const S: usize, const CLU: bool>(
 struct GroupBack<T> {
     sums: [f64; SEGMENT_LANES],
     opening: T,
+    overshoot: T,
     closing: T,
     needs_fixup: bool,
     /// u_1 (group 0 only).
@@ -1116,10 +1123,12 @@ where
     let bonded_all = terms.bonded.unwrap_or(&[]);
     let clu = !bonded_all.is_empty();
     let gamma2 = -((law.gamma)(0) + T::c(2.0));
+    let negligible = T::c(NEGLIGIBLE_OPENING * terms.total_gap[0]);
     let mut st = Back::<T, S> {
         u_next: std::array::from_fn(|l| iface[g * S + l].1),
         sum: [0.0; S],
         opening: [zero; S],
+        overshoot: [zero; S],
         closing: [T::NEG_INFINITY; S],
         needs_fixup: [T::Flag::default(); S],
     };
@@ -1142,6 +1151,7 @@ where
             let (u, grown) = back_row::<T, S, true>(
                 h,
                 gamma2,
+                negligible,
                 &mut st,
                 &t_old[kk],
                 &t_bond[kk],
@@ -1164,6 +1174,7 @@ where
             u_next: [st.u_next[0]],
             sum: [st.sum[0]],
             opening: [st.opening[0]],
+            overshoot: [st.overshoot[0]],
             closing: [st.closing[0]],
             needs_fixup: [st.needs_fixup[0]],
         };
@@ -1172,6 +1183,7 @@ where
             let (u, grown) = back_row::<T, 1, true>(
                 h,
                 gamma2,
+                negligible,
                 &mut s0,
                 &[gaps_in[row]],
                 &[clu && bonded_all[row]],
@@ -1185,6 +1197,7 @@ where
         }
         st.sum[0] = s0.sum[0];
         st.opening[0] = s0.opening[0];
+        st.overshoot[0] = s0.overshoot[0];
         st.closing[0] = s0.closing[0];
         st.needs_fixup[0] = s0.needs_fixup[0];
         u_first = s0.u_next[0];
@@ -1193,6 +1206,7 @@ where
     GroupBack {
         sums: st.sum,
         opening: st.opening.iter().fold(zero, |a, &b| fmax(b, a)),
+        overshoot: st.overshoot.iter().fold(zero, |a, &b| fmax(b, a)),
         closing: st.closing.iter().fold(T::NEG_INFINITY, |a, &b| fmax(b, a)),
         needs_fixup: st.needs_fixup.iter().any(|&f| f != T::Flag::default()),
         u_first,
@@ -1343,6 +1357,7 @@ where
     // not depend on the thread count; in f64 in either precision.
     let mut sum = 0.0f64;
     let mut opening = zero;
+    let mut overshoot = zero;
     let mut closing = T::NEG_INFINITY;
     let mut needs_fixup = false;
     for b in backs.iter().rev() {
@@ -1350,6 +1365,7 @@ where
             sum += s;
         }
         opening = fmax(b.opening, opening);
+        overshoot = fmax(b.overshoot, overshoot);
         closing = fmax(b.closing, closing);
         needs_fixup |= b.needs_fixup;
     }
@@ -1376,6 +1392,9 @@ where
     if old > zero {
         opening = fmax(x, opening);
     }
+    if grown > T::c(NEGLIGIBLE_OPENING * terms.total_gap[0]) {
+        overshoot = fmax(x, overshoot);
+    }
     closing = fmax(d * (gamma2 * fmin(x, zero) - T::ONE), closing);
     if !(grown >= floor && grown < T::INFINITY && x <= T::c(EXP_FAST_MAX)) {
         needs_fixup = true;
@@ -1387,7 +1406,7 @@ where
     }
     gap_first[0] = grown;
     sum += fmax(grown, zero).to_f64();
-    report[0].admissible &= opening <= T::c(MAX_OPENING);
+    report[0].admissible &= overshoot <= T::c(MAX_OPENING);
     // As the sequential sweep's.
     report[0].certified = !needs_fixup
         && energy_certified(
