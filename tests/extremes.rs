@@ -8,6 +8,7 @@ use common::{plan_for, run_all};
 use roughlub::backend::{BatchSolver, MemberStatus};
 use roughlub::expr::Expr;
 use roughlub::model::chain::Chain;
+use roughlub::model::observables::Snapshot;
 use roughlub::model::params::{Jacobian, MemberParams, Stepping};
 use roughlub::model::plan::Plan;
 use roughlub::scene::initial::chain_from_profiles;
@@ -27,10 +28,7 @@ fn run_cpu_in(
     plan: roughlub::model::plan::Plan,
     chains: Vec<Chain>,
     precision: roughlub::backend::Precision,
-) -> (
-    Vec<Vec<roughlub::model::observables::Snapshot>>,
-    Vec<roughlub::backend::MemberReport>,
-) {
+) -> (Vec<Vec<Snapshot>>, Vec<roughlub::backend::MemberReport>) {
     let mut solver = roughlub::backend::cpu::CpuSolver::with_precision(plan, chains, precision);
     let mut out = Vec::new();
     while let Some(s) = solver.next_output(&|_| {}).unwrap() {
@@ -230,6 +228,30 @@ fn energy_never_rises_at_gamma_1000_in_f32() {
     }
 }
 
+/// Member m of an f64 run without forcing, at every output: ln of its smallest gap finite (every
+/// gap positive, even below f64's range), sum d equal to `total` within 1e-12 relative, and the
+/// energy never above the previous output's (1e-12 relative).
+fn assert_member_sound(label: &str, snaps: &[Vec<Snapshot>], m: usize, total: f64) {
+    for k in 0..snaps.len() {
+        let s = &snaps[k][m];
+        assert!(
+            s.log_min_gap.is_finite(),
+            "{label}: ln min gap {}",
+            s.log_min_gap
+        );
+        let sum: f64 = s.gaps.iter().sum();
+        assert!((sum - total).abs() <= 1e-12 * total, "{label}: sum d {sum}");
+        if k > 0 {
+            let before = snaps[k - 1][m].energy;
+            assert!(
+                s.energy <= before * (1.0 + 1e-12),
+                "{label}: energy {before} -> {} at output {k}",
+                s.energy
+            );
+        }
+    }
+}
+
 /// A pair at contact that flies apart with little lubrication (mu = 1e-4) opens by m Δu / mu
 /// whatever the step (mu ln d changes by the momentum). scenes/extremes/rho0.9999_u0.5.toml and
 /// rho0.9999_u2.toml with fixed order 4 at dt = 1e-3, on both tableau sequences: every member
@@ -284,21 +306,9 @@ fn fixed_high_orders_complete_where_a_contact_pair_flies_apart() {
             for (m, r) in solver.reports().iter().enumerate() {
                 let label = format!("{name} {sequence:?} mu {} gamma {}", r.mu, r.gamma);
                 assert_eq!(r.status, MemberStatus::Ok, "{label}");
-                for k in 0..snaps.len() {
-                    let s = &snaps[k][m];
-                    // ln d finite: positive, even below f64's range (where d reads as 0).
-                    assert!(s.log_min_gap.is_finite(), "{label}: ln min gap");
-                    assert!(s.gaps.iter().all(|&d| d >= 0.0), "{label}: a gap < 0");
-                    let sum: f64 = s.gaps.iter().sum();
-                    assert!((sum - total).abs() <= 1e-12 * total, "{label}: sum d {sum}");
-                    if k > 0 {
-                        let before = snaps[k - 1][m].energy;
-                        assert!(
-                            s.energy <= before * (1.0 + 1e-12),
-                            "{label}: energy {before} -> {} at output {k}",
-                            s.energy
-                        );
-                    }
+                assert_member_sound(&label, &snaps, m, total);
+                for s in &snaps {
+                    assert!(s[m].gaps.iter().all(|&d| d >= 0.0), "{label}: a gap < 0");
                 }
                 if r.mu == 1e-4 {
                     let estimate = r.largest_error_estimate().unwrap_or(0.0);
@@ -348,24 +358,7 @@ fn extremes_matrix_completes_conserves_and_never_gains_energy() {
         for (m, r) in reports.iter().enumerate() {
             let label = format!("{} mu {} gamma {}", path.display(), r.mu, r.gamma);
             assert_eq!(r.status, MemberStatus::Ok, "{label}");
-            for k in 0..snaps.len() {
-                let s = &snaps[k][m];
-                assert!(
-                    s.log_min_gap.is_finite(),
-                    "{label}: ln min gap {}",
-                    s.log_min_gap
-                );
-                let sum: f64 = s.gaps.iter().sum();
-                assert!((sum - total).abs() <= 1e-12 * total, "{label}: sum d {sum}");
-                if k > 0 {
-                    let before = snaps[k - 1][m].energy;
-                    assert!(
-                        s.energy <= before * (1.0 + 1e-12),
-                        "{label}: energy {before} -> {} at output {k}",
-                        s.energy
-                    );
-                }
-            }
+            assert_member_sound(&label, &snaps, m, total);
         }
         {
             use roughlub::backend::shared::control::{ENERGY_RTOL_F32, ENERGY_RTOL_PER_GAMMA_F32};

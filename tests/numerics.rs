@@ -195,7 +195,8 @@ fn max_error(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// The end-time error (max over gaps + max over velocities) against the reference of fixed-step
-/// runs of `order` at each of `dts`, on the test chain with forcing 0.3 sin(2πx) cos(3t).
+/// runs of `order` at each of `dts`, on the test chain with forcing 0.3 sin(2πx) cos(3t); each
+/// run must complete.
 fn fixed_step_errors(
     chain: &Chain,
     params: &[MemberParams],
@@ -208,10 +209,27 @@ fn fixed_step_errors(
         .map(|&dt| {
             let stepping = Stepping::Fixed { dt, dt_min: 1e-12 };
             let forcing = Some(("0.3*sin(2*pi*x)*cos(3*t)", 8));
-            let (last, _) = fixed_step_end(chain, params, scheme, stepping, t_end, forcing);
+            let (last, status) = fixed_step_end(chain, params, scheme, stepping, t_end, forcing);
+            assert_eq!(status, MemberStatus::Ok, "{scheme:?} dt {dt}");
             max_error(&last.gaps, ref_gaps) + max_error(&last.velocities, ref_vel)
         })
         .collect()
+}
+
+/// The two observed orders of `errors` at steps H, H/2, H/4 (log2 of successive ratios),
+/// printed, each held to `order` ± 0.3.
+fn assert_converges_at(label: &str, order: u8, errors: &[f64]) {
+    let rates = [
+        (errors[0] / errors[1]).log2(),
+        (errors[1] / errors[2]).log2(),
+    ];
+    eprintln!("{label} order {order}: errors {errors:?}, measured orders {rates:.3?}");
+    for p in rates {
+        assert!(
+            (p - order as f64).abs() <= 0.3,
+            "{label} order {order}: measured {p} from errors {errors:?}"
+        );
+    }
 }
 
 /// The state at t_end of one member run with fixed steps of `order`, `jacobian` and the rows of
@@ -605,17 +623,7 @@ fn extrapolation_orders_converge_at_their_order() {
                 t_end,
                 (&ref_gaps, &ref_vel),
             );
-            let p1 = (errors[0] / errors[1]).log2();
-            let p2 = (errors[1] / errors[2]).log2();
-            eprintln!(
-                "{jacobian:?} order {order}: errors {errors:?}, measured orders {p1:.3} {p2:.3}"
-            );
-            for p in [p1, p2] {
-                assert!(
-                    (p - order as f64).abs() <= 0.3,
-                    "{jacobian:?} order {order}: measured {p} from errors {errors:?}"
-                );
-            }
+            assert_converges_at(&format!("{jacobian:?}"), order, &errors);
             assert!(
                 errors[2] > 100.0 * reference_error,
                 "{jacobian:?} order {order}: {errors:?} at the reference's accuracy"
@@ -694,32 +702,15 @@ fn extrapolation_from_two_converges_at_its_order() {
         (5, 0.0125),
         (6, 0.025),
     ] {
-        let errors: Vec<f64> = [coarse, coarse / 2.0, coarse / 4.0]
-            .iter()
-            .map(|&dt| {
-                let (last, status) = fixed_step_end(
-                    &chain,
-                    &params,
-                    (order, Jacobian::Frozen, Sequence::FromTwo),
-                    Stepping::Fixed { dt, dt_min: 1e-12 },
-                    t_end,
-                    Some(("0.3*sin(2*pi*x)*cos(3*t)", 8)),
-                );
-                assert_eq!(status, MemberStatus::Ok);
-                max_error(&last.gaps, &ref_gaps) + max_error(&last.velocities, &ref_vel)
-            })
-            .collect();
-        let rates = [
-            (errors[0] / errors[1]).log2(),
-            (errors[1] / errors[2]).log2(),
-        ];
-        eprintln!("from 2, order {order}: errors {errors:?}, measured orders {rates:.3?}");
-        for p in rates {
-            assert!(
-                (p - order as f64).abs() <= 0.3,
-                "from 2, order {order}: measured {p} from errors {errors:?}"
-            );
-        }
+        let errors = fixed_step_errors(
+            &chain,
+            &params,
+            (order, Jacobian::Frozen, Sequence::FromTwo),
+            [coarse, coarse / 2.0, coarse / 4.0],
+            t_end,
+            (&ref_gaps, &ref_vel),
+        );
+        assert_converges_at("from 2,", order, &errors);
         assert!(
             errors[2] > 1e-11,
             "order {order}: {errors:?} at the reference's accuracy"
