@@ -20,6 +20,32 @@ fn energy_acceptable(before: real, after: real, work: real, gamma: real) -> bool
     return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
 }
 
+// `extrapolation_amplification` of kernels/src/shared/control.rs: sum of |c_j| over the weights
+// c_j = prod_{m != j} n_j / (n_j - n_m) by which column k combines its rows.
+fn extrapolation_amplification(k: u32) -> real {
+    var sum: real = 0.0;
+    for (var j = 1u; j <= k; j++) {
+        let nj = real(row_substeps(j));
+        var c: real = 1.0;
+        for (var m = 1u; m <= k; m++) {
+            if m != j {
+                c *= nj / (nj - real(row_substeps(m)));
+            }
+        }
+        sum += abs(c);
+    }
+    return sum;
+}
+
+// `energy_acceptable` for the extrapolated state of column k, with the slack of
+// `extrapolated_energy_rtol` of kernels/src/shared/control.rs: the rows' rounding as the tableau
+// amplifies it and E magnifies it (2 ulps per ulp of a velocity, gamma per ulp of a gap).
+fn extrapolated_energy_acceptable(before: real, after: real, work: real, gamma: real, k: u32) -> bool {
+    let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma
+        + (2.0 + gamma) * REAL_EPSILON * extrapolation_amplification(k);
+    return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
+}
+
 // `step_factor` of kernels/src/shared/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].
 fn step_factor(err_in: real, q: u32) -> real {
     return clamp(SAFETY / root_of(max(err_in, 1e-10), q), MAX_SHRINK, MAX_GROWTH);

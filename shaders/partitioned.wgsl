@@ -858,7 +858,7 @@ fn p_decide(@builtin(global_invocation_id) gid: vec3<u32>) {
     if EXTRAPOLATES {
         let report = projected_report(b, 1.0, true);
         admissible = admissible && report.admissible;
-        energy_ok = energy_ok && energy_acceptable(c.energy, report.energy, st.row_work[rows], gamma);
+        energy_ok = energy_ok && extrapolated_energy_acceptable(c.energy, report.energy, st.row_work[rows], gamma, rows);
         energy = report.energy;
     }
     var err: real = 0.0;

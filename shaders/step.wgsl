@@ -804,10 +804,10 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
     var energy = row_energy[rows];
     if EXTRAPOLATES {
         // The extrapolated state: projection and energy, which must not exceed the start's
-        // plus the finest row's work.
+        // plus the finest row's work, to the rounding that the tableau amplifies.
         let report = conclude(b, cand, p, StepReport(true, 0u, 0u, 0.0, 0.0, 0.0), lane_sum(b, cand), 1.0, false);
         admissible = admissible && report.admissible;
-        energy_ok = energy_ok && energy_acceptable(c.energy, report.energy, row_work[rows], gamma);
+        energy_ok = energy_ok && extrapolated_energy_acceptable(c.energy, report.energy, row_work[rows], gamma, rows);
         energy = report.energy;
     }
     var err: real = 0.0;

@@ -16,8 +16,8 @@ use crate::backend::report::{
     error_estimate_method, Failure, FailureRecord, MemberReport, MemberStatus,
 };
 use crate::backend::shared::control::{
-    energy_acceptable, row_substeps, select_order, sequence_from_two, step_factor, Outcome, Rules,
-    StepControl, TIME_RESOLUTION_F64,
+    energy_acceptable, extrapolated_energy_rtol, row_substeps, select_order, sequence_from_two,
+    step_factor, Outcome, Rules, StepControl, TIME_RESOLUTION_F64,
 };
 use crate::backend::OutputStatus;
 use crate::model::chain::{stored_gap, Chain};
@@ -90,6 +90,8 @@ struct LaneModel<T: Real, const L: usize> {
     total_gap: [f64; L],
     /// The energy check's relative slack per lane (`energy_rtol`).
     energy_rtol: [f64; L],
+    /// The gamma it is computed for (1 without repulsion), for the extrapolated state's slack.
+    energy_gamma: [f64; L],
     /// See `Terms::contact_repulsion`.
     contact_repulsion: [f64; L],
     /// Each lane's member (for its forcing parameters).
@@ -210,14 +212,15 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         let states = |count: usize, len: usize| vec![vec![T::ZERO; len]; count];
         let mut sub_g = states(subs, gaps.len()).into_iter();
         let mut sub_v = states(subs, vel.len()).into_iter();
+        // gamma_of_member: 1 without repulsion.
+        let energy_gamma = params.map(|p| if plan.repulsion { p.gamma } else { 1.0 });
         let mut block = Block {
             lanes: members.map(lane),
             model: LaneModel {
                 mu: params.map(|p| T::c(p.mu)),
                 gamma,
-                // gamma_of_member: 1 without repulsion.
-                energy_rtol: params
-                    .map(|p| energy_rtol::<T>(if plan.repulsion { p.gamma } else { 1.0 })),
+                energy_rtol: energy_gamma.map(energy_rtol::<T>),
+                energy_gamma,
                 dstar,
                 bonded,
                 total_gap,
@@ -520,7 +523,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         if scheme.extrapolates() {
             // The Euler substeps' certificates do not cover their extrapolation: the
             // projection computes its energy, which must not exceed the start's plus the
-            // finest row's work.
+            // finest row's work, to the rounding that the tableau amplifies.
             let mut report = [StepReport::START; L];
             let unit = [T::ONE; L];
             T::conclude(
@@ -539,7 +542,13 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                     before[l],
                     report[l].energy,
                     row_work[k][l],
-                    self.model.energy_rtol[l],
+                    extrapolated_energy_rtol(
+                        self.model.energy_rtol[l],
+                        self.model.energy_gamma[l],
+                        k as u8,
+                        from_two,
+                        T::EPSILON.to_f64(),
+                    ),
                 );
                 energy[l] = report[l].energy;
             }
