@@ -37,12 +37,16 @@ fn extrapolation_amplification(k: u32) -> real {
     return sum;
 }
 
+// EXTRAPOLATED_ENERGY_SLACK_MAX of kernels/src/shared/control.rs.
+const EXTRAPOLATED_ENERGY_SLACK_MAX: real = 1e-6;
+
 // `energy_acceptable` for the extrapolated state of column k, with the slack of
 // `extrapolated_energy_rtol` of kernels/src/shared/control.rs: the rows' rounding as the tableau
-// amplifies it and E magnifies it (2 ulps per ulp of a velocity, gamma per ulp of a gap).
+// amplifies it and E magnifies it (2 ulps per ulp of a velocity, gamma per ulp of a gap), at
+// most EXTRAPOLATED_ENERGY_SLACK_MAX.
 fn extrapolated_energy_acceptable(before: real, after: real, work: real, gamma: real, k: u32) -> bool {
-    let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma
-        + (2.0 + gamma) * REAL_EPSILON * extrapolation_amplification(k);
+    let amplified = (2.0 + gamma) * REAL_EPSILON * extrapolation_amplification(k);
+    let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma + min(amplified, EXTRAPOLATED_ENERGY_SLACK_MAX);
     return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
 }
 
