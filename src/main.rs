@@ -298,6 +298,9 @@ fn main() -> ExitCode {
     let overrides = roughlub::backend::overrides::Overrides::from_env();
     let load = |path: &std::path::Path| -> roughlub::Result<Scene> {
         let mut scene = Scene::from_file(path)?;
+        for note in scene.ignored_settings() {
+            eprintln!("warning: {note}");
+        }
         scene.overrides = overrides.clone();
         Ok(scene)
     };

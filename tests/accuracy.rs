@@ -116,6 +116,15 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
     let col = |name: &str| head.iter().position(|h| h == name).unwrap();
     let rows: Vec<csv::StringRecord> = reader.records().map(|r| r.unwrap()).collect();
     assert!(rows.len() >= 15, "{} rungs", rows.len());
+    // The scene's jacobian is "auto": the exact matrix for adaptive steps at tolerances up to
+    // 1e-7 (order 1 never), else the frozen one.
+    for r in &rows {
+        let tolerance: f64 = r[col("dt_or_tolerance")].parse().unwrap();
+        let exact =
+            &r[col("stepping")] == "adaptive" && tolerance <= 1e-7 && &r[col("order")] != "1";
+        let want = if exact { "exact" } else { "frozen" };
+        assert_eq!(&r[col("jacobian")], want, "{r:?}");
+    }
     // Fixed steps: each halving divides the error by about 2^order (the last rungs, where
     // the error is well above the reference's and rounding).
     for order in ["1", "2"] {
@@ -211,6 +220,7 @@ fn rerun(tmp: &Path, name: &str, acc: &Path, setting: &serde_json::Value) -> f64
     // A number, or "auto".
     let order = setting["order"].to_string();
     let sequence = setting["sequence"].as_str().unwrap();
+    let jacobian = setting["jacobian"].as_str().unwrap();
     let stepping = &setting["stepping"];
     let step_line = match stepping["kind"].as_str().unwrap() {
         "fixed" => format!("dt = {:e}", stepping["dt"].as_f64().unwrap()),
@@ -218,7 +228,7 @@ fn rerun(tmp: &Path, name: &str, acc: &Path, setting: &serde_json::Value) -> f64
     };
     let scene = SCENE.replace("dt = 1e-3", &step_line).replace(
         "[solver]",
-        &format!("[solver]\norder = {order}\nsequence = \"{sequence}\""),
+        &format!("[solver]\norder = {order}\nsequence = \"{sequence}\"\njacobian = \"{jacobian}\""),
     );
     let path = tmp.join(format!("{name}.toml"));
     std::fs::write(&path, scene).unwrap();

@@ -803,6 +803,77 @@ fn rejects_orders_above_six_in_f32() {
     assert_success(&out);
 }
 
+/// Tolerances below an order's f32 rounding are refused before anything runs: 2^-23 times the
+/// column's rounding gain sum |c_j| n_j (order 4: 91.33 ulps, 1.09e-5; auto, column 2: 5 ulps,
+/// 5.96e-7; `Order::f32_tolerance_floor`), where the steps shrank without end (order 4 at 1e-6
+/// on an N = 50 chain had not finished after 30 s). Above the floor, and in f64 at the refused tolerance, the
+/// same scene completes in at most 100 steps.
+#[test]
+fn rejects_f32_tolerances_below_the_orders_rounding() {
+    let adaptive = |order: &str, tolerance: &str, precision: &str| {
+        edit(BASE, "dt = 1e-3", &format!("tolerance = {tolerance}")).replace(
+            "order = 1",
+            &format!("order = {order}\nprecision = \"{precision}\""),
+        )
+    };
+    expect_rejected(
+        &adaptive("4", "1e-6", "f32"),
+        &[],
+        &[
+            "time.tolerance = 1e-6 with precision f32 and order 4",
+            ">= 1.09e-5",
+        ],
+    );
+    expect_rejected(
+        &adaptive("\"auto\"", "1e-7", "f32"),
+        &[],
+        &[
+            "time.tolerance = 1e-7 with precision f32 and order auto",
+            ">= 5.96e-7",
+        ],
+    );
+    for (order, tolerance, precision) in [("4", "2e-5", "f32"), ("4", "1e-6", "f64")] {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("scene.toml");
+        std::fs::write(&path, adaptive(order, tolerance, precision)).unwrap();
+        let out_dir = tmp.path().join("out");
+        assert_success(&run(&path, &out_dir, &[]));
+        let member = &read_manifest(&out_dir)["members"][0];
+        let label = format!("order {order} at {tolerance} in {precision}");
+        assert_eq!(member["status"], "ok", "{label}");
+        let steps =
+            member["steps_accepted"].as_u64().unwrap() + member["steps_rejected"].as_u64().unwrap();
+        assert!(steps <= 100, "{label}: {steps} steps");
+    }
+}
+
+/// A sequence or jacobian that order 1 ignores is said on stderr (the run goes on, and its
+/// manifest records what ran: from_1, frozen).
+#[test]
+fn settings_order_one_ignores_are_said() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("scene.toml");
+    let scene = edit(
+        BASE,
+        "order = 1",
+        "order = 1\nsequence = \"from_2\"\njacobian = \"exact\"",
+    );
+    std::fs::write(&path, scene).unwrap();
+    let out_dir = tmp.path().join("out");
+    let out = run(&path, &out_dir, &[]);
+    assert_success(&out);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    for needle in [
+        "warning: solver.sequence = \"from_2\" has no effect with order 1",
+        "warning: solver.jacobian = \"exact\" has no effect with order 1",
+    ] {
+        assert!(stderr.contains(needle), "{needle} not in {stderr}");
+    }
+    let manifest = read_manifest(&out_dir);
+    assert_eq!(manifest["plan"]["sequence"], "from_1");
+    assert_eq!(manifest["plan"]["jacobian"], "frozen");
+}
+
 #[test]
 fn rejects_unknown_backend() {
     let s = edit(BASE, "backend = \"cpu\"", "backend = \"tpu\"");

@@ -133,9 +133,13 @@ pub(super) fn solve(groups: &[MeasuredGroup], setting: &Setting) -> Result<Run> 
         plan.order = setting.order;
         plan.stepping = setting.stepping;
         plan.sequence = setting.sequence;
+        plan.jacobian = setting.jacobian;
         let engine = select(setting.backend, setting.precision, &plan)?;
-        let started = Instant::now();
         let mut solver = engine.solver(plan, group.chains.clone())?;
+        // From the built solver: the GPU's shader compilation (~1 s a kernel variant on
+        // lavapipe), which a long run pays once, made the first rung of each GPU line 5-15 times
+        // slower than the next and hid the coarse rungs, the likely cheapest.
+        let started = Instant::now();
         let mut k = 0;
         while let Some(s) = solver.next_output(&|_| {})? {
             match run.snapshots.get_mut(k) {

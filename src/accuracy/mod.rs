@@ -22,7 +22,7 @@ use std::path::PathBuf;
 use crate::backend::{Backend, Precision};
 use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
-use crate::model::params::{Order, OutputFields, Sequence, Stepping};
+use crate::model::params::{Jacobian, Order, OutputFields, Sequence, Stepping};
 use crate::output::manifest::VERSION;
 use crate::output::{write_json_atomic, StagedDir, MANIFEST};
 use crate::scene::Scene;
@@ -58,6 +58,8 @@ pub struct Setting {
     pub stepping: Stepping,
     /// The tableau's rows (`[solver] sequence`; order 1 has none).
     pub sequence: Sequence,
+    /// The scene's `[solver] jacobian` (every rung keeps it; `record` says which matrix ran).
+    pub jacobian: Jacobian,
     pub backend: Backend,
     pub precision: Precision,
 }
@@ -100,7 +102,7 @@ impl Setting {
     }
 
     /// The scene's settings that run it, e.g. `[time] tolerance = 1e-6; [solver] order =
-    /// "auto", sequence = "from_2", backend = "cpu", precision = "f64"`.
+    /// "auto", sequence = "from_2", jacobian = "auto", backend = "cpu", precision = "f64"`.
     pub fn scene_lines(&self) -> String {
         let step = match self.stepping {
             Stepping::Fixed { dt, .. } => format!("dt = {dt:e}"),
@@ -111,8 +113,9 @@ impl Setting {
             Order::Auto => "\"auto\"".into(),
         };
         format!(
-            "[time] {step}; [solver] order = {order}, sequence = \"{}\", backend = \"{}\", precision = \"{}\"",
+            "[time] {step}; [solver] order = {order}, sequence = \"{}\", jacobian = \"{}\", backend = \"{}\", precision = \"{}\"",
             self.sequence.record(self.order),
+            self.jacobian.label(),
             backend_name(self.backend),
             precision_name(self.precision)
         )
@@ -240,9 +243,16 @@ fn adaptive_ladder(
             .chain(ladder_orders(precision).map(|o| (o, scene.sequence)));
         for (order, sequence) in schemes {
             let mut line = Vec::new();
+            // f32 runs refuse tolerances below their order's rounding (`f32_tolerance_floor`).
+            let floor = match precision {
+                Precision::F32 => order.f32_tolerance_floor(sequence),
+                Precision::F64 => 0.0,
+            };
             for k in 2..=14 {
                 let tolerance = format!("1e-{k}").parse::<f64>().expect("a number");
-                if tolerance < (target / 100.0).max(reference_tolerance * 10.0) * 0.999 {
+                if tolerance < (target / 100.0).max(reference_tolerance * 10.0) * 0.999
+                    || tolerance < floor
+                {
                     break;
                 }
                 line.push(Setting {
@@ -253,6 +263,7 @@ fn adaptive_ladder(
                         dt_min: scene.stepping.dt_min(),
                     },
                     sequence: sequence.of(order),
+                    jacobian: scene.jacobian,
                     backend,
                     precision,
                 });
@@ -280,6 +291,7 @@ fn fixed_setting(
             dt_min: scene.stepping.dt_min().min(dt * 1e-6),
         },
         sequence: scene.sequence.of(order),
+        jacobian: scene.jacobian,
         backend,
         precision,
     }
@@ -337,6 +349,7 @@ fn reference_setting(scene: &Scene, tolerance: f64) -> Setting {
             dt_min: scene.stepping.dt_min().min(1e-14 * scene.end),
         },
         sequence: Sequence::FromOne,
+        jacobian: scene.jacobian,
         backend: Backend::Cpu,
         precision: Precision::F64,
     }

@@ -11,7 +11,7 @@ use super::gpu::{AdapterDescription, GpuContext};
 use super::{Backend, BatchSolver, GpuError, Precision};
 use crate::error::{Error, Result};
 use crate::model::chain::Chain;
-use crate::model::params::{MAX_ORDER, MAX_ORDER_F32};
+use crate::model::params::{Stepping, MAX_ORDER, MAX_ORDER_F32};
 use crate::model::plan::Plan;
 
 /// Which backend actually runs.
@@ -211,6 +211,24 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
             "its high columns carry about 1e-3 of f32 rounding into their error estimates",
             format!("1..={MAX_ORDER_F32} or \"auto\" in f32; orders up to {MAX_ORDER} in f64"),
         ));
+    }
+    if let (Precision::F32, Stepping::Adaptive { tolerance, .. }) = (precision, plan.stepping) {
+        let floor = plan.order.f32_tolerance_floor(plan.sequence);
+        if tolerance < floor {
+            return Err(Error::invalid(
+                "time.tolerance",
+                format!(
+                    "{tolerance:e} with precision f32 and order {}",
+                    plan.order.label()
+                ),
+                "the error estimates of that order carry more f32 rounding than that, so the \
+                 steps would shrink without end",
+                format!(
+                    ">= {floor:.2e} for this order in f32 (6e-7 for orders 1, 2 and auto, \
+                     1.1e-5 for 4, 1.7e-4 for 6); down to 1e-13 in f64"
+                ),
+            ));
+        }
     }
     let cpu = |fallback: Option<String>| -> Result<Engine> {
         Ok(Engine {

@@ -53,7 +53,8 @@ pub const MAX_ORDER_F32: u8 = 6;
 /// computes its energy). `Auto` (the default) takes `Exact` for adaptive steps at
 /// tolerances up to [`EXACT_JACOBIAN_TOLERANCE`], else `Frozen`. Order 1 always keeps the
 /// frozen matrix and its energy certificate.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Jacobian {
     #[default]
     Auto,
@@ -79,6 +80,15 @@ impl Jacobian {
                     Stepping::Adaptive { tolerance, .. } if tolerance <= EXACT_JACOBIAN_TOLERANCE
                 ),
             }
+    }
+
+    /// "auto", "exact" or "frozen", as a scene writes it.
+    pub fn label(self) -> &'static str {
+        match self {
+            Jacobian::Auto => "auto",
+            Jacobian::Exact => "exact",
+            Jacobian::Frozen => "frozen",
+        }
     }
 
     /// What the manifests record: the matrix the run used, "exact" or "frozen".
@@ -167,6 +177,25 @@ impl Order {
             Order::Fixed(p) => p <= MAX_ORDER_F32,
             Order::Auto => true,
         }
+    }
+
+    /// The tightest tolerance an adaptive run in f32 may ask for with this order and sequence:
+    /// the f32 rounding of the lowest column its step control keeps (column max(k, 2) for a
+    /// fixed order k, column 2 for auto), 2^-23 times the column's rounding gain
+    /// (`extrapolation_rounding_gain`): 6e-7 for orders 1, 2 and auto, 1.1e-5 for order 4, 1.7e-4
+    /// for order 6. Below it the estimates carry more rounding than the tolerance allows, and
+    /// the steps shrink without end without collapsing (on an N = 50 chain to t = 0.05: order 1
+    /// at 1e-7, order 4 at 1e-6 and order 6 at 1e-5 had not finished after 30 s, auto at 1e-7
+    /// took 370000 steps to t = 0.0005), where at the floor each took 20 to 600 steps.
+    pub fn f32_tolerance_floor(self, sequence: Sequence) -> f64 {
+        use roughlub_kernels::shared::control::{extrapolation_rounding_gain, sequence_from_two};
+        let column = match self {
+            Order::Fixed(p) => p.max(2),
+            Order::Auto => 2,
+        };
+        let extrapolates = self != Order::Fixed(1);
+        let from_two = sequence_from_two(sequence == Sequence::FromTwo, extrapolates);
+        extrapolation_rounding_gain(column, from_two) * f64::from(f32::EPSILON)
     }
 
     /// "1".."8" or "auto", as a scene writes it.

@@ -107,6 +107,31 @@ pub const MAX_VELOCITY: f64 = 1e12;
 pub use crate::ensemble::MAX_ROUGHNESS_RADIUS;
 
 impl Scene {
+    /// Settings the scene asks for that its order ignores, each as a sentence: order 1's rows
+    /// are one Euler step and its two halves with the frozen matrix, whatever `sequence` and
+    /// `jacobian` say (the manifest records what ran, so the value asked for would be lost
+    /// without a word).
+    pub fn ignored_settings(&self) -> Vec<String> {
+        let mut notes = Vec::new();
+        if self.order == Order::Fixed(1) {
+            if self.sequence == Sequence::FromTwo {
+                notes.push(
+                    "solver.sequence = \"from_2\" has no effect with order 1 (its rows are one \
+                     Euler step and its two halves); the run uses from_1"
+                        .to_string(),
+                );
+            }
+            if self.jacobian == Jacobian::Exact {
+                notes.push(
+                    "solver.jacobian = \"exact\" has no effect with order 1 (it keeps the frozen \
+                     matrix and its energy certificate); the run uses frozen"
+                        .to_string(),
+                );
+            }
+        }
+        notes
+    }
+
     pub fn from_file(path: &Path) -> Result<Scene> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         Scene::from_toml(&text, path)

@@ -433,6 +433,24 @@ pub fn extrapolation_amplification(k: u8, from_two: bool) -> f64 {
     sum
 }
 
+/// Sum of |c_j| n_j over column k's weights ([`extrapolation_amplification`]) and its rows'
+/// substeps: how many ulps of rounding the column's state and estimate carry, each substep
+/// adding about one (1, 5, 22, 91, 367, 1445 for columns 1 to 6 from 1).
+pub fn extrapolation_rounding_gain(k: u8, from_two: bool) -> f64 {
+    let mut sum = 0.0;
+    for j in 1..=k as u32 {
+        let nj = row_substeps(j, from_two) as f64;
+        let mut c = 1.0;
+        for m in 1..=k as u32 {
+            if m != j {
+                c *= nj / (nj - row_substeps(m, from_two) as f64);
+            }
+        }
+        sum += c.abs() * nj;
+    }
+    sum
+}
+
 /// The largest relative slack [`extrapolated_energy_rtol`] adds: the check is there to catch the
 /// linearised repulsion's instability, whose rises are far larger. In f64 the term stays below
 /// it (2.2e-9 at column 8 from 2 with gamma = 1000); in f32 it would reach 0.4 of E at column 8
@@ -469,6 +487,10 @@ mod tests {
     /// 118717 / 35 from 1, 3103067 / 315 from 2.
     #[test]
     fn extrapolation_amplification_sums_the_weights_magnitudes() {
+        // Weighted by the rows' substeps, from 1: 2·2 + 1 = 5, 4·2 + (9/2)·3 + 1/2 = 22.
+        assert_eq!(extrapolation_rounding_gain(2, false), 5.0);
+        assert!((extrapolation_rounding_gain(3, false) - 22.0).abs() < 1e-12);
+        assert!((extrapolation_rounding_gain(6, false) - 7223.0 / 5.0).abs() < 1e-9);
         let cases = [
             (1, false, 1.0),
             (2, false, 3.0),
