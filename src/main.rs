@@ -158,7 +158,8 @@ fn parse_backends(
         }
         return Ok(found);
     }
-    text.split(',')
+    let pairs = text
+        .split(',')
         .map(|b| match b.trim() {
             "cpu" | "cpu-f64" => Ok((Backend::Cpu, Precision::F64)),
             "cpu-f32" => Ok((Backend::Cpu, Precision::F32)),
@@ -171,7 +172,15 @@ fn parse_backends(
                 "a comma list of cpu (f64), cpu-f32, gpu (f64), gpu-f32, or available",
             )),
         })
-        .collect()
+        .collect::<roughlub::Result<Vec<_>>>()?;
+    // A pair named twice (`cpu,cpu-f64`) is measured once.
+    let mut unique = Vec::new();
+    for pair in pairs {
+        if !unique.contains(&pair) {
+            unique.push(pair);
+        }
+    }
+    Ok(unique)
 }
 
 fn parse_shard(text: &str) -> roughlub::Result<(u64, u64)> {

@@ -415,3 +415,56 @@ fn accuracy_of_a_batch_spreads_its_members() {
     let (shape, _) = npy(&out.join("reference_gaps.npy"));
     assert_eq!(shape, [2, 4, 24]);
 }
+
+/// A target the reference cannot resolve is refused before anything runs (exit 2, naming
+/// --target and its range; the reference resolves about 1e-11), and a backend named twice is
+/// measured once: the CSV has one line per scheme, not two.
+#[test]
+fn accuracy_refuses_an_unresolvable_target_and_measures_a_backend_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("acc.toml");
+    std::fs::write(&scene, SCENE.replace("end = 0.1", "end = 0.02")).unwrap();
+    let o = Command::new(BIN)
+        .args(["accuracy", scene.to_str().unwrap(), "--target", "1e-11"])
+        .args(["--out", tmp.path().join("refused").to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("--target") && stderr.contains("1e-10 <= target < 1"),
+        "{stderr}"
+    );
+    assert!(!tmp.path().join("refused").exists());
+    let out = tmp.path().join("once");
+    let o = Command::new(BIN)
+        .args(["accuracy", scene.to_str().unwrap(), "--target", "1e-3"])
+        .args([
+            "--out",
+            out.to_str().unwrap(),
+            "--backends",
+            "cpu,cpu-f64",
+            "--quiet",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut csv = csv::Reader::from_path(out.join("work_precision.csv")).unwrap();
+    let head = csv.headers().unwrap().clone();
+    let col = |name: &str| head.iter().position(|h| h == name).unwrap();
+    let mut keys = std::collections::HashSet::new();
+    for r in csv.records() {
+        let r = r.unwrap();
+        let key = [
+            "backend",
+            "precision",
+            "order",
+            "sequence",
+            "stepping",
+            "dt_or_tolerance",
+        ]
+        .map(|c| r[col(c)].to_string());
+        assert!(keys.insert(key.clone()), "measured twice: {key:?}");
+    }
+    assert!(!keys.is_empty());
+}
