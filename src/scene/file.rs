@@ -99,6 +99,8 @@ pub(super) struct TimeSection {
 pub(super) enum OrderValue {
     Number(i64),
     Word(String),
+    /// Any other value (`2.5`, `[4]`): refused with the field and the allowed values.
+    Other(toml::Value),
 }
 
 #[derive(Debug, Deserialize, Default)]

@@ -447,6 +447,14 @@ fn validate_solver(s: &SolverSection, stepping: &Stepping) -> Result<(Order, Bac
                 allowed,
             ))
         }
+        Some(OrderValue::Other(v)) => {
+            return Err(Error::invalid(
+                "solver.order",
+                v,
+                "order of the time scheme (a whole number or \"auto\")",
+                allowed,
+            ))
+        }
     };
     let backend = parse_choice(
         "solver.backend",
