@@ -414,41 +414,35 @@ pub const ENERGY_RTOL_PER_GAMMA_F32: f64 = 2.4e-7;
 /// itself an O(h) estimate.
 pub const WORK_SLACK: f64 = 0.1;
 
-/// Sum of |c_j| over the weights c_j = prod_{m != j} n_j / (n_j - n_m) by which column k of the
-/// tableau combines its rows (polynomial extrapolation to h = 0 through h_j = H / n_j,
-/// [`row_substeps`]): how much the extrapolated state amplifies the rows' rounding. 3392 for
-/// column 8 of the sequence from 1, 9851 from 2, 1 for column 1.
-pub fn extrapolation_amplification(k: u8, from_two: bool) -> f64 {
-    let mut sum = 0.0;
-    for j in 1..=k as u32 {
-        let nj = row_substeps(j, from_two) as f64;
-        let mut c = 1.0;
-        for m in 1..=k as u32 {
-            if m != j {
-                c *= nj / (nj - row_substeps(m, from_two) as f64);
-            }
+/// The weight c_j = prod_{m != j} n_j / (n_j - n_m) by which column k of the tableau takes row j
+/// (polynomial extrapolation to h = 0 through h_j = H / n_j, [`row_substeps`]).
+fn extrapolation_weight(j: u32, k: u8, from_two: bool) -> f64 {
+    let nj = row_substeps(j, from_two) as f64;
+    let mut c = 1.0;
+    for m in 1..=k as u32 {
+        if m != j {
+            c *= nj / (nj - row_substeps(m, from_two) as f64);
         }
-        sum += c.abs();
     }
-    sum
+    c
 }
 
-/// Sum of |c_j| n_j over column k's weights ([`extrapolation_amplification`]) and its rows'
-/// substeps: how many ulps of rounding the column's state and estimate carry, each substep
-/// adding about one (1, 5, 22, 91, 367, 1445 for columns 1 to 6 from 1).
+/// Sum of |c_j| over column k's weights ([`extrapolation_weight`]): how much the extrapolated
+/// state amplifies the rows' rounding. 3392 for column 8 of the sequence from 1, 9851 from 2, 1
+/// for column 1.
+pub fn extrapolation_amplification(k: u8, from_two: bool) -> f64 {
+    (1..=k as u32)
+        .map(|j| extrapolation_weight(j, k, from_two).abs())
+        .sum()
+}
+
+/// Sum of |c_j| n_j over column k's weights and its rows' substeps: how many ulps of rounding
+/// the column's state and estimate carry, each substep adding about one (1, 5, 22, 91, 367, 1445
+/// for columns 1 to 6 from 1).
 pub fn extrapolation_rounding_gain(k: u8, from_two: bool) -> f64 {
-    let mut sum = 0.0;
-    for j in 1..=k as u32 {
-        let nj = row_substeps(j, from_two) as f64;
-        let mut c = 1.0;
-        for m in 1..=k as u32 {
-            if m != j {
-                c *= nj / (nj - row_substeps(m, from_two) as f64);
-            }
-        }
-        sum += c.abs() * nj;
-    }
-    sum
+    (1..=k as u32)
+        .map(|j| extrapolation_weight(j, k, from_two).abs() * row_substeps(j, from_two) as f64)
+        .sum()
 }
 
 /// The largest relative slack [`extrapolated_energy_rtol`] adds: the check is there to catch the
