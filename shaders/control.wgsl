@@ -16,7 +16,11 @@ const WORK_SLACK: real = 0.1;
 // `energy_acceptable` of kernels/src/shared/control.rs, with the rounding of G (about gamma ulps)
 // added to the slack (ENERGY_RTOL_PER_GAMMA: 0 in f64, where ENERGY_RTOL covers it).
 fn energy_acceptable(before: real, after: real, work: real, gamma: real) -> bool {
-    let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma;
+    return energy_within(before, after, work, ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma);
+}
+
+// The test of `energy_acceptable` of kernels/src/shared/control.rs with the relative slack rtol.
+fn energy_within(before: real, after: real, work: real, rtol: real) -> bool {
     return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
 }
 
@@ -47,7 +51,7 @@ const EXTRAPOLATED_ENERGY_SLACK_MAX: real = 1e-6;
 fn extrapolated_energy_acceptable(before: real, after: real, work: real, gamma: real, k: u32) -> bool {
     let amplified = (2.0 + gamma) * REAL_EPSILON * extrapolation_amplification(k);
     let rtol = ENERGY_RTOL + ENERGY_RTOL_PER_GAMMA * gamma + min(amplified, EXTRAPOLATED_ENERGY_SLACK_MAX);
-    return after <= before + work + rtol * abs(before) + WORK_SLACK * abs(work);
+    return energy_within(before, after, work, rtol);
 }
 
 // `step_factor` of kernels/src/shared/control.rs: SAFETY err^(-1/q) within [MAX_SHRINK, MAX_GROWTH].

@@ -22,17 +22,19 @@ use std::path::PathBuf;
 use crate::backend::{Backend, Precision};
 use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
-use crate::model::params::{Jacobian, Order, OutputFields, Sequence, Stepping};
+use crate::model::params::{Order, OutputFields, Sequence, Stepping};
 use crate::output::manifest::VERSION;
 use crate::output::{write_json_atomic, StagedDir, MANIFEST};
 use crate::scene::Scene;
 
 mod members;
 mod outputs;
+mod setting;
 
 pub use members::{errors, DEFAULT_SWEEP_POINTS};
 use members::{errors_of_members, measured_members, member_ranges, solve, MeasuredGroup};
 use outputs::{write_csv, write_reference};
+pub use setting::Setting;
 
 /// Settings of `roughlub accuracy`.
 #[derive(Debug, Clone)]
@@ -49,92 +51,6 @@ pub struct AccuracyOptions {
     pub backends: Vec<(Backend, Precision)>,
     pub quiet: bool,
     pub force: bool,
-}
-
-/// One rung of the ladder.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct Setting {
-    pub order: Order,
-    pub stepping: Stepping,
-    /// The tableau's rows (`[solver] sequence`; order 1 has none).
-    pub sequence: Sequence,
-    /// The scene's `[solver] jacobian` (every rung keeps it; `record` says which matrix ran).
-    pub jacobian: Jacobian,
-    pub backend: Backend,
-    pub precision: Precision,
-}
-
-impl Setting {
-    /// e.g. "order 2, tolerance 1e-6, cpu f64", or "order auto from_2, tolerance 1e-6, cpu f64".
-    pub fn label(&self) -> String {
-        let step = match self.stepping {
-            Stepping::Fixed { dt, .. } => format!("dt {dt:e}"),
-            Stepping::Adaptive { tolerance, .. } => format!("tolerance {tolerance:e}"),
-        };
-        format!(
-            "order {}, {step}, {} {}",
-            self.order_label(),
-            backend_name(self.backend),
-            precision_name(self.precision)
-        )
-    }
-
-    /// The order, and the sequence where it is not the default one.
-    fn order_label(&self) -> String {
-        match self.sequence.record(self.order) {
-            "from_1" => self.order.label(),
-            other => format!("{} {other}", self.order.label()),
-        }
-    }
-
-    /// The line of the work–precision figure it belongs to.
-    fn scheme(&self) -> String {
-        let kind = match self.stepping {
-            Stepping::Fixed { .. } => "fixed dt",
-            Stepping::Adaptive { .. } => "adaptive",
-        };
-        format!(
-            "order {} {kind}, {} {}",
-            self.order_label(),
-            backend_name(self.backend),
-            precision_name(self.precision)
-        )
-    }
-
-    /// The scene's settings that run it, e.g. `[time] tolerance = 1e-6; [solver] order =
-    /// "auto", sequence = "from_2", jacobian = "auto", backend = "cpu", precision = "f64"`.
-    pub fn scene_lines(&self) -> String {
-        let step = match self.stepping {
-            Stepping::Fixed { dt, .. } => format!("dt = {dt:e}"),
-            Stepping::Adaptive { tolerance, .. } => format!("tolerance = {tolerance:e}"),
-        };
-        let order = match self.order {
-            Order::Fixed(p) => p.to_string(),
-            Order::Auto => "\"auto\"".into(),
-        };
-        format!(
-            "[time] {step}; [solver] order = {order}, sequence = \"{}\", jacobian = \"{}\", backend = \"{}\", precision = \"{}\"",
-            self.sequence.record(self.order),
-            self.jacobian.label(),
-            backend_name(self.backend),
-            precision_name(self.precision)
-        )
-    }
-}
-
-fn backend_name(b: Backend) -> &'static str {
-    match b {
-        Backend::Cpu => "cpu",
-        Backend::Gpu => "gpu",
-        Backend::Auto => "auto",
-    }
-}
-
-fn precision_name(p: Precision) -> &'static str {
-    match p {
-        Precision::F64 => "f64",
-        Precision::F32 => "f32",
-    }
 }
 
 /// The errors of a run against the reference (see the module documentation).

@@ -3,7 +3,8 @@
 use std::path::Path;
 
 use super::members::MeasuredGroup;
-use super::{backend_name, precision_name, Measurement};
+use super::setting::{backend_name, precision_name};
+use super::Measurement;
 use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
 use crate::model::params::Stepping;

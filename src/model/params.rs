@@ -82,13 +82,14 @@ impl Jacobian {
             }
     }
 
-    /// "auto", "exact" or "frozen", as a scene writes it.
-    pub fn label(self) -> &'static str {
-        match self {
-            Jacobian::Auto => "auto",
-            Jacobian::Exact => "exact",
-            Jacobian::Frozen => "frozen",
-        }
+    /// "auto", "exact" or "frozen", as a scene writes it (the names scenes and the command line
+    /// parse).
+    pub fn label(self) -> String {
+        use clap::ValueEnum;
+        self.to_possible_value()
+            .expect("every variant has a name")
+            .get_name()
+            .to_string()
     }
 
     /// What the manifests record: the matrix the run used, "exact" or "frozen".
@@ -188,13 +189,12 @@ impl Order {
     /// at 1e-7, order 4 at 1e-6 and order 6 at 1e-5 had not finished after 30 s, auto at 1e-7
     /// took 370000 steps to t = 0.0005), where at the floor each took 20 to 600 steps.
     pub fn f32_tolerance_floor(self, sequence: Sequence) -> f64 {
-        use roughlub_kernels::shared::control::{extrapolation_rounding_gain, sequence_from_two};
+        use roughlub_kernels::shared::control::extrapolation_rounding_gain;
         let column = match self {
             Order::Fixed(p) => p.max(2),
             Order::Auto => 2,
         };
-        let extrapolates = self != Order::Fixed(1);
-        let from_two = sequence_from_two(sequence == Sequence::FromTwo, extrapolates);
+        let from_two = sequence.of(self) == Sequence::FromTwo;
         extrapolation_rounding_gain(column, from_two) * f64::from(f32::EPSILON)
     }
 
