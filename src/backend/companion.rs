@@ -1,9 +1,14 @@
 //! The error estimate of order 1 with fixed steps, which has no tableau to estimate from: a
-//! companion batch of the same members at `COARSENING` times the step runs beside the run
+//! companion batch of the same members with another step runs beside the run
 //! ([`CompanionEstimate`], at the [`BatchSolver`] seam, so on either backend). The scheme is
-//! first order, so the global errors at a common output time are e(k dt) ≈ k e(dt), and
-//! |y(dt) − y(k dt)| / (k − 1) estimates the run's own global error, propagation included. The
-//! companion costs 1/k of the run's steps.
+//! first order, so the global error at an output time is about C h̄ with h̄ = t / (steps so
+//! far), the mean step; with s steps for the run and s_c for the companion,
+//! |y_run − y_companion| s_c / |s − s_c| estimates the run's own global error, propagation
+//! included (|y(dt) − y(4 dt)| / 3 where both take whole steps). The companion steps at
+//! `COARSENING` dt (1/4 of the run's steps) where the run takes two steps or more in every output
+//! interval; where dt reaches an output interval, 4 dt is cut to the interval too and would take
+//! the run's own steps (an estimate of 0), so there it steps at half the smaller of dt and the
+//! shortest interval (twice the run's steps or more).
 
 use rayon::prelude::*;
 
@@ -20,10 +25,12 @@ pub const COARSENING: f64 = 4.0;
 
 /// How the estimate is made (the manifest's `error_estimate.method`).
 pub const COMPANION_METHOD: &str = "global error of order 1 with fixed steps from a companion run \
-     at 4 dt: |y(dt) - y(4 dt)| / 3, as a max-norm: relative on gaps (the error of ln d; the \
-     smallest gaps compared in ln d also below the float range, other gaps below it on one side \
-     only at the range's edge, a lower bound), |du|/(1 + |u|) on velocities; infinite where the \
-     companion failed and the run did not";
+     at 4 dt (or, where dt reaches an output interval, at half the smaller of dt and the shortest \
+     interval): |y_run - y_companion| s_c / |s - s_c| with s and s_c the two runs' steps so far \
+     (|y(dt) - y(4 dt)| / 3 where both take whole steps), as a max-norm: relative on gaps (the \
+     error of ln d; the smallest gaps compared in ln d also below the float range, other gaps \
+     below it on one side only at the range's edge, a lower bound), |du|/(1 + |u|) on \
+     velocities; infinite where the companion failed and the run did not";
 
 /// Whether a plan runs order 1 with fixed steps (the runs that need a companion for an estimate).
 pub fn needs_companion(plan: &Plan) -> bool {
@@ -35,24 +42,46 @@ pub fn needs_companion_for(order: Order, stepping: Stepping) -> bool {
     matches!((order, stepping), (Order::Fixed(1), Stepping::Fixed { .. }))
 }
 
-/// The companion's plan: the run's, at `COARSENING` times its step, with the gaps and velocities
-/// it is compared on, and no fields.
+/// The companion's step for a run at fixed step `dt` with these output times (from t = 0):
+/// `COARSENING` dt where the run takes at least two steps in every output interval, else half
+/// of the smaller of dt and the shortest interval (see the module's documentation).
+pub fn companion_step(dt: f64, output_times: &[f64]) -> f64 {
+    let shortest = std::iter::once(0.0)
+        .chain(output_times.iter().copied())
+        .collect::<Vec<f64>>()
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|&interval| interval > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    // The step control takes what is left of an interval within rounding of dt as one step
+    // (`StepControl::trial_step`): the same margin says whether an interval takes two.
+    if shortest > dt * (1.0 + 1e-9) {
+        dt * COARSENING
+    } else {
+        0.5 * dt.min(shortest)
+    }
+}
+
+/// The companion's plan: the run's, at [`companion_step`], with the gaps and velocities it is
+/// compared on, and no fields.
 pub fn companion_plan(plan: &Plan) -> Plan {
-    let mut coarse = plan.clone();
+    let mut companion = plan.clone();
     if let Stepping::Fixed { dt, dt_min } = plan.stepping {
-        coarse.stepping = Stepping::Fixed {
-            dt: dt * COARSENING,
-            dt_min,
+        let step = companion_step(dt, &plan.output_times);
+        companion.stepping = Stepping::Fixed {
+            dt: step,
+            // A finer companion keeps the run's floor in proportion to its step.
+            dt_min: dt_min * (step / dt).min(1.0),
         };
     }
-    coarse.fields.gaps = true;
-    coarse.fields.velocities = true;
-    coarse.fields.rho = false;
-    coarse.fields.u = false;
-    coarse.fields.rho_star = false;
+    companion.fields.gaps = true;
+    companion.fields.velocities = true;
+    companion.fields.rho = false;
+    companion.fields.u = false;
+    companion.fields.rho_star = false;
     // Its snapshots are only compared, never summarised.
-    coarse.peak_centre = false;
-    coarse
+    companion.peak_centre = false;
+    companion
 }
 
 /// A run and its companion: snapshots and reports are the run's, each member's
@@ -88,46 +117,61 @@ impl<'a> CompanionEstimate<'a> {
     }
 }
 
-/// |a − b| / (k − 1) in the estimate's norm: ln d on gaps, |du|/(1 + |u|) on velocities.
-fn difference(fine: &Snapshot, coarse: &Snapshot) -> f64 {
-    if fine
+/// |run − companion| in the estimate's norm: ln d on gaps, |du|/(1 + |u|) on velocities.
+fn difference(run: &Snapshot, companion: &Snapshot) -> f64 {
+    if run
         .gaps
         .iter()
-        .chain(&fine.velocities)
+        .chain(&run.velocities)
         .any(|v| !v.is_finite())
     {
         return f64::NAN;
     }
-    let mut gaps = largest_log_ratio(&fine.gaps, &coarse.gaps);
+    let mut gaps = largest_log_ratio(&run.gaps, &companion.gaps);
     // Where a smallest gap is below the normal range, also those two in ln d, which the
     // snapshot keeps there (a collision stepped over by both runs leaves both gaps at 0 in d).
     // |min ln a - min ln b| is at most max |ln a_i - ln b_i|, so it only completes the gaps'
     // term; elsewhere the term is left as it is, bit for bit.
-    if fine.min_gap.min(coarse.min_gap) < f64::MIN_POSITIVE {
-        let smallest = (fine.log_min_gap - coarse.log_min_gap).abs();
+    if run.min_gap.min(companion.min_gap) < f64::MIN_POSITIVE {
+        let smallest = (run.log_min_gap - companion.log_min_gap).abs();
         if !smallest.is_nan() {
             gaps = gaps.max(smallest);
         }
     }
-    let velocities = largest_of(&fine.velocities, &coarse.velocities, 0.0, |a, b| {
+    let velocities = largest_of(&run.velocities, &companion.velocities, 0.0, |a, b| {
         (a - b).abs() / (1.0 + a.abs())
     });
-    gaps.max(velocities) / (COARSENING - 1.0)
+    gaps.max(velocities)
+}
+
+/// The run's global error from the difference of the two runs after `steps` and
+/// `companion_steps` steps: C h̄ for each (h̄ = t / steps), so the run's is the difference times
+/// s_c / |s - s_c|. Equal counts after a step (which `companion_step` rules out) give no
+/// estimate: infinite.
+fn global_error(difference: f64, steps: u64, companion_steps: u64) -> f64 {
+    if difference == 0.0 {
+        // The initial state (no steps yet), or two runs that agree exactly.
+        return 0.0;
+    }
+    if steps == companion_steps {
+        return f64::INFINITY;
+    }
+    difference * companion_steps as f64 / steps.abs_diff(companion_steps) as f64
 }
 
 /// The largest of `start` and `term(a, b)` over the pairs (a NaN term counts as nothing, as in
 /// `f64::max`), four pairs at a time so that the divisions pack: max is exact, so the order
 /// does not change the result.
 #[inline(always)]
-fn largest_of(fine: &[f64], coarse: &[f64], start: f64, term: impl Fn(f64, f64) -> f64) -> f64 {
+fn largest_of(left: &[f64], right: &[f64], start: f64, term: impl Fn(f64, f64) -> f64) -> f64 {
     const LANES: usize = 4;
-    let len = fine.len().min(coarse.len());
-    let (fine, coarse) = (&fine[..len], &coarse[..len]);
+    let len = left.len().min(right.len());
+    let (left, right) = (&left[..len], &right[..len]);
     let mut largest = [start; LANES];
-    let four_fine = fine.chunks_exact(LANES);
-    let four_coarse = coarse.chunks_exact(LANES);
-    let rest = four_fine.remainder().iter().zip(four_coarse.remainder());
-    for (a, b) in four_fine.zip(four_coarse) {
+    let four_left = left.chunks_exact(LANES);
+    let four_right = right.chunks_exact(LANES);
+    let rest = four_left.remainder().iter().zip(four_right.remainder());
+    for (a, b) in four_left.zip(four_right) {
         for l in 0..LANES {
             let t = term(a[l], b[l]);
             largest[l] = if t > largest[l] { t } else { largest[l] };
@@ -142,23 +186,23 @@ fn largest_of(fine: &[f64], coarse: &[f64], start: f64, term: impl Fn(f64, f64) 
 
 /// max_i |ln a_i − ln b_i| over pairs of gaps; where one gap is below the float range (0) and
 /// the other is not, |ln b − ln(smallest subnormal)|, which the true difference exceeds.
-fn largest_log_ratio(fine: &[f64], coarse: &[f64]) -> f64 {
+fn largest_log_ratio(run: &[f64], companion: &[f64]) -> f64 {
     // Where every gap of both is positive (nearly always), two logarithms: ln is monotone, so
     // the largest |ln(a/b)| is that of the largest or the smallest ratio, the same value as
     // one logarithm a gap (a logarithm a gap was a tenth of a short chain's run).
-    if fine
+    if run
         .iter()
-        .zip(coarse)
+        .zip(companion)
         .all(|(&a, &b)| (a > 0.0) & (b > 0.0))
     {
         // From 1 (|ln 1| = 0, the loop's start); the smallest ratio as the largest negated one
         // (negation is exact).
-        let largest = largest_of(fine, coarse, 1.0, |a, b| a / b);
-        let smallest = -largest_of(fine, coarse, -1.0, |a, b| -(a / b));
+        let largest = largest_of(run, companion, 1.0, |a, b| a / b);
+        let smallest = -largest_of(run, companion, -1.0, |a, b| -(a / b));
         return largest.ln().abs().max(smallest.ln().abs());
     }
     let mut worst = 0.0f64;
-    for (&a, &b) in fine.iter().zip(coarse) {
+    for (&a, &b) in run.iter().zip(companion) {
         let e = if a > 0.0 && b > 0.0 {
             // |ln a - ln b| with one logarithm.
             (a / b).ln().abs()
@@ -182,7 +226,7 @@ impl BatchSolver for CompanionEstimate<'_> {
         let Some(mut snaps) = self.run.next_output(progress)? else {
             return Ok(None);
         };
-        let coarse = self.companion.next_output(&|_| {})?;
+        let companion = self.companion.next_output(&|_| {})?;
         let run_ok = self.run.reports();
         let companion_ok = self.companion.reports();
         let (keep_gaps, keep_velocities) = (self.keep_gaps, self.keep_velocities);
@@ -190,10 +234,14 @@ impl BatchSolver for CompanionEstimate<'_> {
             .par_iter_mut()
             .enumerate()
             .map(|(m, s)| {
-                let estimate = match (&coarse, run_ok[m].status == MemberStatus::Ok) {
+                let estimate = match (&companion, run_ok[m].status == MemberStatus::Ok) {
                     (_, false) => f64::NAN,
                     (Some(c), true) if companion_ok[m].status == MemberStatus::Ok => {
-                        difference(s, &c[m])
+                        global_error(
+                            difference(s, &c[m]),
+                            run_ok[m].steps_accepted,
+                            companion_ok[m].steps_accepted,
+                        )
                     }
                     // The companion failed (or ended) where the run did not.
                     _ => f64::INFINITY,
@@ -246,7 +294,7 @@ impl BatchSolver for CompanionEstimate<'_> {
 
 #[cfg(test)]
 mod tests {
-    use super::largest_log_ratio;
+    use super::{companion_step, global_error, largest_log_ratio};
     use crate::test_rng::uniform_stream;
 
     /// The two-logarithm form gives the largest |ln(a/b)| of the pairs, bit for bit, whether the
@@ -285,5 +333,31 @@ mod tests {
         let far = largest_log_ratio(&[0.5], &[0.0]);
         assert!((far - 743.747).abs() < 1e-3, "{far}");
         assert_eq!(largest_log_ratio(&[], &[]), 0.0);
+    }
+
+    /// 4 dt where every output interval takes two steps of the run or more; else half the
+    /// smaller of dt and the shortest interval. The estimate scales the difference by
+    /// s_c / |s - s_c|.
+    #[test]
+    fn the_companion_takes_other_steps_than_the_run() {
+        // The intervals are differences of output times: within rounding.
+        let close = |got: f64, expected: f64| {
+            assert!((got - expected).abs() <= 1e-12 * expected, "{got} against {expected}")
+        };
+        let every_tenth = [0.0, 0.1, 0.2, 0.3, 0.4];
+        close(companion_step(1e-3, &every_tenth), 4e-3);
+        close(companion_step(0.05, &every_tenth), 0.2);
+        // dt equal to the interval (within the step control's rounding margin) or above it.
+        close(companion_step(0.1, &every_tenth), 0.05);
+        close(companion_step(0.1 * (1.0 + 1e-10), &every_tenth), 0.05);
+        close(companion_step(0.4, &every_tenth), 0.05);
+        // The shortest interval counts, and the first one is from t = 0.
+        close(companion_step(0.02, &[0.01, 0.5]), 0.005);
+        close(companion_step(0.005, &[0.01, 0.5]), 0.02);
+        close(global_error(0.3, 400, 100), 0.3 / 3.0);
+        close(global_error(0.3, 5, 2), 0.3 * 2.0 / 3.0);
+        close(global_error(0.3, 1, 2), 0.6);
+        assert_eq!(global_error(0.0, 0, 0), 0.0);
+        assert_eq!(global_error(0.3, 7, 7), f64::INFINITY);
     }
 }

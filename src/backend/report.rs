@@ -25,7 +25,9 @@ pub struct MemberReport {
     /// The tableau column (order) of the member's last step: the fixed order, or auto's choice.
     pub last_order: u8,
     /// Estimated error of the member's state at each output time (see [`error_estimate_method`]);
-    /// `None` where the scheme has no estimate (order 1, fixed steps).
+    /// `None` where the scheme has no estimate (order 1, fixed steps, without its companion).
+    /// Infinite or NaN values are written as strings ("inf", "nan": a failed member).
+    #[serde(serialize_with = "crate::output::manifest::non_finite::option_vec")]
     pub error_estimate: Option<Vec<f64>>,
 }
 

@@ -23,6 +23,50 @@ pub struct SceneRecord {
     pub text: String,
 }
 
+/// Numbers that may be infinite or NaN: JSON has no such numbers and serde_json writes them as
+/// null, which the manifest keeps for "unavailable", so they are written as the strings "inf",
+/// "-inf" and "nan" (Python's `float()` reads either form).
+pub mod non_finite {
+    use serde::ser::{SerializeSeq, Serializer};
+    use serde::Serialize;
+
+    struct Number(f64);
+
+    impl serde::Serialize for Number {
+        fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+            match self.0 {
+                x if x.is_finite() => serializer.serialize_f64(x),
+                x if x.is_nan() => serializer.serialize_str("nan"),
+                x if x > 0.0 => serializer.serialize_str("inf"),
+                _ => serializer.serialize_str("-inf"),
+            }
+        }
+    }
+
+    pub fn option<S: Serializer>(value: &Option<f64>, serializer: S) -> Result<S::Ok, S::Error> {
+        match value {
+            Some(x) => Number(*x).serialize(serializer),
+            None => serializer.serialize_none(),
+        }
+    }
+
+    pub fn option_vec<S: Serializer>(
+        value: &Option<Vec<f64>>,
+        serializer: S,
+    ) -> Result<S::Ok, S::Error> {
+        match value {
+            Some(values) => {
+                let mut seq = serializer.serialize_seq(Some(values.len()))?;
+                for &x in values {
+                    seq.serialize_element(&Number(x))?;
+                }
+                seq.end()
+            }
+            None => serializer.serialize_none(),
+        }
+    }
+}
+
 /// How the members' error estimates (`error_estimate` per member and output time, in a single
 /// run's members; each member's largest over its output times in members.csv of a study) are
 /// made, and the largest.
@@ -30,7 +74,8 @@ pub struct SceneRecord {
 pub struct ErrorEstimateRecord {
     pub method: &'static str,
     /// The largest estimate over the members that completed and their output times (null where
-    /// unavailable).
+    /// unavailable; "inf" where infinite: a companion that failed where the run did not).
+    #[serde(serialize_with = "non_finite::option")]
     pub largest: Option<f64>,
     /// Set where the largest estimate is above
     /// [`LARGE_ERROR_ESTIMATE`](crate::backend::report::LARGE_ERROR_ESTIMATE).
@@ -178,4 +223,40 @@ pub struct QuantileMethod {
     pub field_ranges: BTreeMap<String, (f64, f64)>,
     pub bins: usize,
     pub scalar_histograms: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ErrorEstimateRecord;
+    use crate::backend::MemberReport;
+    use crate::model::params::{Order, Stepping};
+
+    /// An infinite estimate (a companion that failed where the run did not) is "inf", not the
+    /// null of "unavailable"; a failed member's NaN is "nan"; finite values stay numbers.
+    #[test]
+    fn non_finite_estimates_are_strings_not_null() {
+        let stepping = Stepping::Fixed {
+            dt: 1e-3,
+            dt_min: 1e-12,
+        };
+        let record = ErrorEstimateRecord::new(Order::Fixed(1), stepping, true, Some(f64::INFINITY));
+        let json = serde_json::to_value(&record).unwrap();
+        assert_eq!(json["largest"], "inf");
+        assert!(json["warning"].as_str().unwrap().contains("inf"));
+        let unavailable = ErrorEstimateRecord::new(Order::Fixed(1), stepping, false, None);
+        assert!(serde_json::to_value(&unavailable).unwrap()["largest"].is_null());
+        let report = MemberReport {
+            index: 0,
+            mu: 0.01,
+            gamma: 2.0,
+            status: crate::backend::MemberStatus::Ok,
+            steps_accepted: 3,
+            steps_rejected: 0,
+            last_dt: 1e-3,
+            last_order: 1,
+            error_estimate: Some(vec![0.0, 0.25, f64::INFINITY, f64::NAN]),
+        };
+        let json = serde_json::to_value(&report).unwrap();
+        assert_eq!(json["error_estimate"], serde_json::json!([0.0, 0.25, "inf", "nan"]));
+    }
 }
