@@ -127,6 +127,7 @@ pub(super) fn solve(groups: &[MeasuredGroup], setting: &Setting) -> Result<Run> 
         accepted: 0,
         rejected: 0,
         failed: false,
+        failure: None,
     };
     for group in groups {
         let mut plan = group.plan.clone();
@@ -155,6 +156,15 @@ pub(super) fn solve(groups: &[MeasuredGroup], setting: &Setting) -> Result<Run> 
         run.failed |= reports
             .iter()
             .any(|r| r.status != crate::backend::MemberStatus::Ok);
+        if run.failure.is_none() {
+            run.failure = reports.iter().find_map(|r| match &r.status {
+                crate::backend::MemberStatus::Failed { reason, time } => Some(format!(
+                    "member {} failed at t = {time:.4e}: {reason}",
+                    r.index
+                )),
+                crate::backend::MemberStatus::Ok => None,
+            });
+        }
     }
     Ok(run)
 }

@@ -107,6 +107,8 @@ struct Run {
     accepted: u64,
     rejected: u64,
     failed: bool,
+    /// The first failed member's reason and time, as the manifest of `roughlub run` gives it.
+    failure: Option<String>,
 }
 
 /// The fixed orders of the ladder (3, 5 and 7 lie between their neighbours), the usually cheapest
@@ -271,38 +273,95 @@ fn reference_setting(scene: &Scene, tolerance: f64) -> Setting {
     }
 }
 
-/// The reference at `tolerance` and its error against a run ten times tighter (printed, and
-/// warned about when above a tenth of the target); fails when either run fails.
+/// The reference and its error against a check run (printed, and warned about when above a
+/// tenth of the target). The reference is tried at `tolerance` and, where a member fails there
+/// (near contact a tight tolerance can need steps below the time resolution of t), at ten and a
+/// hundred times it, up to a tenth of the target; the check at a tenth of the reference's
+/// tolerance, or ten times it where that fails (a looser check overstates the reference's error,
+/// so the warning errs on the safe side). Fails, naming every tolerance tried and why, when none
+/// runs.
 fn solve_reference(
     scene: &Scene,
     groups: &[MeasuredGroup],
     tolerance: f64,
     options: &AccuracyOptions,
-) -> Result<(Run, f64)> {
-    let reference = solve(groups, &reference_setting(scene, tolerance))?;
-    let check = solve(groups, &reference_setting(scene, tolerance / 10.0))?;
-    if reference.failed || check.failed {
+) -> Result<(Run, f64, f64)> {
+    let mut tried: Vec<String> = Vec::new();
+    // Tolerances already found to fail, with why (a check may be asked for one of them again).
+    let mut failed: Vec<(f64, String)> = Vec::new();
+    let mut attempt = |tolerance: f64, role: &str| -> Result<Option<Run>> {
+        if failed.iter().any(|(t, _)| *t == tolerance) {
+            return Ok(None);
+        }
+        let run = solve(groups, &reference_setting(scene, tolerance))?;
+        Ok(match &run.failure {
+            Some(why) => {
+                tried.push(format!("tolerance {}{role}: {why}", round_e(tolerance)));
+                failed.push((tolerance, why.clone()));
+                None
+            }
+            None => Some(run),
+        })
+    };
+    let candidates = [tolerance, tolerance * 10.0, tolerance * 100.0];
+    let mut found = None;
+    for (k, &tolerance) in candidates.iter().enumerate() {
+        if k > 0 && tolerance > options.target / 10.0 * 1.001 {
+            break;
+        }
+        let Some(reference) = attempt(tolerance, "")? else {
+            continue;
+        };
+        let mut check_tolerance = tolerance / 10.0;
+        let mut check = attempt(check_tolerance, " (the check)")?;
+        if check.is_none() {
+            check_tolerance = tolerance * 10.0;
+            check = attempt(check_tolerance, " (the check)")?;
+        }
+        if let Some(check) = check {
+            found = Some((reference, check, tolerance, check_tolerance));
+            break;
+        }
+    }
+    let Some((reference, check, tolerance, check_tolerance)) = found else {
         return Err(Error::missing(
             "accuracy",
-            "the reference run (order auto, adaptive, tight tolerance) failed for a member: the scene itself does not run; see `roughlub run` for the reason",
+            format!(
+                "no reference (order auto, adaptive, from tolerance {} up to a tenth of the target) completed every measured member: {}; `roughlub run` of the scene at such a tolerance shows the failure",
+                round_e(tolerance),
+                tried.join("; ")
+            ),
         ));
+    };
+    {
+        let reference_error = errors(&reference.snapshots, &check.snapshots).worst();
+        if !options.quiet {
+            for failure in &tried {
+                eprintln!("note: the reference failed at {failure}");
+            }
+            eprintln!(
+                "reference: order auto (sequence from_1), tolerance {} ({} steps, {:.2} s); against tolerance {}: error {reference_error:.2e}",
+                round_e(tolerance),
+                reference.accepted,
+                reference.wall,
+                round_e(check_tolerance),
+            );
+        }
+        if reference_error > options.target / 10.0 {
+            eprintln!(
+                "warning: the reference is only accurate to {reference_error:.1e}, more than a tenth of the target {}: errors below about {reference_error:.0e} are not resolved",
+                round_e(options.target)
+            );
+        }
+        Ok((reference, reference_error, tolerance))
     }
-    let reference_error = errors(&reference.snapshots, &check.snapshots).worst();
-    if !options.quiet {
-        eprintln!(
-            "reference: order auto (sequence from_1), tolerance {tolerance:e} ({} steps, {:.2} s); against tolerance {:e}: error {reference_error:.2e}",
-            reference.accepted,
-            reference.wall,
-            tolerance / 10.0
-        );
-    }
-    if reference_error > options.target / 10.0 {
-        eprintln!(
-            "warning: the reference is only accurate to {reference_error:.1e}, more than a tenth of the target {:e}: errors below about {reference_error:.0e} are not resolved",
-            options.target
-        );
-    }
-    Ok((reference, reference_error))
+}
+
+/// A tolerance as a user writes it: rounded to 12 significant digits, then shortest (1e-11 for
+/// 1e-8 · 1e-3, which is 1.0000000000000001e-11).
+fn round_e(x: f64) -> String {
+    let rounded: f64 = format!("{x:.11e}").parse().unwrap_or(x);
+    format!("{rounded:e}")
 }
 
 /// The settings measured so far against the reference, and the cheapest that met the target.
@@ -369,8 +428,12 @@ impl Ladder<'_> {
                 && work_ratio.is_finite()
                 && work_ratio >= 1.25
                 && e0 > 0.0
-                && e1 > 0.0)
-                .then(|| (e0 / e1).ln() / work_ratio.ln())
+                && e1 > 0.0
+                // A rung whose error is infinite (a gap at 0 where the reference's is not) has
+                // no order.
+                && e0.is_finite()
+                && e1.is_finite())
+            .then(|| (e0 / e1).ln() / work_ratio.ln())
         });
         let m = Measurement {
             setting,
@@ -451,9 +514,12 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         );
     }
 
-    let reference_tolerance = (options.target * 1e-3).clamp(1e-11, 1e-8);
-    let (reference, reference_error) =
-        solve_reference(&scene, &groups, reference_tolerance, options)?;
+    let (reference, reference_error, reference_tolerance) = solve_reference(
+        &scene,
+        &groups,
+        (options.target * 1e-3).clamp(1e-11, 1e-8),
+        options,
+    )?;
     let staged = StagedDir::begin(&options.out_dir, options.force)?;
     let dir = staged.staging.clone();
     let mut ladder = Ladder {

@@ -236,13 +236,11 @@ impl BatchSolver for CompanionEstimate<'_> {
             .map(|(m, s)| {
                 let estimate = match (&companion, run_ok[m].status == MemberStatus::Ok) {
                     (_, false) => f64::NAN,
-                    (Some(c), true) if companion_ok[m].status == MemberStatus::Ok => {
-                        global_error(
-                            difference(s, &c[m]),
-                            run_ok[m].steps_accepted,
-                            companion_ok[m].steps_accepted,
-                        )
-                    }
+                    (Some(c), true) if companion_ok[m].status == MemberStatus::Ok => global_error(
+                        difference(s, &c[m]),
+                        run_ok[m].steps_accepted,
+                        companion_ok[m].steps_accepted,
+                    ),
                     // The companion failed (or ended) where the run did not.
                     _ => f64::INFINITY,
                 };
@@ -342,7 +340,10 @@ mod tests {
     fn the_companion_takes_other_steps_than_the_run() {
         // The intervals are differences of output times: within rounding.
         let close = |got: f64, expected: f64| {
-            assert!((got - expected).abs() <= 1e-12 * expected, "{got} against {expected}")
+            assert!(
+                (got - expected).abs() <= 1e-12 * expected,
+                "{got} against {expected}"
+            )
         };
         let every_tenth = [0.0, 0.1, 0.2, 0.3, 0.4];
         close(companion_step(1e-3, &every_tenth), 4e-3);

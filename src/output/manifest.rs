@@ -257,6 +257,9 @@ mod tests {
             error_estimate: Some(vec![0.0, 0.25, f64::INFINITY, f64::NAN]),
         };
         let json = serde_json::to_value(&report).unwrap();
-        assert_eq!(json["error_estimate"], serde_json::json!([0.0, 0.25, "inf", "nan"]));
+        assert_eq!(
+            json["error_estimate"],
+            serde_json::json!([0.0, 0.25, "inf", "nan"])
+        );
     }
 }
