@@ -165,11 +165,17 @@ fn parse_backends(
             "cpu-f32" => Ok((Backend::Cpu, Precision::F32)),
             "gpu" | "gpu-f64" => Ok((Backend::Gpu, Precision::F64)),
             "gpu-f32" => Ok((Backend::Gpu, Precision::F32)),
+            "available" => Err(Error::invalid(
+                "--backends",
+                format!("\"{text}\""),
+                "\"available\" stands for every backend found, so it stands alone",
+                "a comma list of cpu (f64), cpu-f32, gpu (f64), gpu-f32, or available alone",
+            )),
             other => Err(Error::invalid(
                 "--backends",
                 format!("\"{other}\""),
                 "a backend and precision of the ladder",
-                "a comma list of cpu (f64), cpu-f32, gpu (f64), gpu-f32, or available",
+                "a comma list of cpu (f64), cpu-f32, gpu (f64), gpu-f32, or available alone",
             )),
         })
         .collect::<roughlub::Result<Vec<_>>>()?;
@@ -305,10 +311,14 @@ fn main() -> ExitCode {
     unsafe { roughlub::backend::gpu::context::quiet_mesa_device_select() };
     // Every variable roughlub reads, read once, here, and passed down with each scene.
     let overrides = roughlub::backend::overrides::Overrides::from_env();
-    let load = |path: &std::path::Path| -> roughlub::Result<Scene> {
+    // `warn_ignored`: say which settings the scene's own order ignores (not for accuracy, whose
+    // ladder runs every order with them).
+    let load = |path: &std::path::Path, warn_ignored: bool| -> roughlub::Result<Scene> {
         let mut scene = Scene::from_file(path)?;
-        for note in scene.ignored_settings() {
-            eprintln!("warning: {note}");
+        if warn_ignored {
+            for note in scene.ignored_settings() {
+                eprintln!("warning: {note}");
+            }
         }
         scene.overrides = overrides.clone();
         Ok(scene)
@@ -326,7 +336,7 @@ fn main() -> ExitCode {
             replace: ReplaceArgs { force },
             allow_large,
         } => (|| {
-            let scene = load(&scene)?;
+            let scene = load(&scene, true)?;
             let out_dir = out.unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
             if scene.ensemble.is_some() {
                 let shard = shard
@@ -380,7 +390,7 @@ fn main() -> ExitCode {
             quiet,
             replace: ReplaceArgs { force },
         } => (|| {
-            let scene = load(&scene)?;
+            let scene = load(&scene, false)?;
             let backends = parse_backends(&backends, overrides.adapter_name.as_deref())?;
             let out_dir = out
                 .unwrap_or_else(|| PathBuf::from("out").join(format!("{}_accuracy", scene.name)));
@@ -413,7 +423,7 @@ fn main() -> ExitCode {
             quiet,
             replace: ReplaceArgs { force },
         } => (|| {
-            let scene = load(&scene)?;
+            let scene = load(&scene, true)?;
             let out_dir = out
                 .unwrap_or_else(|| PathBuf::from("out").join(format!("{}_converge", scene.name)));
             let summary = run_convergence(

@@ -820,7 +820,7 @@ fn rejects_f32_tolerances_below_the_orders_rounding() {
         &adaptive("4", "1e-6", "f32"),
         &[],
         &[
-            "time.tolerance = 1e-6 with precision f32 and order 4",
+            "time.tolerance = 1e-6 with precision f32, order 4 and sequence from_1",
             ">= 1.09e-5",
         ],
     );
@@ -828,11 +828,30 @@ fn rejects_f32_tolerances_below_the_orders_rounding() {
         &adaptive("\"auto\"", "1e-7", "f32"),
         &[],
         &[
-            "time.tolerance = 1e-7 with precision f32 and order auto",
-            ">= 5.96e-7",
+            "time.tolerance = 1e-7 with precision f32, order auto and sequence from_1",
+            ">= 5.97e-7",
+            "1.73e-4 for 6",
         ],
     );
-    for (order, tolerance, precision) in [("4", "2e-5", "f32"), ("4", "1e-6", "f64")] {
+    // The floors of from_2 (2^-23 times 13 for column 2), named for it.
+    expect_rejected(
+        &adaptive("\"auto\"", "1e-6", "f32").replace(
+            "order = \"auto\"",
+            "order = \"auto\"\nsequence = \"from_2\"",
+        ),
+        &[],
+        &[
+            "order auto and sequence from_2",
+            ">= 1.55e-6",
+            "5.49e-4 for 6",
+        ],
+    );
+    // The bound a message names is allowed (1.73e-4 for order 6: 1.7221e-4 rounded up).
+    for (order, tolerance, precision) in [
+        ("4", "2e-5", "f32"),
+        ("4", "1e-6", "f64"),
+        ("6", "1.73e-4", "f32"),
+    ] {
         let tmp = tempfile::tempdir().unwrap();
         let path = tmp.path().join("scene.toml");
         std::fs::write(&path, adaptive(order, tolerance, precision)).unwrap();

@@ -115,9 +115,15 @@ impl FailureRecord {
         };
         let collapse = |why: &str| {
             format!(
-                "step size collapsed below {below}: {why} (smallest gap: d_{} = e^{:.4} = {:e})",
+                "step size collapsed below {below}: {why} (smallest gap: d_{} = e^{} = {:e})",
                 self.index,
-                self.detail,
+                // ln d with four decimals, in exponent form where that would print hundreds of
+                // digits (ln d = -8e240 with mu = 1e-300).
+                if self.detail.abs() < 1e6 {
+                    format!("{:.4}", self.detail)
+                } else {
+                    format!("{:.4e}", self.detail)
+                },
                 self.detail.exp()
             )
         };

@@ -11,7 +11,7 @@ use super::gpu::{AdapterDescription, GpuContext};
 use super::{Backend, BatchSolver, GpuError, Precision};
 use crate::error::{Error, Result};
 use crate::model::chain::Chain;
-use crate::model::params::{Stepping, MAX_ORDER, MAX_ORDER_F32};
+use crate::model::params::{Order, Stepping, MAX_ORDER, MAX_ORDER_F32};
 use crate::model::plan::Plan;
 
 /// Which backend actually runs.
@@ -215,17 +215,30 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
     if let (Precision::F32, Stepping::Adaptive { tolerance, .. }) = (precision, plan.stepping) {
         let floor = plan.order.f32_tolerance_floor(plan.sequence);
         if tolerance < floor {
+            // Rounded up, so that the value named is allowed.
+            let at_least = |x: f64| format!("{:.2e}", round_up(x, 3));
+            let others = [Order::Auto, Order::Fixed(4), Order::Fixed(6)]
+                .map(|o| {
+                    format!(
+                        "{} for {}",
+                        at_least(o.f32_tolerance_floor(plan.sequence)),
+                        o.label()
+                    )
+                })
+                .join(", ");
             return Err(Error::invalid(
                 "time.tolerance",
                 format!(
-                    "{tolerance:e} with precision f32 and order {}",
-                    plan.order.label()
+                    "{tolerance:e} with precision f32, order {} and sequence {}",
+                    plan.order.label(),
+                    plan.sequence.record(plan.order)
                 ),
                 "the error estimates of that order carry more f32 rounding than that, so the \
                  steps would shrink without end",
                 format!(
-                    ">= {floor:.2e} for this order in f32 (6e-7 for orders 1, 2 and auto, \
-                     1.1e-5 for 4, 1.7e-4 for 6); down to 1e-13 in f64"
+                    ">= {} for this order and sequence in f32 (with this sequence: {others}); \
+                     down to 1e-13 in f64",
+                    at_least(floor)
                 ),
             ));
         }
@@ -274,4 +287,16 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
         gpu: Some(ctx),
         record,
     })
+}
+
+/// `x` rounded up to `digits` significant digits (a bound named in a message must be allowed).
+fn round_up(x: f64, digits: i32) -> f64 {
+    let scale = 10f64.powi(digits - 1 - x.log10().floor() as i32);
+    let up = (x * scale).ceil() / scale;
+    // The division can land a rounding below the value: step up to the next representable one.
+    if up < x {
+        f64::from_bits(up.to_bits() + 1)
+    } else {
+        up
+    }
 }

@@ -183,8 +183,8 @@ impl Order {
     /// The tightest tolerance an adaptive run in f32 may ask for with this order and sequence:
     /// the f32 rounding of the lowest column its step control keeps (column max(k, 2) for a
     /// fixed order k, column 2 for auto), 2^-23 times the column's rounding gain
-    /// (`extrapolation_rounding_gain`): 6e-7 for orders 1, 2 and auto, 1.1e-5 for order 4, 1.7e-4
-    /// for order 6. Below it the estimates carry more rounding than the tolerance allows, and
+    /// (`extrapolation_rounding_gain`): 5.96e-7 for orders 1, 2 and auto, 1.08e-5 for order 4,
+    /// 1.72e-4 for order 6 (from 2: 1.55e-6, 3.28e-5, 5.48e-4). Below it the estimates carry more rounding than the tolerance allows, and
     /// the steps shrink without end without collapsing (on an N = 50 chain to t = 0.05: order 1
     /// at 1e-7, order 4 at 1e-6 and order 6 at 1e-5 had not finished after 30 s, auto at 1e-7
     /// took 370000 steps to t = 0.0005), where at the floor each took 20 to 600 steps.

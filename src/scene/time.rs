@@ -26,7 +26,8 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
                 Range::of("dt_min").gt(0.0).lt(end).upper_text("end"),
                 "a member whose step falls below dt_min is marked failed",
             )?;
-            (v, format!("{v:e}"))
+            // Named, so that a step refused for it says where its bound comes from.
+            (v, format!("dt_min = {v:e}"))
         }
         // Far below any step a run needs, so that in practice the floor is the time resolution
         // (control::step_floor, 2^-90 t): collisions of heavy particles with little lubrication
@@ -45,7 +46,7 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
                     .gt(dt_min)
                     .le(end)
                     .lower_text(dt_min_text.clone())
-                    .upper_text(format!("end = {end}"));
+                    .upper_text(format!("end = {}", crate::input::number_text(end)));
                 let dt = check_range("time.dt", dt, range, "the fixed step")?;
                 if t.dt_initial.is_some() {
                     return Err(Error::missing(
@@ -74,7 +75,11 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
                     "time.dt_initial",
                     t.dt_initial.unwrap_or(1e-4 * end),
                     range,
-                    "the first trial step",
+                    if t.dt_initial.is_some() {
+                        "the first trial step"
+                    } else {
+                        "the first trial step (not set: 1e-4 end)"
+                    },
                 )?;
                 Stepping::Adaptive {
                     tolerance,
