@@ -176,10 +176,9 @@ fn row_substeps(j: u32) -> u32 {
 const GAP_EXP_TAYLOR: real = 0.0625;
 const EXP_FAST_MAX: real = 700.0;
 
-// MAX_OPENING, NEGLIGIBLE_OPENING and JACOBIAN_RESOLVED of kernels/src/shared/gaps.rs.
+// MAX_OPENING and NEGLIGIBLE_OPENING of kernels/src/shared/gaps.rs.
 const MAX_OPENING: real = 5.0;
 const NEGLIGIBLE_OPENING: real = 1e-12;
-const JACOBIAN_RESOLVED: real = 10000.0;
 
 //@GENERATED
 
@@ -288,18 +287,21 @@ fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real, scale: rea
 // `jacobian_factor`: k = 1/(1 + x) where the gap opens (x >= 0) and 1 - x/(1 + x + 16 x^4)
 // where it closes (1/(1 + x) to O(x^5), bounded, back to 1 for fast closing), x = h (u_right -
 // u_left)/d, where the plan keeps the exact Jacobian (EXACT_JACOBIAN: the CPU's
-// `Terms::exact_jacobian`, `Plan::exact_jacobian`) and r is resolved, else 1. The CPU twin in
-// kernels/src/step.rs says why this form.
+// `Terms::exact_jacobian`, `Plan::exact_jacobian`) and the gap is stored as d (above GAP_FLOOR),
+// else 1. The CPU twin in kernels/src/step.rs says why this form and this switch.
 fn jacobian_factor(d: real, inv_d: real, h: real, u_left: real, u_right: real) -> real {
-    let moved = h * (abs(u_left) + abs(u_right));
-    let x = h * (u_right - u_left) * inv_d;
-    if EXACT_JACOBIAN && moved <= JACOBIAN_RESOLVED * d {
-        // Both branches in one form (the CPU's lane loop computes both, so one division).
+    if EXACT_JACOBIAN && d > GAP_FLOOR {
+        let x = h * (u_right - u_left) * inv_d;
+        // One division for both branches, as the CPU's lane loop: q = 1/(1 + x + [x < 0] 16 x^4).
         var closing: real = 0.0;
         if x < 0.0 {
             closing = 16.0 * ((x * x) * (x * x));
         }
-        return 1.0 - x / (1.0 + x + closing);
+        let q = 1.0 / (1.0 + x + closing);
+        if x < 0.0 {
+            return 1.0 - x * q;
+        }
+        return q;
     }
     return 1.0;
 }

@@ -65,7 +65,7 @@ use crate::power::{powi_in_rounds, Power};
 use crate::real::Real;
 use crate::shared::f64_math;
 pub use crate::shared::gaps::{
-    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, JACOBIAN_RESOLVED, LN_GAP_FLOOR,
+    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR,
     LN_GAP_FLOOR_F32, LN_RATIO_SERIES, MAX_OPENING, NEGLIGIBLE_OPENING,
 };
 use crate::SimdLevel;
@@ -437,34 +437,42 @@ where
     (mu + h * (law.gamma)(l) * g * d * inv_s, g, d, inv_d)
 }
 
-/// The factor k of a gap of (effective) size d whose ends move at u_left and u_right at the
-/// step's start, x = h r = h (u_right - u_left)/d: the exact Jacobian's 1/(1 + x) where the gap
-/// opens (x >= 0: k in (0, 1]), and k = 1 - x/(1 + x + 16 x^4) where it closes, which is
-/// 1/(1 + x) to O(x^5), smooth across x = 0, within [1, 1.4] and back to 1 (the W-method's k)
-/// for gaps that would close within the step, where 1/(1 + x) is unbounded and the linearisation
-/// about the start rate, which lubrication is about to brake, overshoots. Measured against other
-/// forms (docs/accuracy.md): a cut-off of 1/(1 + x) is a kink the rows of one coarse step
-/// straddle (order 4 at dt = 1.6e-2 on case 2a: 8e-2); bounded forms that match 1/(1 + x) only
-/// to O(x^3) kept the six-particle chain's order 6 at 7 instead of 6; a closing k that falls to
-/// 0 freezes colliding gaps (the collision tests fail). k = 1 where not `exact` or where r is not
-/// resolved (JACOBIAN_RESOLVED: near contact the velocities' difference is rounding; it also
-/// keeps x below 1e4, so x^4 is finite). k = 1 leaves every product it enters unchanged, bit for
-/// bit.
+/// The factor k of a gap whose ends move at u_left and u_right at the step's start, x = h r =
+/// h (u_right - u_left)/d: the exact Jacobian's 1/(1 + x) where the gap opens (x >= 0: k in
+/// (0, 1]), and k = 1 - x/(1 + x + 16 x^4) where it closes, which is 1/(1 + x) to O(x^5), smooth
+/// across x = 0, within [1, 1.4] and back to 1 for gaps that would close within the step, where
+/// 1/(1 + x) is unbounded and the linearisation about the start rate, which lubrication is about
+/// to brake, overshoots. Measured against other forms (docs/accuracy-measurements.md): a cut-off
+/// of 1/(1 + x) is a kink the rows of one coarse step straddle (order 4 at dt = 1.6e-2 on case
+/// 2a: 8e-2); bounded forms that match 1/(1 + x) only to O(x^3) kept the six-particle chain's
+/// order 6 at 7 instead of 6; a closing k that falls to 0 freezes colliding gaps (the collision
+/// tests fail). k = 1 where not `exact`, and for gaps stored as ln d (d at the gap floor:
+/// collisions, whose ln d update is exact; with k there the collision tests failed, "every
+/// smaller step raised the energy"); k = 1 leaves every product it enters unchanged, bit for
+/// bit. The switch depends on the state, not on h: before, k = 1 where h (|u_left| +
+/// |u_right|) > 1e4 d (taken as an unresolved rate), a kink in h that the rows of one step
+/// straddled near contact (the substeps h/n_j on either side of it), which broke the
+/// extrapolation: on a random N = 300 chain at ln d ~ -19 to -27
+/// (`docs/order_loss/contact_n300.toml`) auto's error at tolerance 1e-8 was 12 times the
+/// tolerance in 545 + 46 steps (docs/accuracy.md). x is finite for finite velocities (d is at
+/// least the gap floor), and 16 x^4 = inf gives k = 1.
 #[inline(always)]
 fn jacobian_factor<T: Real>(exact: bool, d: T, inv_d: T, h: T, u_left: T, u_right: T) -> T {
-    let moved = h * (u_left.abs() + u_right.abs());
-    let x = h * (u_right - u_left) * inv_d;
-    if exact && moved <= T::c(JACOBIAN_RESOLVED) * d {
-        // Both branches as 1 - x/(1 + x + [x < 0] 16 x^4), one division: the lane loop computes
-        // both branches, and written apart (1/(1 + x) for x >= 0) they cost two, ~5 % of the
-        // step (measured). For x >= 0 the form rounds 1 - x/(1 + x) instead of 1/(1 + x): a
-        // relative difference of at most x ulps, below 1e-12 for the resolved x < 1e4.
+    if exact && d > T::GAP_FLOOR {
+        let x = h * (u_right - u_left) * inv_d;
+        // One division for both branches (the lane loop computes both; two cost ~5 % of the
+        // step, measured): q = 1/(1 + x + [x < 0] 16 x^4), k = q opening, 1 - x q closing.
         let closing = if x < T::ZERO {
             T::c(16.0) * ((x * x) * (x * x))
         } else {
             T::ZERO
         };
-        T::ONE - x / (T::ONE + x + closing)
+        let q = T::ONE / (T::ONE + x + closing);
+        if x < T::ZERO {
+            T::ONE - x * q
+        } else {
+            q
+        }
     } else {
         T::ONE
     }

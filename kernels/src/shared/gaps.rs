@@ -79,9 +79,3 @@ pub const SPIKE_TINY: f64 = 1e-140;
 /// (Also the GPU's f32 twin's, `SPIKE_TINY_F32` in src/backend/gpu/partitioned.rs.)
 pub const SPIKE_TINY_F32: f64 = 1e-30;
 
-/// A gap's start rate r = (u_right - u_left)/d is resolved, and k used, only where
-/// h (|u_left| + |u_right|) <= JACOBIAN_RESOLVED d: there the rounding of u_right - u_left moves
-/// h r by at most ~2e-12 in f64 (6e-4 in f32, whose tolerances are far looser). Below it (near
-/// contact, where the velocities' difference is rounding) the step keeps k = 1. The same value
-/// in both precisions, so that f32 and f64 take the same scheme.
-pub const JACOBIAN_RESOLVED: f64 = 1e4;
