@@ -65,8 +65,8 @@ use crate::power::{powi_in_rounds, Power};
 use crate::real::Real;
 use crate::shared::f64_math;
 pub use crate::shared::gaps::{
-    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR,
-    LN_GAP_FLOOR_F32, LN_RATIO_SERIES, MAX_OPENING, NEGLIGIBLE_OPENING,
+    EXP_FAST_MAX, GAP_EXP_TAYLOR, GAP_FLOOR, GAP_FLOOR_F32, LN_GAP_FLOOR, LN_GAP_FLOOR_F32,
+    LN_RATIO_SERIES, MAX_OPENING, NEGLIGIBLE_OPENING,
 };
 use crate::SimdLevel;
 

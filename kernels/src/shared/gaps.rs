@@ -78,4 +78,3 @@ pub const SPIKE_TINY: f64 = 1e-140;
 /// far below anything that matters against the O(1) terms it is added to (2^-24).
 /// (Also the GPU's f32 twin's, `SPIKE_TINY_F32` in src/backend/gpu/partitioned.rs.)
 pub const SPIKE_TINY_F32: f64 = 1e-30;
-
