@@ -290,7 +290,11 @@ fn solve_reference(
     // Tolerances already found to fail, with why (a check may be asked for one of them again).
     let mut failed: Vec<(f64, String)> = Vec::new();
     let mut attempt = |tolerance: f64, role: &str| -> Result<Option<Run>> {
-        if failed.iter().any(|(t, _)| *t == tolerance) {
+        // Within rounding: the candidates and their checks are products of ten.
+        if failed
+            .iter()
+            .any(|(t, _)| (t / tolerance - 1.0).abs() < 1e-9)
+        {
             return Ok(None);
         }
         let run = solve(groups, &reference_setting(scene, tolerance))?;
@@ -327,7 +331,7 @@ fn solve_reference(
         return Err(Error::missing(
             "accuracy",
             format!(
-                "no reference (order auto, adaptive, from tolerance {} up to a tenth of the target) completed every measured member: {}; `roughlub run` of the scene at such a tolerance shows the failure",
+                "no reference (order auto, adaptive, at tolerance {} and up to a hundred times it, no looser than a tenth of the target) completed every measured member: {}; `roughlub run` of the scene at such a tolerance shows the failure",
                 round_e(tolerance),
                 tried.join("; ")
             ),

