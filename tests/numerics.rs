@@ -842,20 +842,75 @@ fn orders_on_a_random_chain_of_200() {
 /// N = 200, roughness radii uniform within ±30 % of the mean (d* of gap i from its two radii),
 /// rho 0.7, u0 = 0.5 sin 2πx.
 fn random_chain_of_200() -> Chain {
+    chain_with_random_radii(200, "0.5*sin(2*pi*x)", 11)
+}
+
+/// N particles at rho 0.7 with initial velocity `velocity`, roughness radii uniform within ±30 %
+/// of the mean (d* of gap i from its two radii), drawn from `seed`.
+fn chain_with_random_radii(n: usize, velocity: &str, seed: u64) -> Chain {
     let profile = |text: &str| Expr::parse(text).unwrap();
     let mut chain = chain_from_profiles(
-        200,
+        n,
         &profile("0.7"),
-        &profile("0.5*sin(2*pi*x)"),
+        &profile(velocity),
         Some(&profile("0.7")),
     )
     .unwrap();
-    let mut rng = Rng(11);
-    let radii: Vec<f64> = (0..=200).map(|_| rng.uniform(0.7, 1.3)).collect();
+    let mut rng = Rng(seed);
+    let radii: Vec<f64> = (0..=n).map(|_| rng.uniform(0.7, 1.3)).collect();
     for (i, d) in chain.dstar.as_mut().unwrap().iter_mut().enumerate() {
         *d *= 0.5 * (radii[i] + radii[i + 1]);
     }
     chain
+}
+
+/// One member of `chain` with auto and adaptive steps at `tolerance` (from `dt_initial`), the
+/// plan adjusted by `adjust`: its snapshot at each output time and its report (asserted ok).
+fn auto_member(
+    chain: &Chain,
+    params: MemberParams,
+    outputs: &[f64],
+    tolerance: f64,
+    dt_initial: f64,
+    adjust: impl FnOnce(&mut Plan),
+) -> (Vec<Snapshot>, roughlub::backend::MemberReport) {
+    let stepping = Stepping::Adaptive {
+        tolerance,
+        dt_initial,
+        dt_min: 1e-14,
+    };
+    let mut plan = plan_for(
+        chain,
+        vec![params],
+        Order::Auto,
+        stepping,
+        outputs.to_vec(),
+        None,
+    );
+    adjust(&mut plan);
+    let (snaps, solver) = run_all(plan, vec![chain.clone()]);
+    let report = solver.reports()[0].clone();
+    assert_eq!(report.status, MemberStatus::Ok);
+    (snaps.into_iter().map(|mut s| s.remove(0)).collect(), report)
+}
+
+/// The largest over output times of |ln d - ln d_ref| and |u - u_ref| / max |u_ref| (the
+/// largest over every output).
+fn largest_state_error(run: &[Snapshot], reference: &[Snapshot]) -> f64 {
+    let u_scale = reference
+        .iter()
+        .flat_map(|r| &r.velocities)
+        .fold(0.0f64, |m, u| m.max(u.abs()));
+    let mut worst = 0.0f64;
+    for (x, r) in run.iter().zip(reference) {
+        for (d, d_ref) in x.gaps.iter().zip(&r.gaps) {
+            worst = worst.max((d.ln() - d_ref.ln()).abs());
+        }
+        for (u, u_ref) in x.velocities.iter().zip(&r.velocities) {
+            worst = worst.max((u - u_ref).abs() / u_scale);
+        }
+    }
+    worst
 }
 
 /// How far above the requested tolerance the global error may be (measured: see the test).
@@ -876,55 +931,19 @@ const TOLERANCE_FACTOR: f64 = 3.0;
 #[test]
 fn auto_error_falls_with_the_tolerance_on_a_random_chain_of_200() {
     let chain = random_chain_of_200();
-    let params = vec![MemberParams {
+    let params = MemberParams {
         mu: 0.01,
         gamma: 2.0,
-    }];
+    };
     let outputs: Vec<f64> = (0..=10).map(|i| 0.03 * i as f64).collect();
     let run = |tolerance: f64, sequence: Sequence| {
-        let stepping = Stepping::Adaptive {
-            tolerance,
-            dt_initial: 3e-5,
-            dt_min: 1e-14,
-        };
-        let mut plan = plan_for(
-            &chain,
-            params.clone(),
-            Order::Auto,
-            stepping,
-            outputs.clone(),
-            None,
-        );
-        plan.sequence = sequence;
-        let (snaps, solver) = run_all(plan, vec![chain.clone()]);
-        assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
-        let steps = solver.reports()[0].steps_accepted + solver.reports()[0].steps_rejected;
-        (
-            snaps
-                .into_iter()
-                .map(|mut s| s.remove(0))
-                .collect::<Vec<Snapshot>>(),
-            steps,
-        )
-    };
-    let error = |a: &[Snapshot], b: &[Snapshot]| {
-        let u_scale = b
-            .iter()
-            .flat_map(|r| &r.velocities)
-            .fold(0.0f64, |m, u| m.max(u.abs()));
-        let mut worst = 0.0f64;
-        for (x, r) in a.iter().zip(b) {
-            for (d, d_ref) in x.gaps.iter().zip(&r.gaps) {
-                worst = worst.max((d.ln() - d_ref.ln()).abs());
-            }
-            for (u, u_ref) in x.velocities.iter().zip(&r.velocities) {
-                worst = worst.max((u - u_ref).abs() / u_scale);
-            }
-        }
-        worst
+        let (snaps, report) = auto_member(&chain, params, &outputs, tolerance, 3e-5, |plan| {
+            plan.sequence = sequence
+        });
+        (snaps, report.steps_accepted + report.steps_rejected)
     };
     let (reference, _) = run(1e-13, Sequence::FromOne);
-    let resolution = error(&run(1e-12, Sequence::FromOne).0, &reference);
+    let resolution = largest_state_error(&run(1e-12, Sequence::FromOne).0, &reference);
     eprintln!("reference 1e-13 against 1e-12: {resolution:.1e}");
     assert!(
         resolution <= 1e-10 / 4.0,
@@ -935,7 +954,7 @@ fn auto_error_falls_with_the_tolerance_on_a_random_chain_of_200() {
         for k in 8..=20 {
             let tolerance = 10f64.powf(-0.5 * k as f64);
             let (snaps, steps) = run(tolerance, sequence);
-            let e = error(&snaps, &reference);
+            let e = largest_state_error(&snaps, &reference);
             eprintln!(
                 "{sequence:?} tolerance {tolerance:.2e}: error {e:.3e} ({:.2}x), {steps} steps",
                 e / tolerance
@@ -1144,67 +1163,27 @@ fn observed_energy_and_dissipation_are_the_plain_sums_bit_for_bit() {
 /// most one step in 20 rejected.
 #[test]
 fn exact_jacobian_near_contact_keeps_its_error_and_steps() {
-    let profile = |text: &str| Expr::parse(text).unwrap();
-    let n = 300;
-    let mut chain = chain_from_profiles(
-        n,
-        &profile("0.7"),
-        &profile("2*sin(2*pi*x)"),
-        Some(&profile("0.7")),
-    )
-    .unwrap();
-    let mut rng = Rng(16);
-    let radii: Vec<f64> = (0..=n).map(|_| rng.uniform(0.7, 1.3)).collect();
-    for (i, d) in chain.dstar.as_mut().unwrap().iter_mut().enumerate() {
-        *d *= 0.5 * (radii[i] + radii[i + 1]);
-    }
-    let params = vec![MemberParams {
+    let chain = chain_with_random_radii(300, "2*sin(2*pi*x)", 16);
+    let params = MemberParams {
         mu: 0.01,
         gamma: 5.0,
-    }];
+    };
     let outputs: Vec<f64> = (0..=8).map(|i| 0.025 * i as f64).collect();
     let run = |tolerance: f64, jacobian: Jacobian| {
-        let stepping = Stepping::Adaptive {
-            tolerance,
-            dt_initial: 1e-5,
-            dt_min: 1e-14,
-        };
-        let mut plan = plan_for(
-            &chain,
-            params.clone(),
-            Order::Auto,
-            stepping,
-            outputs.clone(),
-            None,
-        );
-        plan.jacobian = jacobian;
-        let (snaps, solver) = run_all(plan, vec![chain.clone()]);
-        let report = solver.reports()[0].clone();
-        assert_eq!(report.status, MemberStatus::Ok);
-        let snaps: Vec<Snapshot> = snaps.into_iter().map(|mut s| s.remove(0)).collect();
-        (snaps, report.steps_accepted, report.steps_rejected)
+        auto_member(&chain, params, &outputs, tolerance, 1e-5, |plan| {
+            plan.jacobian = jacobian
+        })
     };
-    let (reference, _, _) = run(1e-11, Jacobian::Frozen);
+    let (reference, _) = run(1e-11, Jacobian::Frozen);
     let smallest = reference
         .iter()
         .flat_map(|s| &s.gaps)
         .fold(f64::INFINITY, |m, &d| m.min(d));
     eprintln!("smallest gap of the reference: ln d = {:.1}", smallest.ln());
-    let u_scale = reference
-        .iter()
-        .flat_map(|r| &r.velocities)
-        .fold(0.0f64, |m, u| m.max(u.abs()));
     for tolerance in [1e-8, 1e-9] {
-        let (snaps, accepted, rejected) = run(tolerance, Jacobian::Auto);
-        let mut e = 0.0f64;
-        for (x, r) in snaps.iter().zip(&reference) {
-            for (d, d_ref) in x.gaps.iter().zip(&r.gaps) {
-                e = e.max((d.ln() - d_ref.ln()).abs());
-            }
-            for (u, u_ref) in x.velocities.iter().zip(&r.velocities) {
-                e = e.max((u - u_ref).abs() / u_scale);
-            }
-        }
+        let (snaps, report) = run(tolerance, Jacobian::Auto);
+        let (accepted, rejected) = (report.steps_accepted, report.steps_rejected);
+        let e = largest_state_error(&snaps, &reference);
         eprintln!(
             "tolerance {tolerance:e}: error {e:.2e} ({:.2}x), {accepted} + {rejected} steps",
             e / tolerance

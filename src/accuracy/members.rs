@@ -126,7 +126,6 @@ pub(super) fn solve(groups: &[MeasuredGroup], setting: &Setting) -> Result<Run> 
         wall: 0.0,
         accepted: 0,
         rejected: 0,
-        failed: false,
         failure: None,
     };
     for group in groups {
@@ -153,9 +152,6 @@ pub(super) fn solve(groups: &[MeasuredGroup], setting: &Setting) -> Result<Run> 
         let reports = solver.reports();
         run.accepted += reports.iter().map(|r| r.steps_accepted).sum::<u64>();
         run.rejected += reports.iter().map(|r| r.steps_rejected).sum::<u64>();
-        run.failed |= reports
-            .iter()
-            .any(|r| r.status != crate::backend::MemberStatus::Ok);
         if run.failure.is_none() {
             run.failure = reports.iter().find_map(|r| match &r.status {
                 crate::backend::MemberStatus::Failed { reason, time } => Some(format!(

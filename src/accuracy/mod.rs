@@ -29,11 +29,13 @@ use crate::scene::Scene;
 
 mod members;
 mod outputs;
+mod reference;
 mod setting;
 
 pub use members::{errors, DEFAULT_SWEEP_POINTS};
 use members::{errors_of_members, measured_members, member_ranges, solve, MeasuredGroup};
 use outputs::{write_csv, write_reference};
+use reference::{reference_setting, solve_reference};
 pub use setting::Setting;
 
 /// Settings of `roughlub accuracy`.
@@ -106,8 +108,8 @@ struct Run {
     wall: f64,
     accepted: u64,
     rejected: u64,
-    failed: bool,
-    /// The first failed member's reason and time, as the manifest of `roughlub run` gives it.
+    /// The first failed member's reason and time, as the manifest of `roughlub run` gives it
+    /// (None where every member completed).
     failure: Option<String>,
 }
 
@@ -255,119 +257,6 @@ fn describe_members(
     }
 }
 
-/// The reference of an accuracy run: order auto, adaptive, at `tolerance`.
-/// The reference: auto with the default sequence whatever the scene's (from_2's error is not
-/// monotone in the tolerance on the N = 200 random chain: docs/accuracy.md).
-fn reference_setting(scene: &Scene, tolerance: f64) -> Setting {
-    Setting {
-        order: Order::Auto,
-        stepping: Stepping::Adaptive {
-            tolerance,
-            dt_initial: 1e-6 * scene.end,
-            dt_min: scene.stepping.dt_min().min(1e-14 * scene.end),
-        },
-        sequence: Sequence::FromOne,
-        jacobian: scene.jacobian,
-        backend: Backend::Cpu,
-        precision: Precision::F64,
-    }
-}
-
-/// The reference and its error against a check run (printed, and warned about when above a
-/// tenth of the target). The reference is tried at `tolerance` and, where a member fails there
-/// (near contact a tight tolerance can need steps below the time resolution of t), at ten and a
-/// hundred times it, up to a tenth of the target; the check at a tenth of the reference's
-/// tolerance, or ten times it where that fails (a looser check overstates the reference's error,
-/// so the warning errs on the safe side). Fails, naming every tolerance tried and why, when none
-/// runs.
-fn solve_reference(
-    scene: &Scene,
-    groups: &[MeasuredGroup],
-    tolerance: f64,
-    options: &AccuracyOptions,
-) -> Result<(Run, f64, f64)> {
-    let mut tried: Vec<String> = Vec::new();
-    // Tolerances already found to fail, with why (a check may be asked for one of them again).
-    let mut failed: Vec<(f64, String)> = Vec::new();
-    let mut attempt = |tolerance: f64, role: &str| -> Result<Option<Run>> {
-        // Within rounding: the candidates and their checks are products of ten.
-        if failed
-            .iter()
-            .any(|(t, _)| (t / tolerance - 1.0).abs() < 1e-9)
-        {
-            return Ok(None);
-        }
-        let run = solve(groups, &reference_setting(scene, tolerance))?;
-        Ok(match &run.failure {
-            Some(why) => {
-                tried.push(format!("tolerance {}{role}: {why}", round_e(tolerance)));
-                failed.push((tolerance, why.clone()));
-                None
-            }
-            None => Some(run),
-        })
-    };
-    let candidates = [tolerance, tolerance * 10.0, tolerance * 100.0];
-    let mut found = None;
-    for (k, &tolerance) in candidates.iter().enumerate() {
-        if k > 0 && tolerance > options.target / 10.0 * 1.001 {
-            break;
-        }
-        let Some(reference) = attempt(tolerance, "")? else {
-            continue;
-        };
-        let mut check_tolerance = tolerance / 10.0;
-        let mut check = attempt(check_tolerance, " (the check)")?;
-        if check.is_none() {
-            check_tolerance = tolerance * 10.0;
-            check = attempt(check_tolerance, " (the check)")?;
-        }
-        if let Some(check) = check {
-            found = Some((reference, check, tolerance, check_tolerance));
-            break;
-        }
-    }
-    let Some((reference, check, tolerance, check_tolerance)) = found else {
-        return Err(Error::missing(
-            "accuracy",
-            format!(
-                "no reference (order auto, adaptive, at tolerance {} and up to a hundred times it, no looser than a tenth of the target) completed every measured member: {}; `roughlub run` of the scene at such a tolerance shows the failure",
-                round_e(tolerance),
-                tried.join("; ")
-            ),
-        ));
-    };
-    {
-        let reference_error = errors(&reference.snapshots, &check.snapshots).worst();
-        if !options.quiet {
-            for failure in &tried {
-                eprintln!("note: the reference failed at {failure}");
-            }
-            eprintln!(
-                "reference: order auto (sequence from_1), tolerance {} ({} steps, {:.2} s); against tolerance {}: error {reference_error:.2e}",
-                round_e(tolerance),
-                reference.accepted,
-                reference.wall,
-                round_e(check_tolerance),
-            );
-        }
-        if reference_error > options.target / 10.0 {
-            eprintln!(
-                "warning: the reference is only accurate to {reference_error:.1e}, more than a tenth of the target {}: errors below about {reference_error:.0e} are not resolved",
-                round_e(options.target)
-            );
-        }
-        Ok((reference, reference_error, tolerance))
-    }
-}
-
-/// A tolerance as a user writes it: rounded to 12 significant digits, then shortest (1e-11 for
-/// 1e-8 · 1e-3, which is 1.0000000000000001e-11).
-fn round_e(x: f64) -> String {
-    let rounded: f64 = format!("{x:.11e}").parse().unwrap_or(x);
-    format!("{rounded:e}")
-}
-
 /// The settings measured so far against the reference, and the cheapest that met the target.
 struct Ladder<'a> {
     groups: &'a [MeasuredGroup],
@@ -415,7 +304,7 @@ impl Ladder<'_> {
         // run leaves the timings so far.
         let first_of_variant = gpu_variant(&setting).is_some_and(|v| self.gpu_variants.insert(v));
         let (mut spent, mut repeats) = (run.wall, 1);
-        while !run.failed
+        while run.failure.is_none()
             && (spent < TIMED_AT_LEAST || (first_of_variant && repeats < 2))
             && repeats < MAX_REPEATS
         {
@@ -426,7 +315,10 @@ impl Ladder<'_> {
             spent += again.wall;
             repeats += 1;
         }
-        let errors = (!run.failed).then(|| errors(&run.snapshots, reference));
+        let errors = run
+            .failure
+            .is_none()
+            .then(|| errors(&run.snapshots, reference));
         // The point of the worst member (the same largest error as `errors`, found by group).
         let worst_point = match (&errors, self.several_points) {
             (Some(_), true) => groups
