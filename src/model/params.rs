@@ -62,11 +62,16 @@ pub enum Jacobian {
     Frozen,
 }
 
-/// The tolerance at and below which `jacobian = "auto"` keeps the exact Jacobian: the crossover
-/// measured on the N = 200 chain (auto at 1e-6: 0.003 s either way; at 1e-7 0.006 s and 9.6e-8
-/// exact against 0.005 s and 1.3e-7 frozen; at 1e-8 0.008 s against 0.010 s; at 1e-10 0.022 s
-/// against 0.083 s).
-pub const EXACT_JACOBIAN_TOLERANCE: f64 = 1e-7;
+/// The tolerance at and below which `jacobian = "auto"` keeps the exact Jacobian. Away from
+/// contact the two matrices cost about the same above it (the N = 200 chain: auto at 1e-6
+/// 0.003 s either way, at 1e-7 0.006 s and 9.6e-8 exact against 0.005 s and 1.3e-7 frozen)
+/// and `Exact` pays below it (1e-10: 0.022 s against 0.083 s). Near contact (a random N = 300
+/// chain with gaps to ln d = -27, checked against scipy's Radau) `Exact`'s errors add up over
+/// the steps to 3 to 16 times the tolerance from 1e-4 to 3.16e-8 (its local estimates are
+/// honest: their sum bounds the error) while `Frozen`'s stay within 2 times; at 1e-8 and below
+/// `Exact` is within 2 times as well and `Frozen` needs 3.5 to 9.4 times its steps. With the
+/// switch at 1e-7 the error there rose from 2.7e-7 at 3.16e-7 to 5.6e-7 at 1e-7.
+pub const EXACT_JACOBIAN_TOLERANCE: f64 = 1e-8;
 
 impl Jacobian {
     /// Whether a run of `order` with `stepping` keeps the exact Jacobian.
