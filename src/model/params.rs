@@ -70,7 +70,10 @@ pub enum Jacobian {
 /// the steps to 3 to 16 times the tolerance from 1e-4 to 3.16e-8 (its local estimates are
 /// honest: their sum bounds the error) while `Frozen`'s stay within 2 times; at 1e-8 and below
 /// `Exact` is within 2 times as well and `Frozen` needs 3.5 to 9.4 times its steps. With the
-/// switch at 1e-7 the error there rose from 2.7e-7 at 3.16e-7 to 5.6e-7 at 1e-7.
+/// switch at 1e-7 the error there rose from 3.3e-7 at 3.16e-7 to 5.6e-7 at 1e-7. Deeper in
+/// contact (the same chain at mu 1e-3) `Exact` errs by up to 10 times the tolerance down to
+/// 1e-9 and the rise moves to 1e-8 (2.5e-8 at 3.16e-8, 9.2e-8 at 1e-8): docs/accuracy.md says
+/// to set `Frozen` there (docs/scipy_comparison/tolerance_check.py measures all of this).
 pub const EXACT_JACOBIAN_TOLERANCE: f64 = 1e-8;
 
 impl Jacobian {
