@@ -916,7 +916,7 @@ fn largest_state_error(run: &[Snapshot], reference: &[Snapshot]) -> f64 {
 /// 10^(-k/2): whole decades exactly as written (1e-8 is auto's switch of matrix, compared with
 /// `<=`), the half decades between them from powf.
 fn half_decade(k: u32) -> f64 {
-    if k % 2 == 0 {
+    if k.is_multiple_of(2) {
         10f64.powi(-((k / 2) as i32))
     } else {
         10f64.powf(-0.5 * k as f64)
