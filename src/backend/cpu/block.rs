@@ -3,6 +3,11 @@
 //! error estimates (`roughlub_kernels::tableau::extrapolate`, twin of the one in `shaders/step.wgsl`), and
 //! per-lane step and order control (`control`). The state and the step compute in T (f64 or
 //! f32, [`Real`]); the control (times, steps, energies, estimates) in f64 (see `real.rs`).
+//!
+//! Just over 700 lines on purpose: one `Block` holds its lanes' state, and its attempts
+//! (`advance`, `euler_attempt`, `extrapolated_attempt`: rows, tableau, energy check, control)
+//! follow `shaders/step.wgsl`'s attempt loop side by side with it; the tableau's bookkeeping is
+//! apart (`tableau`), and what remains (snapshots, reports) reads the same lane state.
 
 mod tableau;
 
