@@ -292,11 +292,10 @@ fn gap_terms(index: u32, stored: real, p: Param, h: real, eps2: real, scale: rea
 fn jacobian_factor(d: real, inv_d: real, h: real, u_left: real, u_right: real) -> real {
     if EXACT_JACOBIAN && d > GAP_FLOOR {
         let x = h * (u_right - u_left) * inv_d;
-        // One division for both branches, as the CPU's lane loop: q = 1/(1 + x + [x < 0] 16 x^4).
-        var closing: real = 0.0;
-        if x < 0.0 {
-            closing = 16.0 * ((x * x) * (x * x));
-        }
+        // One division for both branches, as the CPU's lane loop: q = 1/(1 + x + [x < 0] 16 x^4),
+        // [x < 0] x^4 as min(x, 0)^4 (the CPU's form, where a select became two divisions).
+        let closing_x = min(x, 0.0);
+        let closing = 16.0 * ((closing_x * closing_x) * (closing_x * closing_x));
         let q = 1.0 / (1.0 + x + closing);
         if x < 0.0 {
             return 1.0 - x * q;

@@ -597,6 +597,7 @@ fn forward_row<
     const REP: bool,
     const CLU: bool,
     const SPIKE: bool,
+    const EXACT: bool,
     P,
     Q,
 >(
@@ -623,7 +624,13 @@ where
         let (a_next, g_next, d_next, inv_d) = gap_terms::<T, REP, true, P, Q>(
             law, 0, c.mu, eps2, scale, stored[l], dstar[l], bonded[l], c.h,
         );
-        k[l] = jacobian_factor(c.exact, d_next, inv_d, c.h, vel[l], vel_right[l]);
+        // EXACT is c.exact, as a constant: a run-time test left the factor's division in the
+        // frozen matrix's loop (see the sequential sweep's `forward_rows`).
+        k[l] = if EXACT {
+            jacobian_factor(true, d_next, inv_d, c.h, vel[l], vel_right[l])
+        } else {
+            T::ONE
+        };
         let a_next = a_next * k[l];
         st.nonfinite[l] |= T::Flag::from(!(g_next + f[l]).is_finite());
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
@@ -793,9 +800,15 @@ where
             let bonded = [clu && bonded_all[row]];
             let vel = [vel_in[row - 1]];
             let vel_right = [velocity_at(vel_in, row)];
-            let (w, k) = forward_row::<T, 1, REP, true, false, P, Q>(
-                law, c, &mut s0, &stored, &dstar, &bonded, &vel, &vel_right, &f,
-            );
+            let (w, k) = if c.exact {
+                forward_row::<T, 1, REP, true, false, true, P, Q>(
+                    law, c, &mut s0, &stored, &dstar, &bonded, &vel, &vel_right, &f,
+                )
+            } else {
+                forward_row::<T, 1, REP, true, false, false, P, Q>(
+                    law, c, &mut s0, &stored, &dstar, &bonded, &vel, &vel_right, &f,
+                )
+            };
             if let Some(r) = rows.as_mut() {
                 r.w[row - 1] = w[0];
                 r.ls[row - 1] = s0.ls_prev[0];
@@ -845,17 +858,16 @@ where
             } else {
                 std::array::from_fn(|l| velocity_at(vel_in, row0 + kk + l * m))
             };
-            let (w, k) = forward_row::<T, S, REP, true, SPIKE, P, Q>(
-                law,
-                c,
-                &mut st,
-                &t_gap[kk],
-                &t_dstar[kk],
-                &t_bond[kk],
-                &t_vel[kk],
-                &vel_right,
-                &t_f[kk],
-            );
+            let row = (&t_gap[kk], &t_dstar[kk], &t_bond[kk], &t_vel[kk], &t_f[kk]);
+            let (w, k) = if c.exact {
+                forward_row::<T, S, REP, true, SPIKE, true, P, Q>(
+                    law, c, &mut st, row.0, row.1, row.2, row.3, &vel_right, row.4,
+                )
+            } else {
+                forward_row::<T, S, REP, true, SPIKE, false, P, Q>(
+                    law, c, &mut st, row.0, row.1, row.2, row.3, &vel_right, row.4,
+                )
+            };
             if let Some(r) = rows.as_mut() {
                 let at = off + (k0 + kk) * S;
                 r.w[at..at + S].copy_from_slice(&w);
