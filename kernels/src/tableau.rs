@@ -298,15 +298,21 @@ fn neville<T: Real, const L: usize>(
 ) {
     let weights = &NEVILLE_WEIGHTS[usize::from(from_two)];
     for c in 1..rows {
-        for j in (c..rows).rev() {
+        // Rows above c, then row c with its estimate, as one loop over j = rows-1..=c would
+        // (the test `j == c` inside the lane loop had the vectoriser assemble rows from
+        // shifted scalar loads).
+        for j in (c + 1..rows).rev() {
             let w = T::c(weights[c][j]);
-            for l in 0..L {
-                let delta = (t[j][l] - t[j - 1][l]) * w;
-                if j == c {
-                    e[c + 1][l] = scale(delta, l);
-                }
-                t[j][l] += delta;
+            let (below, row) = t.split_at_mut(j);
+            for (x, &y) in row[0].iter_mut().zip(&below[j - 1]) {
+                *x += (*x - y) * w;
             }
+        }
+        let w = T::c(weights[c][c]);
+        for l in 0..L {
+            let delta = (t[c][l] - t[c - 1][l]) * w;
+            e[c + 1][l] = scale(delta, l);
+            t[c][l] += delta;
         }
     }
 }
