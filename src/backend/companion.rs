@@ -223,10 +223,27 @@ const SMALLEST_SUBNORMAL: f64 = f64::from_bits(1);
 
 impl BatchSolver for CompanionEstimate<'_> {
     fn next_output(&mut self, progress: super::Progress) -> Result<Option<Vec<Snapshot>>> {
-        let Some(mut snaps) = self.run.next_output(progress)? else {
+        // On the CPU the two run side by side: a batch of fewer blocks than threads (one long
+        // chain: one block) leaves threads idle that the companion can use. GPU solvers take
+        // their turns on the device.
+        let (run, companion) = (&mut self.run, &mut self.companion);
+        let (run_out, companion) = if run.gpu_stats().is_none() && companion.gpu_stats().is_none() {
+            rayon::join(
+                || run.next_output(progress),
+                || companion.next_output(&|_| {}),
+            )
+        } else {
+            let run_out = run.next_output(progress);
+            let companion = match run_out {
+                Ok(Some(_)) => companion.next_output(&|_| {}),
+                _ => Ok(None),
+            };
+            (run_out, companion)
+        };
+        let Some(mut snaps) = run_out? else {
             return Ok(None);
         };
-        let companion = self.companion.next_output(&|_| {})?;
+        let companion = companion?;
         let run_ok = self.run.reports();
         let companion_ok = self.companion.reports();
         let (keep_gaps, keep_velocities) = (self.keep_gaps, self.keep_velocities);
