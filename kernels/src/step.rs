@@ -976,11 +976,7 @@ where
                     let (a_next, g_next, d_next, inv_d) = gap_terms::<T, REP, CLU, P, Q>(
                         law, l, mu[l], eps2, scale, stored[l], dstar[l], bonded[l], h[l],
                     );
-                    k[l] = if $exact {
-                        jacobian_factor(true, d_next, inv_d, h[l], vel[l], vel_right[l])
-                    } else {
-                        T::ONE
-                    };
+                    k[l] = jacobian_factor($exact, d_next, inv_d, h[l], vel[l], vel_right[l]);
                     let a_next = a_next * k[l];
                     nonfinite[l] |= flag(!(g_next + f[l]).is_finite());
                     let rhs = m_over_h[l] * vel[l] + g_prev[l] - g_next + f[l];

@@ -626,11 +626,7 @@ where
         );
         // EXACT is c.exact, as a constant: a run-time test left the factor's division in the
         // frozen matrix's loop (see the sequential sweep's `forward_rows`).
-        k[l] = if EXACT {
-            jacobian_factor(true, d_next, inv_d, c.h, vel[l], vel_right[l])
-        } else {
-            T::ONE
-        };
+        k[l] = jacobian_factor(EXACT, d_next, inv_d, c.h, vel[l], vel_right[l]);
         let a_next = a_next * k[l];
         st.nonfinite[l] |= T::Flag::from(!(g_next + f[l]).is_finite());
         let rhs = c.m_over_h * vel[l] + st.g_prev[l] - g_next + f[l];
