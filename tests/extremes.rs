@@ -779,3 +779,42 @@ fn chain_log_gap_reference(
         steps,
     )
 }
+
+/// Prop. 3.1 at the extremes of rho0 (a profile down to 1e-7, and one of 100 periods whose
+/// values carry the rounding of their argument, ~1e-13): every cell holds the mass 2 eps of the
+/// exact primitive of rho0 to 1e-12.
+/// Both used to bisect their quadrature to depth 40 (the run never started).
+#[test]
+fn initial_positions_hold_their_mass_for_profiles_near_zero_and_of_high_frequency() {
+    for (amplitude, frequency, n) in [(0.4999999, 2.0, 40), (0.4, 200.0, 2000)] {
+        let rho = format!("0.5+{amplitude}*sin({frequency}*pi*x)");
+        let c = chain_from_profiles(
+            n,
+            &Expr::parse(&rho).unwrap(),
+            &Expr::parse("0").unwrap(),
+            None,
+        )
+        .unwrap();
+        let pi = std::f64::consts::PI;
+        // M(x) = 0.5 x + A (1 - cos(f pi x))/(f pi) = 0.5 x + 2 A sin^2(f pi x/2)/(f pi).
+        let mass = |x: f64| {
+            0.5 * x + 2.0 * amplitude * (0.5 * frequency * pi * x).sin().powi(2) / (frequency * pi)
+        };
+        let total = mass(1.0);
+        assert!(
+            (2.0 * c.eps * n as f64 - total).abs() <= 1e-12,
+            "{rho}: eps"
+        );
+        let mut q = 0.0;
+        for (i, d) in c.gaps.iter().enumerate() {
+            q += d + 2.0 * c.eps;
+            let want = total * (i + 1) as f64 / n as f64;
+            assert!(
+                (mass(q) - want).abs() <= 1e-12,
+                "{rho}: cell {}: M(q) = {} against {want}",
+                i + 1,
+                mass(q)
+            );
+        }
+    }
+}

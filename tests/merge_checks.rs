@@ -97,6 +97,52 @@ fn out_naming_an_input_is_refused_and_the_input_is_untouched() {
     );
 }
 
+/// A merge records the shards' error estimate (issue 22, item 3: every run carries one): their
+/// method, and the largest of their members' estimates, which must be the largest the shards'
+/// own manifests record (study_basic is order 1 with fixed steps: the companion's estimate); a
+/// merge of that merge records the same.
+#[test]
+fn merge_records_the_largest_error_estimate_of_its_shards() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dirs: Vec<PathBuf> = (0..3).map(|k| tmp.path().join(format!("s{k}"))).collect();
+    for (k, d) in dirs.iter().enumerate() {
+        shard(d, k as u64);
+    }
+    let manifest = |dir: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap()
+    };
+    let shards: Vec<serde_json::Value> = dirs.iter().map(|d| manifest(d)).collect();
+    let expected = shards
+        .iter()
+        .map(|m| m["error_estimate"]["largest"].as_f64().unwrap())
+        .fold(f64::NEG_INFINITY, f64::max);
+    assert!(expected > 0.0 && expected.is_finite(), "{expected}");
+    let refs: Vec<&Path> = dirs.iter().map(|d| d.as_path()).collect();
+    let merged = tmp.path().join("m");
+    assert_succeeded(&merge(&refs, &merged, &[]));
+    let again = tmp.path().join("m2");
+    let out = merge(&[merged.as_path()], &again, &[]);
+    assert_succeeded(&out);
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains(&format!("largest error estimate {expected:.2e}")),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for dir in [&merged, &again] {
+        let m = manifest(dir);
+        assert_eq!(
+            m["error_estimate"]["largest"].as_f64(),
+            Some(expected),
+            "{dir:?}"
+        );
+        assert_eq!(
+            m["error_estimate"]["method"], shards[0]["error_estimate"]["method"],
+            "{dir:?}"
+        );
+    }
+}
+
 /// Runs `scene_text` (written into `dir`'s parent as scene.toml) into `dir` with `extra` args.
 fn run_text(scene_path: &Path, dir: &Path, extra: &[&str]) -> Output {
     let mut args: Vec<&std::ffi::OsStr> = vec![

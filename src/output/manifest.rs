@@ -67,7 +67,7 @@ pub mod non_finite {
 /// made, and the largest.
 #[derive(Debug, Clone, Serialize)]
 pub struct ErrorEstimateRecord {
-    pub method: &'static str,
+    pub method: std::borrow::Cow<'static, str>,
     /// The largest estimate over the members that completed and their output times (null where
     /// unavailable; "inf" where infinite: a companion that failed where the run did not).
     #[serde(serialize_with = "non_finite::option")]
@@ -88,12 +88,12 @@ impl ErrorEstimateRecord {
     ) -> Self {
         match crate::backend::report::run_error_estimate_method(order, stepping, companion) {
             Some(method) => ErrorEstimateRecord {
-                method,
+                method: method.into(),
                 largest,
                 warning: large_error_warning(largest),
             },
             None => ErrorEstimateRecord {
-                method: ERROR_ESTIMATE_UNAVAILABLE,
+                method: ERROR_ESTIMATE_UNAVAILABLE.into(),
                 largest: None,
                 warning: None,
             },
@@ -206,6 +206,8 @@ pub struct MergedManifest {
     pub missing_member_ranges: Vec<(u64, u64)>,
     pub members_completed: u64,
     pub failed_members: Vec<u64>,
+    /// The inputs' method, and the largest of their members' estimates (members.csv).
+    pub error_estimate: ErrorEstimateRecord,
     pub wall_seconds: f64,
     pub quantile_method: QuantileMethod,
 }

@@ -25,13 +25,14 @@ pub fn chain_from_profiles(
     let panels = n.clamp(4096, 2_000_000);
     let h = 1.0 / panels as f64;
     let mut density = |x: f64| rho.eval(x, 0.0);
+    let density_scale = profile_scale(rho);
     let mut cumulative = Vec::with_capacity(panels + 1);
     cumulative.push(0.0);
     // Neumaier-compensated running sum: M0 and the cell masses keep full precision at large N.
     let (mut mass, mut compensation) = (0.0f64, 0.0f64);
     for k in 0..panels {
         let a = k as f64 * h;
-        let term = gl.integrate_adaptive(a, a + h, &mut density);
+        let term = gl.integrate_adaptive(a, a + h, density_scale, &mut density);
         let sum = mass + term;
         compensation += if mass.abs() >= term.abs() {
             (mass - sum) + term
@@ -70,7 +71,7 @@ pub fn chain_from_profiles(
         let mut hi = b;
         let mut x = a + h * ((target - m_a) / span).clamp(0.0, 1.0);
         for _ in 0..60 {
-            let m = m_a + gl.integrate_adaptive(a, x, &mut density);
+            let m = m_a + gl.integrate_adaptive(a, x, density_scale, &mut density);
             let residual = m - target;
             if residual > 0.0 {
                 hi = x;
@@ -107,11 +108,12 @@ pub fn chain_from_profiles(
     }
     let velocities = (1..n).map(|i| velocity.eval(q[i], 0.0)).collect();
     let dstar = rho_star.map(|rs| {
+        let scale = profile_scale(rs);
         (1..=n)
             .map(|i| {
                 let width = q[i] - q[i - 1];
                 // The mean of a profile <= 1 can exceed 1 only by rounding.
-                let mean = (gl.integrate_adaptive(q[i - 1], q[i], &mut |x| rs.eval(x, 0.0))
+                let mean = (gl.integrate_adaptive(q[i - 1], q[i], scale, &mut |x| rs.eval(x, 0.0))
                     / width)
                     .min(1.0);
                 2.0 * eps * (1.0 - mean) / mean
@@ -125,6 +127,17 @@ pub fn chain_from_profiles(
         dstar,
         bonded: None,
     })
+}
+
+/// The size of a profile's values on [0, 1] (their mean magnitude at 1025 points): the scale
+/// below which [`GaussLegendre::integrate_adaptive`] stops refining.
+fn profile_scale(profile: &Expr) -> f64 {
+    let points = 1024;
+    let sum: f64 = (0..=points)
+        .map(|k| profile.eval(k as f64 / points as f64, 0.0).abs())
+        .filter(|v| v.is_finite())
+        .sum();
+    sum / (points + 1) as f64
 }
 
 impl Scene {

@@ -306,9 +306,11 @@ impl CsvOut {
     }
 }
 
-/// Members [K·M/N, (K+1)·M/N) of M for shard K of N.
+/// Members [K·M/N, (K+1)·M/N) of M for shard K of N (the products in u128: K·M passes u64
+/// for large shard counts, and wrapped it gave an empty or reversed range).
 pub(super) fn shard_range(total: u64, (k, n): (u64, u64)) -> (u64, u64) {
-    (total * k / n, total * (k + 1) / n)
+    let at = |k: u64| (u128::from(total) * u128::from(k) / u128::from(n)) as u64;
+    (at(k), at(k + 1))
 }
 
 /// The header of shard `shard` of the study of `scene`, computed on `engine`.
@@ -530,4 +532,28 @@ pub(super) fn check_resume(old: &StudyHeader, new: &StudyHeader, path: &Path) ->
         });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shard_range;
+
+    /// Shards partition the members in order, also where K·M exceeds u64 (it wrapped, giving
+    /// shard 2^61 - 1 of 2^61 of 8 members the range [7, 0]).
+    #[test]
+    fn shard_ranges_partition_the_members_without_overflow() {
+        let n = 1u64 << 61;
+        assert_eq!(shard_range(8, (n - 1, n)), (7, 8));
+        assert_eq!(shard_range(8, (n / 2 - 1, n)), (3, 4));
+        assert_eq!(shard_range(u64::MAX, (1, 2)), (u64::MAX / 2, u64::MAX));
+        let (total, shards) = (1_000_000_007u64, 13u64);
+        let mut next = 0;
+        for k in 0..shards {
+            let (a, b) = shard_range(total, (k, shards));
+            assert_eq!(a, next);
+            assert!(b >= a);
+            next = b;
+        }
+        assert_eq!(next, total);
+    }
 }

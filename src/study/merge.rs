@@ -6,9 +6,12 @@ use std::time::Instant;
 use super::files::{check_state, study_differences, CsvOut, PartialFile, StudyHeader};
 use super::report::{finalize, quantile_method};
 use super::state::StudyState;
-use super::{StudySummary, OLD_PARTIAL, PARTIAL};
+use super::{StudySummary, ERROR_ESTIMATE, OLD_PARTIAL, PARTIAL};
 use crate::error::{Error, Result};
-use crate::output::manifest::{MergedManifest, StudySceneRecord, VERSION};
+use crate::output::manifest::{
+    large_error_warning, ErrorEstimateRecord, MergedManifest, StudySceneRecord,
+    ERROR_ESTIMATE_UNAVAILABLE, VERSION,
+};
 use crate::output::state_file::old_format_error;
 use crate::output::{
     read_json, read_state, write_json_atomic, write_state_atomic, StagedDir, MANIFEST,
@@ -112,7 +115,14 @@ pub fn merge_studies(
     let mut csv_out = CsvOut::create(out.join("members.csv"), &partials[0].1.header.sweep_names)?;
     let mut headers: Vec<StudyHeader> = Vec::new();
     let mut state: Option<StudyState> = None;
+    // The inputs' error estimates: their method (the same scene, so the same method) from their
+    // manifests, the largest from their members' rows.
+    let mut estimate_method: Option<String> = None;
+    let mut largest_error_estimate: Option<f64> = None;
     for (dir, p) in partials {
+        if estimate_method.is_none() {
+            estimate_method = recorded_estimate_method(&dir)?;
+        }
         match &mut state {
             None => state = Some(p.state),
             Some(s) => s.merge(&p.state)?,
@@ -122,11 +132,28 @@ pub fn merge_studies(
             path: csv_in.clone(),
             message: e.to_string(),
         })?;
-        for r in reader.records() {
-            csv_out.push_record(&r.map_err(|e| Error::Output {
+        let estimate_column = reader
+            .headers()
+            .map_err(|e| Error::Output {
                 path: csv_in.clone(),
                 message: e.to_string(),
-            })?)?;
+            })?
+            .iter()
+            .position(|name| name == ERROR_ESTIMATE);
+        for r in reader.records() {
+            let record = r.map_err(|e| Error::Output {
+                path: csv_in.clone(),
+                message: e.to_string(),
+            })?;
+            // NaN where a member has none (failed, or no estimate): left out, as a run does.
+            let estimate = estimate_column
+                .and_then(|c| record.get(c))
+                .and_then(|text| text.parse::<f64>().ok())
+                .filter(|e| !e.is_nan());
+            if let Some(e) = estimate {
+                largest_error_estimate = Some(largest_error_estimate.map_or(e, |l: f64| l.max(e)));
+            }
+            csv_out.push_record(&record)?;
         }
         headers.push(p.header);
     }
@@ -147,6 +174,17 @@ pub fn merge_studies(
     )?;
     finalize(out, &headers, &state, plots)?;
     let covered: u64 = state.ranges.iter().map(|(a, b)| b - a).sum();
+    let available = estimate_method
+        .as_deref()
+        .is_some_and(|m| m != ERROR_ESTIMATE_UNAVAILABLE);
+    let largest_error_estimate = largest_error_estimate.filter(|_| available);
+    let error_estimate = ErrorEstimateRecord {
+        method: estimate_method
+            .unwrap_or_else(|| UNRECORDED_ESTIMATE_METHOD.into())
+            .into(),
+        largest: largest_error_estimate,
+        warning: large_error_warning(largest_error_estimate),
+    };
     write_json_atomic(
         &out.join(MANIFEST),
         &MergedManifest {
@@ -167,18 +205,35 @@ pub fn merge_studies(
             missing_member_ranges: missing,
             members_completed: state.completed,
             failed_members: state.failed.clone(),
+            error_estimate: error_estimate.clone(),
             wall_seconds: started.elapsed().as_secs_f64(),
             quantile_method: quantile_method(&merged_header),
         },
     )?;
     staged.commit()?;
-    Ok(StudySummary::of(
-        target,
-        &state,
-        0,
-        started.elapsed().as_secs_f64(),
-        0.0,
-    ))
+    Ok(
+        StudySummary::of(target, &state, 0, started.elapsed().as_secs_f64(), 0.0)
+            .with_error_estimate(largest_error_estimate, available),
+    )
+}
+
+/// What a merge records as the method where no input's manifest records one (a manifest
+/// written before manifests of merges had one).
+const UNRECORDED_ESTIMATE_METHOD: &str =
+    "not recorded in the inputs' manifests; the largest is that of their members' rows";
+
+/// The `error_estimate.method` an input's manifest records (None where it has none).
+fn recorded_estimate_method(dir: &Path) -> Result<Option<String>> {
+    let path = dir.join(MANIFEST);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let manifest: serde_json::Value = read_json(&path)?;
+    Ok(manifest
+        .get("error_estimate")
+        .and_then(|e| e.get("method"))
+        .and_then(|m| m.as_str())
+        .map(str::to_owned))
 }
 
 /// Member ranges [first, end) of the study that no shard covers; shards that overlap (a member
