@@ -937,11 +937,12 @@ fn failed_members_are_counted_and_listed_never_averaged() {
     assert!(man["chunks_solved_twice"].as_u64().unwrap() >= 1, "{man}");
 
     let (header, rows) = members_csv(&out);
-    let (c_status, c_peak, c_ft, c_mu) = (
+    let (c_status, c_peak, c_ft, c_mu, c_reason) = (
         column(&header, "status"),
         column(&header, "peak_density"),
         column(&header, "failure_time"),
         column(&header, "mu"),
+        column(&header, "failure_reason"),
     );
     for (i, row) in rows.iter().enumerate() {
         let want_mu = if i < 20 { 0.01 } else { 1e-7 };
@@ -955,10 +956,13 @@ fn failed_members_are_counted_and_listed_never_averaged() {
                     "member {i}: failure_time"
                 );
                 assert!(row[c_peak].parse::<f64>().unwrap().is_nan());
+                // Why, in words (as a single run's manifest gives it).
+                assert!(row[c_reason].len() > 10, "member {i}: {:?}", row[c_reason]);
             }
             None => {
                 assert_eq!(row[c_status], "ok", "member {i}");
                 assert!(row[c_ft].parse::<f64>().unwrap().is_nan());
+                assert_eq!(row[c_reason], "", "member {i}");
             }
         }
     }

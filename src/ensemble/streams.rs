@@ -71,5 +71,38 @@ pub(super) fn normal(rng: &mut ChaCha12Rng) -> f64 {
 /// standard deviation `spread`.
 pub(super) fn lognormal_sigma(spread: f64) -> f64 {
     // sigma^2 = ln(1 + spread^2): E exp(sigma Z - sigma^2/2) = 1, Var = exp(sigma^2) - 1 = spread^2.
-    (spread * spread).ln_1p().sqrt()
+    // Where spread^2 overflows (spread above ~1.3e154; sigma was NaN and every member failed), as
+    // 2 ln(spread) (spread^-2 is below rounding there); elsewhere as it always was, bit for bit.
+    let square = spread * spread;
+    if square.is_finite() {
+        square.ln_1p().sqrt()
+    } else {
+        (2.0 * spread.ln()).sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::lognormal_sigma;
+
+    /// exp(sigma^2) - 1 = spread^2 (the lognormal factor's relative variance) where spread^2 is
+    /// a number, and sigma^2 = 2 ln(spread) to rounding beyond (it was NaN there).
+    #[test]
+    fn lognormal_sigma_gives_the_spread_and_stays_finite() {
+        for spread in [0.0, 1e-8, 0.3, 1.0, 7.0, 1e100] {
+            let s2 = lognormal_sigma(spread).powi(2);
+            let variance = s2.exp_m1();
+            assert!(
+                (variance - spread * spread).abs() <= 1e-13 * (spread * spread).max(1e-300),
+                "{spread}: {variance}"
+            );
+        }
+        for spread in [1e155, 1e300, f64::MAX] {
+            let s2 = lognormal_sigma(spread).powi(2);
+            assert!(
+                (s2 - 2.0 * spread.ln()).abs() <= 1e-13 * s2,
+                "{spread}: {s2}"
+            );
+        }
+    }
 }

@@ -4,12 +4,13 @@
 /// The first columns of members.csv, before the swept keys'.
 pub const MEMBER_KEY_COLUMNS: [&str; 2] = ["member", "sweep_point"];
 /// The columns of members.csv after the swept keys'.
-pub const MEMBER_COLUMNS: [&str; 17] = [
+pub const MEMBER_COLUMNS: [&str; 18] = [
     "mu",
     "gamma",
     "particles",
     "status",
     "failure_time",
+    "failure_reason",
     "velocity_factor",
     "velocity_phase",
     "mean_dstar",

@@ -10,6 +10,11 @@ pub(super) struct Time {
     pub stepping: Stepping,
 }
 
+/// The most fixed steps a member may take: end/dt beyond it is refused before the run (at 1e-30
+/// end, the default dt_min, a run took 2e28 steps and never ended; 1e12 steps are days at the
+/// fastest rates of `cargo bench --bench cpu_solver`).
+const MAX_FIXED_STEPS: f64 = 1e12;
+
 pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
     let end = check_range(
         "time.end",
@@ -42,12 +47,23 @@ pub(super) fn validate_time(t: &TimeSection) -> Result<Time> {
     let stepping =
         match (t.dt, t.tolerance) {
             (Some(dt), None) => {
-                let range = Range::of("dt")
-                    .gt(dt_min)
-                    .le(end)
-                    .lower_text(dt_min_text.clone())
-                    .upper_text(format!("end = {}", crate::input::number_text(end)));
-                let dt = check_range("time.dt", dt, range, "the fixed step")?;
+                let fewest = end / MAX_FIXED_STEPS;
+                let range = if fewest > dt_min {
+                    Range::of("dt").ge(fewest).lower_text(format!(
+                        "end/{MAX_FIXED_STEPS:e} = {}",
+                        crate::input::number_text(fewest)
+                    ))
+                } else {
+                    Range::of("dt").gt(dt_min).lower_text(dt_min_text.clone())
+                }
+                .le(end)
+                .upper_text(format!("end = {}", crate::input::number_text(end)));
+                let dt = check_range(
+                    "time.dt",
+                    dt,
+                    range,
+                    "the fixed step (a member takes at most 1e12 of them)",
+                )?;
                 if t.dt_initial.is_some() {
                     return Err(Error::missing(
                         "time.dt_initial",

@@ -92,6 +92,8 @@ pub struct MemberRow {
     #[serde(with = "crate::output::serde_f64")]
     pub gamma: f64,
     pub status: String,
+    /// Why a failed member failed (the manifest's `reason` of a single run); empty where ok.
+    pub failure_reason: String,
     #[serde(with = "crate::output::serde_f64")]
     pub failure_time: f64,
     #[serde(with = "crate::output::serde_f64")]
@@ -209,6 +211,7 @@ impl MemberRow {
             self.particles.to_string(),
             self.status.clone(),
             number_text(self.failure_time),
+            self.failure_reason.clone(),
             number_text(self.velocity_factor),
             number_text(self.velocity_phase),
             number_text(self.mean_dstar),

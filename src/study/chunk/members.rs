@@ -33,9 +33,9 @@ pub(super) fn member_rows(
     let mut rows = Vec::with_capacity(reports.len());
     for (i, r) in reports.iter().enumerate() {
         let m = first + i as u64;
-        let (status, failure_time) = match &r.status {
-            MemberStatus::Ok => ("ok".to_string(), f64::NAN),
-            MemberStatus::Failed { time, .. } => ("failed".to_string(), *time),
+        let (status, failure_time, failure_reason) = match &r.status {
+            MemberStatus::Ok => ("ok".to_string(), f64::NAN, String::new()),
+            MemberStatus::Failed { time, reason } => ("failed".to_string(), *time, reason.clone()),
         };
         let failed = r.status != MemberStatus::Ok;
         // A failed member's responses are not numbers of its run.
@@ -50,6 +50,7 @@ pub(super) fn member_rows(
             particles: inputs[i].chain.particles(),
             status,
             failure_time,
+            failure_reason,
             velocity_factor: inputs[i].velocity_factor,
             velocity_phase: inputs[i].velocity_phase,
             mean_dstar: dstar_summary[i].0,
