@@ -158,7 +158,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let precision = options.precision.unwrap_or(scene.precision);
 
     // Everything a user supplies is validated before the directory is touched.
-    let chain = scene.initial_chain()?;
+    let chain = scene.initial_chain_in(precision)?;
     let plan = scene.plan(&chain);
     let engine = select(requested, precision, &plan)?;
     if !options.quiet {

@@ -702,6 +702,41 @@ fn rejects_values_certain_to_fail() {
             "gamma <= 646",
         ],
     );
+    // In f32 at gamma = 100: 3^100 = 5e47 passes f32's 3.4e38 (ln 88.72: gamma <= 80), not f64's.
+    let s = edit(&s, "gamma = 1000.0", "gamma = 100.0");
+    let f32_scene = edit(
+        &s,
+        "backend = \"cpu\"",
+        "backend = \"cpu\"\nprecision = \"f32\"",
+    );
+    expect_rejected(
+        &f32_scene,
+        &[],
+        &[
+            "model.gamma = 100",
+            "overflows f32 at t = 0",
+            "ln(f32::MAX) = 88.72",
+            "gamma <= 80",
+        ],
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("scene.toml");
+    std::fs::write(&path, &s).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
+        .args([
+            "run".as_ref(),
+            path.as_os_str(),
+            "--quiet".as_ref(),
+            "--out".as_ref(),
+        ])
+        .arg(tmp.path().join("out"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 #[test]
@@ -1211,28 +1246,41 @@ fn many_output_times_are_thinned_in_plots_only() {
     assert_png(&out_dir.join("plots").join("member_0000.png"));
 }
 
-/// `--out .` cannot be swapped in whole by a rename: refused with exit 2, nothing written.
+/// `--out .` (or `DIR/.`, which Path reads as DIR but a rename does not) cannot be swapped in
+/// whole by a rename: refused with exit 2 before the run, nothing written.
 #[test]
 fn out_dot_is_refused() {
-    let tmp = tempfile::tempdir().unwrap();
-    let scene = tmp.path().join("s.toml");
-    std::fs::write(&scene, BASE).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
-        .current_dir(tmp.path())
-        .args(["run", "s.toml", "--out", ".", "--quiet"])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{stderr}");
-    assert!(
-        stderr.contains("--out must name a directory of its own"),
-        "{stderr}"
-    );
-    let names: Vec<String> = std::fs::read_dir(tmp.path())
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    assert_eq!(names, ["s.toml"], "a refused run wrote {names:?}");
+    for target in [".", "sub/.", "./sub/."] {
+        let tmp = tempfile::tempdir().unwrap();
+        let scene = tmp.path().join("s.toml");
+        std::fs::write(&scene, BASE).unwrap();
+        std::fs::create_dir(tmp.path().join("sub")).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
+            .current_dir(tmp.path())
+            .args(["run", "s.toml", "--out", target, "--quiet", "--force"])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{target}: {stderr}");
+        assert!(
+            stderr.contains("--out must name a directory of its own"),
+            "{target}: {stderr}"
+        );
+        let mut names: Vec<String> = std::fs::read_dir(tmp.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(
+            names,
+            ["s.toml", "sub"],
+            "{target}: a refused run wrote {names:?}"
+        );
+        assert_eq!(
+            std::fs::read_dir(tmp.path().join("sub")).unwrap().count(),
+            0
+        );
+    }
 }
 
 /// Leftovers beside --out are removed only when they are roughlub's: a directory named like a

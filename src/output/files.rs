@@ -114,7 +114,10 @@ impl StagedDir {
     pub fn begin(target: &Path, force: bool) -> Result<StagedDir> {
         // The directory is replaced by a rename, so it must have a name of its own (not `.`,
         // `..` or `/`, which cannot be swapped).
-        if target.file_name().is_none() {
+        // A trailing `/.` is dropped by Path's components (`out/.` names `out`) but not by the
+        // system calls that rename it.
+        let text = target.as_os_str().as_encoded_bytes();
+        if target.file_name().is_none() || text == b"." || text.ends_with(b"/.") {
             return Err(Error::Output {
                 path: target.to_path_buf(),
                 message: "--out must name a directory of its own (not ., .. or /): the run is swapped in whole by renaming it".into(),

@@ -179,14 +179,9 @@ fn roughness(e: &EnsembleSection, scene_path: &Path) -> Result<Option<RoughnessS
     let Some(mut r) = e.roughness.clone() else {
         return Ok(None);
     };
-    r.validate().map_err(|err| {
-        Error::invalid(
-            "ensemble.roughness",
-            format!("{r:?}"),
-            err.to_string(),
-            "see the scene reference",
-        )
-    })?;
+    // The error names its key (roughness.spread, .length) and range: under `ensemble`.
+    r.validate()
+        .map_err(|err| Error::missing("ensemble", err.to_string()))?;
     if let RoughnessKind::File(p) = &mut r.kind {
         if p.is_relative() {
             *p = scene_path.parent().unwrap_or(Path::new(".")).join(&*p);

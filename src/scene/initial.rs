@@ -4,6 +4,7 @@
 
 use super::checks::approx_text;
 use super::{InitialSpec, Scene};
+use crate::backend::Precision;
 use crate::error::{Error, Result};
 use crate::expr::Expr;
 use crate::model::chain::Chain;
@@ -143,8 +144,14 @@ fn profile_scale(profile: &Expr) -> f64 {
 impl Scene {
     /// The initial chain the scene describes (Prop. 3.1 from profiles, or the particle file).
     /// A single run (or an ensemble whose members all start from it unchanged) whose repulsion
-    /// overflows at t = 0 is refused here, see [`check_repulsion_at_start`].
+    /// overflows f64 at t = 0 is refused here, see [`check_repulsion_at_start`].
     pub fn initial_chain(&self) -> Result<Chain> {
+        self.initial_chain_in(Precision::F64)
+    }
+
+    /// [`Scene::initial_chain`] for a run in `precision`: in f32 the repulsion's overflow at
+    /// t = 0 is that of f32 (a member would fail at its first step).
+    pub fn initial_chain_in(&self, precision: Precision) -> Result<Chain> {
         let chain = match &self.initial {
             InitialSpec::Profiles {
                 rho,
@@ -190,7 +197,7 @@ impl Scene {
                 } else {
                     "model.gamma".to_string()
                 };
-                check_repulsion_at_start(&chain, gamma, &field)?;
+                check_repulsion_at_start(&chain, gamma, &field, precision)?;
             }
         }
         Ok(chain)
@@ -198,10 +205,15 @@ impl Scene {
 }
 
 /// Refuses a gamma whose repulsion G_i = (rho_i/rho*_i)^gamma = ((d*_i + 2 eps)/(d_i + 2 eps))^gamma
-/// overflows f64 at t = 0 (gamma ln(rho_i/rho*_i) > ln(f64::MAX) for some free gap): the first
+/// overflows `precision` at t = 0 (gamma ln(rho_i/rho*_i) > ln(MAX) for some free gap): the first
 /// step would fail. The message names the gap with the largest ratio, its place and the largest
 /// gamma these initial data allow.
-pub fn check_repulsion_at_start(chain: &Chain, gamma: f64, field: &str) -> Result<()> {
+pub fn check_repulsion_at_start(
+    chain: &Chain,
+    gamma: f64,
+    field: &str,
+    precision: Precision,
+) -> Result<()> {
     let Some(dstar) = &chain.dstar else {
         return Ok(());
     };
@@ -222,7 +234,10 @@ pub fn check_repulsion_at_start(chain: &Chain, gamma: f64, field: &str) -> Resul
     let Some((i, ratio)) = worst else {
         return Ok(());
     };
-    let ln_max = f64::MAX.ln();
+    let (ln_max, float) = match precision {
+        Precision::F64 => (f64::MAX.ln(), "f64"),
+        Precision::F32 => (f64::from(f32::MAX).ln(), "f32"),
+    };
     let exponent = gamma * ratio.ln();
     if exponent <= ln_max {
         return Ok(());
@@ -241,7 +256,7 @@ pub fn check_repulsion_at_start(chain: &Chain, gamma: f64, field: &str) -> Resul
         field,
         gamma,
         format!(
-            "the repulsion G = (rho/rho*)^gamma overflows f64 at t = 0: gap {} (particles {i} and {}, x = {}) starts at rho/rho* = {}, so gamma ln(rho/rho*) = {} > ln(f64::MAX) = {}",
+            "the repulsion G = (rho/rho*)^gamma overflows {float} at t = 0: gap {} (particles {i} and {}, x = {}) starts at rho/rho* = {}, so gamma ln(rho/rho*) = {} > ln({float}::MAX) = {}",
             i + 1,
             i + 1,
             approx_text(x),

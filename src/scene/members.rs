@@ -100,14 +100,9 @@ impl PointSetup {
                     None => vec![spec.mean_radius.unwrap_or(0.0); chain.particles() + 1],
                 };
                 Some(
-                    RoughnessSampler::new(r, &mean, &positions, spec.seed).map_err(|e| {
-                        Error::invalid(
-                            "ensemble.roughness",
-                            format!("{r:?}"),
-                            e.to_string(),
-                            "see the scene reference",
-                        )
-                    })?,
+                    // The error names the file and line, or the key, and the allowed range.
+                    RoughnessSampler::new(r, &mean, &positions, spec.seed)
+                        .map_err(|e| Error::missing("ensemble.roughness", e.to_string()))?,
                 )
             }
         };

@@ -230,6 +230,8 @@ impl Scene {
 fn validate_name(written: &str) -> Result<String> {
     let name = written.trim().to_string();
     if name.is_empty()
+        || name == "."
+        || name == ".."
         || !name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
@@ -238,7 +240,7 @@ fn validate_name(written: &str) -> Result<String> {
             "name",
             format!("\"{written}\""),
             "the name is used as a directory name",
-            "a non-empty name of letters, digits, '_', '-', '.'",
+            "a non-empty name of letters, digits, '_', '-', '.', not . or ..",
         ));
     }
     Ok(name)

@@ -29,7 +29,8 @@ fn with_ensemble(base: &str, body: &str) -> String {
 fn cases() -> Vec<(&'static str, String, &'static str)> {
     let no_rho_star = edit(BASE, "rho_star = \"0.7\"\n", "");
     vec![
-        ("name", edit(BASE, "name = \"base\"", "name = \"a b\""), "name = \"a b\": the name is used as a directory name (allowed: a non-empty name of letters, digits, '_', '-', '.')"),
+        ("name", edit(BASE, "name = \"base\"", "name = \"a b\""), "name = \"a b\": the name is used as a directory name (allowed: a non-empty name of letters, digits, '_', '-', '.', not . or ..)"),
+        ("name dot", edit(BASE, "name = \"base\"", "name = \".\""), "name = \".\": the name is used as a directory name (allowed: a non-empty name of letters, digits, '_', '-', '.', not . or ..)"),
         ("particles low", edit(BASE, "particles = 10", "particles = 1"), "model.particles = 1: N counts the particles 0..N, so at least one particle moves (allowed: 2 <= particles <= 100000000)"),
         ("particles high", edit(BASE, "particles = 10", "particles = 200000000"), "model.particles = 200000000: N counts the particles 0..N, so at least one particle moves (allowed: 2 <= particles <= 100000000)"),
         ("mu negative", edit(BASE, "mu = 0.01", "mu = -1"), "model.mu = -1: the lubrication coefficient must be positive (allowed: 0 < mu <= 1e12)"),

@@ -568,14 +568,8 @@ impl Scene {
             }
         }
         if let Some(r) = scene.ensemble.as_ref().and_then(|s| s.roughness.as_ref()) {
-            r.validate().map_err(|e| {
-                context(Error::invalid(
-                    "ensemble.roughness",
-                    format!("{r:?}"),
-                    e.to_string(),
-                    "see the scene reference",
-                ))
-            })?;
+            r.validate()
+                .map_err(|e| context(Error::missing("ensemble", e.to_string())))?;
         }
         scene.bind_parameters(parameters).map_err(context)?;
         Ok(scene)
