@@ -1283,6 +1283,29 @@ fn out_dot_is_refused() {
     }
 }
 
+/// `--out FILE/sub` where FILE is a file: refused before the run, naming the file.
+#[test]
+fn out_below_a_file_is_refused_naming_the_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::write(tmp.path().join("s.toml"), BASE).unwrap();
+    std::fs::write(tmp.path().join("afile"), "not a directory").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
+        .current_dir(tmp.path())
+        .args(["run", "s.toml", "--out", "afile/sub", "--quiet"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("afile is a file, not a directory"),
+        "{stderr}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(tmp.path().join("afile")).unwrap(),
+        "not a directory"
+    );
+}
+
 /// Leftovers beside --out are removed only when they are roughlub's: a directory named like a
 /// leftover but holding someone's files stays. A commit killed between its two renames (the
 /// earlier run moved aside, the new one not yet in place) is repaired by the next run: the

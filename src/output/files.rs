@@ -129,6 +129,23 @@ impl StagedDir {
                 message: "is a symbolic link; give the directory it points to as --out (a run replaces its directory whole)".into(),
             });
         }
+        // The nearest existing ancestor must be a directory (else creating the staging
+        // directory fails with a bare "File exists" naming that ancestor).
+        if let Some(file) = target
+            .ancestors()
+            .skip(1)
+            .filter(|a| !a.as_os_str().is_empty())
+            .find(|a| a.exists())
+            .filter(|a| !a.is_dir())
+        {
+            return Err(Error::Output {
+                path: target.to_path_buf(),
+                message: format!(
+                    "cannot be created: {} is a file, not a directory; give another --out",
+                    file.display()
+                ),
+            });
+        }
         Self::recover_interrupted_commit(target)?;
         if target.exists() {
             if !target.is_dir() {
