@@ -188,12 +188,12 @@ fn fallback_reason(e: &GpuError) -> String {
 fn gpu_acquire_error(e: GpuError, precision: Precision) -> Error {
     match (&e, precision) {
         (GpuError::NoF64 { .. }, Precision::F64) => Error::gpu(
-            "solver.precision = \"f64\" with backend \"gpu\"",
+            "precision \"f64\" (solver.precision or --precision) with backend \"gpu\"",
             e,
             "; use precision \"f32\" on this adapter, or backend \"cpu\" for f64",
         ),
         _ => Error::gpu(
-            "solver.backend = \"gpu\"",
+            "backend \"gpu\" (solver.backend or --backend)",
             e,
             "; or use backend \"cpu\" (or \"auto\", which falls back to the CPU)",
         ),
@@ -278,7 +278,7 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
             )));
         }
         return Err(Error::gpu(
-            format!("solver.backend = \"gpu\" on {on}"),
+            format!("backend \"gpu\" (solver.backend or --backend) on {on}"),
             e,
             "; use backend \"cpu\" (or \"auto\", which falls back to the CPU)",
         ));
