@@ -159,6 +159,12 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
 
     // Everything a user supplies is validated before the directory is touched.
     let chain = scene.initial_chain_in(precision)?;
+    let input_files = match &scene.initial {
+        crate::scene::InitialSpec::Particles { path, .. } => {
+            crate::output::input_file_hashes(&[path.as_path()])?
+        }
+        crate::scene::InitialSpec::Profiles { .. } => Default::default(),
+    };
     let plan = scene.plan(&chain);
     let engine = select(requested, precision, &plan)?;
     if !options.quiet {
@@ -247,6 +253,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         wall,
         reports,
         largest_error_estimate,
+        input_files,
         files.iter().map(|p| p.strip_prefix(dir).unwrap_or(p)),
     );
     write_json_atomic(&dir.join(MANIFEST), &manifest)?;
@@ -342,6 +349,7 @@ fn run_manifest<'a>(
     wall: f64,
     reports: Vec<MemberReport>,
     largest_error_estimate: Option<f64>,
+    input_files: BTreeMap<String, String>,
     files: impl Iterator<Item = &'a Path>,
 ) -> RunManifest {
     RunManifest {
@@ -370,6 +378,7 @@ fn run_manifest<'a>(
         ),
         steps_accepted_total: reports.iter().map(|r| r.steps_accepted).sum(),
         steps_rejected_total: reports.iter().map(|r| r.steps_rejected).sum(),
+        input_files,
         failed_members: reports
             .iter()
             .filter(|r| r.status != MemberStatus::Ok)

@@ -1283,6 +1283,50 @@ fn out_dot_is_refused() {
     }
 }
 
+/// The manifest records every file a run reads (issue standards: everything that determines a
+/// result): the particle file with the FNV-1a of its bytes (computed here independently), which
+/// changes with one velocity of the file.
+#[test]
+fn the_manifest_records_the_particle_file_it_read() {
+    fn fnv1a(bytes: &[u8]) -> String {
+        let mut h: u64 = 0xcbf29ce484222325;
+        for &b in bytes {
+            h = (h ^ u64::from(b)).wrapping_mul(0x100000001b3);
+        }
+        format!("{h:016x}")
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::write(tmp.path().join("s.toml"), BASE_FILE).unwrap();
+    let mut hashes = Vec::new();
+    for csv in [
+        GOOD_CSV.to_string(),
+        GOOD_CSV.replace("0.25,0.1", "0.25,0.11"),
+    ] {
+        std::fs::write(tmp.path().join("p.csv"), &csv).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
+            .current_dir(tmp.path())
+            .args(["run", "s.toml", "--out", "o", "--quiet", "--force"])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let m: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(tmp.path().join("o/manifest.json")).unwrap(),
+        )
+        .unwrap();
+        let files = m["input_files"].as_object().expect("input_files");
+        assert_eq!(files.len(), 1, "{files:?}");
+        let (path, hash) = files.iter().next().unwrap();
+        assert!(path.ends_with("p.csv"), "{path}");
+        assert_eq!(hash.as_str().unwrap(), fnv1a(csv.as_bytes()));
+        hashes.push(hash.clone());
+    }
+    assert_ne!(hashes[0], hashes[1]);
+}
+
 /// `--out FILE/sub` where FILE is a file: refused before the run, naming the file.
 #[test]
 fn out_below_a_file_is_refused_naming_the_file() {

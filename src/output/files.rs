@@ -37,6 +37,36 @@ pub struct StagedDir {
     pub staging: PathBuf,
     keep_on_failure: bool,
     committed: bool,
+    /// The staging marker, open and locked while this process owns the directory: a leftover
+    /// whose marker nobody holds is a dead run's, whatever its PID now names (a PID is reused
+    /// after a restart, or names another node's process on shared scratch).
+    _lock: Option<std::fs::File>,
+}
+
+/// The staging marker of `dir` opened and locked (None where it cannot be: then the PID alone
+/// says whether its run is alive).
+fn lock_marker(dir: &Path) -> Option<std::fs::File> {
+    let marker = dir.join(STAGING_MARKER);
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(marker)
+        .ok()?;
+    file.try_lock().ok()?;
+    Some(file)
+}
+
+/// Whether `dir`'s staging marker exists and no process holds its lock (its run is dead).
+fn marker_unlocked(dir: &Path) -> bool {
+    let Ok(file) = std::fs::OpenOptions::new()
+        .write(true)
+        .open(dir.join(STAGING_MARKER))
+    else {
+        return false;
+    };
+    // Released when `file` is dropped.
+    file.try_lock().is_ok()
 }
 
 const STAGING_TAG: &str = ".partial-";
@@ -44,6 +74,27 @@ const OLD_TAG: &str = ".old-";
 /// Written into a staging directory when it is made (removed at the commit): what marks a
 /// leftover as roughlub's before anything deletes it.
 const STAGING_MARKER: &str = ".roughlub-staging";
+
+/// Every file a run reads (a particle file, a roughness file), path -> FNV-1a (64 bits, hex) of
+/// its bytes: what the manifest records and `--resume` and `merge` compare.
+pub fn input_file_hashes(paths: &[&Path]) -> Result<std::collections::BTreeMap<String, String>> {
+    let mut out = std::collections::BTreeMap::new();
+    for path in paths {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        out.insert(path.display().to_string(), fnv1a(&bytes));
+    }
+    Ok(out)
+}
+
+/// FNV-1a (64 bits) of `bytes`, as 16 hex digits.
+pub fn fnv1a(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf29ce484222325;
+    for b in bytes {
+        h ^= *b as u64;
+        h = h.wrapping_mul(0x100000001b3);
+    }
+    format!("{h:016x}")
+}
 
 /// Whether a directory holds a roughlub run or staging directory (so it may be removed as a
 /// leftover).
@@ -78,8 +129,9 @@ fn process_alive(pid: u32) -> Option<bool> {
 }
 
 /// Staging (`.NAME.partial-PID`) and swap (`.NAME.old-PID`) directories of `target` whose
-/// process is dead (or is this one: a PID reused after a restart, as in containers), and that
-/// hold roughlub's files: what a killed run left behind.
+/// process is dead (or is this one: a PID reused after a restart, as in containers; or, for a
+/// staging directory, whose marker no process holds locked), and that hold roughlub's files:
+/// what a killed run left behind.
 fn leftovers(target: &Path) -> Result<Vec<(PathBuf, bool)>> {
     let (parent, name) = split_target(target);
     let mut found = Vec::new();
@@ -101,7 +153,9 @@ fn leftovers(target: &Path) -> Result<Vec<(PathBuf, bool)>> {
         let Ok(pid) = pid.parse::<u32>() else {
             continue;
         };
-        let dead = pid == std::process::id() || process_alive(pid) == Some(false);
+        let dead = pid == std::process::id()
+            || process_alive(pid) == Some(false)
+            || (is_staging && marker_unlocked(&entry.path()));
         if dead && entry.path().is_dir() && is_roughlub_dir(&entry.path()) {
             found.push((entry.path(), is_staging));
         }
@@ -181,11 +235,13 @@ impl StagedDir {
         std::fs::create_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
         let marker = staging.join(STAGING_MARKER);
         std::fs::write(&marker, b"").map_err(|e| Error::io(&marker, e))?;
+        let lock = lock_marker(&staging);
         Ok(StagedDir {
             target: target.to_path_buf(),
             staging,
             keep_on_failure: false,
             committed: false,
+            _lock: lock,
         })
     }
 
@@ -255,11 +311,13 @@ impl StagedDir {
         if found != staging {
             std::fs::rename(&found, &staging).map_err(|e| Error::io(&found, e))?;
         }
+        let lock = lock_marker(&staging);
         Ok(Some(StagedDir {
             target: target.to_path_buf(),
             staging,
             keep_on_failure: true,
             committed: false,
+            _lock: lock,
         }))
     }
 
@@ -328,4 +386,28 @@ pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
         path: path.to_path_buf(),
         message: format!("unreadable: {e}"),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{leftovers, lock_marker, STAGING_MARKER, STAGING_TAG};
+
+    /// A staging directory named with the PID of a live process (PID 1 here, as after a
+    /// restart or on another node of shared scratch) is a leftover when no process holds its
+    /// marker locked, and not while one does (it was never a leftover while its PID lived).
+    #[test]
+    fn a_staging_directory_is_a_leftover_once_its_marker_is_unlocked() {
+        let tmp = tempfile::tempdir().unwrap();
+        let target = tmp.path().join("s");
+        let staging = tmp.path().join(format!(".s{STAGING_TAG}1"));
+        std::fs::create_dir(&staging).unwrap();
+        std::fs::write(staging.join(STAGING_MARKER), b"").unwrap();
+        let held = lock_marker(&staging).expect("the marker can be locked here");
+        assert!(
+            leftovers(&target).unwrap().is_empty(),
+            "a locked run's directory"
+        );
+        drop(held);
+        assert_eq!(leftovers(&target).unwrap(), vec![(staging, true)]);
+    }
 }

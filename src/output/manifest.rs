@@ -137,6 +137,8 @@ pub struct RunManifest {
     pub failed_members: Vec<usize>,
     pub steps_accepted_total: u64,
     pub steps_rejected_total: u64,
+    /// Every file the run read besides the scene (a particle file), path -> FNV-1a of its bytes.
+    pub input_files: BTreeMap<String, String>,
     pub files: Vec<String>,
     pub conventions: BTreeMap<&'static str, &'static str>,
 }
@@ -164,6 +166,9 @@ pub struct StudyManifest {
     pub members_completed: u64,
     pub failed_members: Vec<u64>,
     pub error_estimate: ErrorEstimateRecord,
+    /// Every file the study read besides the scene (particle file, roughness file), path ->
+    /// FNV-1a of its bytes (what `--resume` and `merge` compare).
+    pub input_files: BTreeMap<String, String>,
     /// "exact" or "frozen": the matrix of the extrapolated steps (`[solver] jacobian`).
     pub jacobian: &'static str,
     /// "from_1" or "from_2": the substeps of the tableau's rows (`[solver] sequence`).
@@ -208,6 +213,8 @@ pub struct MergedManifest {
     pub failed_members: Vec<u64>,
     /// The inputs' method, and the largest of their members' estimates (members.csv).
     pub error_estimate: ErrorEstimateRecord,
+    /// The files the shards read (the same in every shard: merge refuses others).
+    pub input_files: BTreeMap<String, String>,
     pub wall_seconds: f64,
     pub quantile_method: QuantileMethod,
 }

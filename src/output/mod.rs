@@ -11,7 +11,9 @@ pub mod progress;
 pub mod serde_f64;
 pub mod state_file;
 
-pub use files::{prepare_dir, read_json, write_json_atomic, StagedDir, MANIFEST};
+pub use files::{
+    fnv1a, input_file_hashes, prepare_dir, read_json, write_json_atomic, StagedDir, MANIFEST,
+};
 pub use npy::{write_npy, NpyStream};
 pub use progress::ProgressReporter;
 pub use state_file::{read_state, write_state_atomic, STATE_FORMAT};

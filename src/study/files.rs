@@ -142,7 +142,7 @@ pub(super) struct CheckpointFileRef<'a> {
 
 /// FNV-1a of the scene text: identifies the study for resume and merge.
 fn scene_hash(text: &str) -> String {
-    fnv1a(text.as_bytes())
+    crate::output::fnv1a(text.as_bytes())
 }
 
 /// The files the study's members are read from, each with the FNV-1a of its bytes.
@@ -159,21 +159,7 @@ pub(super) fn input_file_hashes(
             paths.push(path);
         }
     }
-    let mut out = BTreeMap::new();
-    for path in paths {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        out.insert(path.display().to_string(), fnv1a(&bytes));
-    }
-    Ok(out)
-}
-
-fn fnv1a(bytes: &[u8]) -> String {
-    let mut h: u64 = 0xcbf29ce484222325;
-    for b in bytes {
-        h ^= *b as u64;
-        h = h.wrapping_mul(0x100000001b3);
-    }
-    format!("{h:016x}")
+    crate::output::input_file_hashes(&paths)
 }
 
 /// members.csv, written row by row as chunks (or shards) are read, in member order: memory does
@@ -269,6 +255,11 @@ impl CsvOut {
     /// (the rows of the chunks its checkpoint holds; rows written after it are dropped).
     pub fn resume(path: PathBuf, bytes: u64) -> Result<CsvOut> {
         let partial = path.with_extension("csv.partial");
+        // A run killed after its last chunk, while it wrote the statistics, has already renamed
+        // the partial to members.csv (its checkpoint is removed last): the same rows.
+        if !partial.exists() && path.exists() {
+            std::fs::rename(&path, &partial).map_err(|e| Error::io(&path, e))?;
+        }
         let mut file = std::fs::OpenOptions::new()
             .write(true)
             .open(&partial)
@@ -539,7 +530,7 @@ pub(super) fn check_resume(old: &StudyHeader, new: &StudyHeader, path: &Path) ->
 
 #[cfg(test)]
 mod tests {
-    use super::shard_range;
+    use super::{shard_range, CsvOut};
 
     /// Shards partition the members in order, also where K·M exceeds u64 (it wrapped, giving
     /// shard 2^61 - 1 of 2^61 of 8 members the range [7, 0]).
@@ -558,5 +549,21 @@ mod tests {
             next = b;
         }
         assert_eq!(next, total);
+    }
+
+    /// A study killed after its last chunk, while it wrote its statistics, has renamed its
+    /// members.csv.partial to members.csv but kept its checkpoint: resuming takes members.csv
+    /// back, cut to the checkpoint's rows (it failed: "members.csv.partial: No such file").
+    #[test]
+    fn resume_takes_back_a_members_csv_renamed_before_the_kill() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("members.csv");
+        std::fs::write(&path, "member,x\n0,1\n1,2\n").unwrap();
+        let kept = "member,x\n0,1\n".len() as u64;
+        let mut csv = CsvOut::resume(path.clone(), kept).unwrap();
+        assert_eq!(csv.flushed_len().unwrap(), kept);
+        csv.finish().unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "member,x\n0,1\n");
+        assert!(!path.with_extension("csv.partial").exists());
     }
 }

@@ -206,6 +206,7 @@ pub fn merge_studies(
             members_completed: state.completed,
             failed_members: state.failed.clone(),
             error_estimate: error_estimate.clone(),
+            input_files: merged_header.input_files.clone(),
             wall_seconds: started.elapsed().as_secs_f64(),
             quantile_method: quantile_method(&merged_header),
         },

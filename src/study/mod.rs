@@ -302,6 +302,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
                 scene.error_estimate,
                 largest_error_estimate,
             ),
+            input_files: header.input_files.clone(),
             jacobian: scene.jacobian.record(scene.order, scene.stepping),
             sequence: scene.sequence.record(scene.order),
             chunks,
