@@ -321,6 +321,16 @@ impl StagedDir {
         }))
     }
 
+    /// The `study.json` of every staging directory a killed run into `target` left (what
+    /// [`StagedDir::adopt_interrupted_study`] chooses from).
+    pub fn interrupted_studies(target: &Path) -> Result<Vec<PathBuf>> {
+        Ok(leftovers(target)?
+            .into_iter()
+            .filter(|(dir, is_staging)| *is_staging && dir.join("study.json").exists())
+            .map(|(dir, _)| dir.join("study.json"))
+            .collect())
+    }
+
     /// Keep the staging directory when the run fails (a study's finished chunks, for
     /// `--resume`).
     pub fn keep_on_failure(&mut self) {

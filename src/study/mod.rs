@@ -232,7 +232,16 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let dir = &dir;
     if let Some(complete) = complete_study(dir, staged.is_none(), &header, options)? {
         let wall = started.elapsed().as_secs_f64();
-        return Ok(StudySummary::of(&options.out_dir, &complete, 0, wall, 0.0));
+        // The estimate the complete study's manifest recorded.
+        let largest = read_json::<serde_json::Value>(&dir.join(MANIFEST))
+            .ok()
+            .and_then(|m| m["error_estimate"]["largest"].as_f64());
+        return Ok(StudySummary::of(&options.out_dir, &complete, 0, wall, 0.0)
+            .with_error_estimate(
+                largest,
+                run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate)
+                    .is_some(),
+            ));
     }
     let chunks_dir = dir.join("chunks");
     if chunks_dir.is_dir() {
@@ -510,9 +519,20 @@ fn study_dir(header: &StudyHeader, options: &StudyOptions) -> Result<(PathBuf, O
     if target.join("study.json").exists() {
         return Ok((target.clone(), None));
     }
+    // An interrupted run of another study (or of this one with changed inputs): say what differs.
+    let other = StagedDir::interrupted_studies(target)?
+        .into_iter()
+        .find_map(|path| match read_json::<StudyHeader>(&path) {
+            Ok(old) => check_resume(&old, header, &path).err(),
+            Err(e) => Some(e),
+        });
+    let why = match other {
+        Some(e) => format!("the interrupted run beside it cannot be continued: {e}"),
+        None => "no interrupted run of this study beside it; run without --resume".into(),
+    };
     Err(Error::Output {
         path: target.clone(),
-        message: "nothing to resume: no study.json there and no interrupted run of this study beside it; run without --resume".into(),
+        message: format!("nothing to resume: no study.json there, and {why}"),
     })
 }
 
