@@ -530,7 +530,7 @@ fn conventions() -> BTreeMap<&'static str, &'static str> {
         ("time_steps", "every N runs with the scene's time stepping: the limit is N -> infinity at those steps, and the time-step error (common to all N) is not in the differences"),
         ("norms", "L1 and L2 as means over the grid points, Linf the largest difference"),
         ("rates", "ln(e_{k-1}/e_k)/ln(N_k/N_{k-1}) between the differences of successive pairs: log2 of the ratio when N doubles; exact for e = C N^-p only when the ratios are equal (ratios_equal)"),
-        ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 max(N_K eps_f64, eps) max(1, max|f_K|) with eps that of the precision (exact), or the difference at the largest pair within 100 times that level (rounding_limited: converged as far as the precision resolves)"),
+        ("asymptotic", "per field and time: the last two L1 rates finite, positive and within drift_tolerance (needs 4 or more N), or every L1 difference at rounding level, 16 max(N_K eps_f64, eps) max(1, max|f_K|) with eps that of the precision (exact), or the difference at the largest pair within 100 times that level where the last rate shows it (not finite and positive, or 0.15 below the one before: rounding_limited, converged as far as the precision resolves); failed where a run failed before that time"),
     ])
 }
 
@@ -624,6 +624,13 @@ fn at_time(rows: &[&[f64]], ratios: &[f64], unit_rounding: f64) -> AtTime {
         (_, None) => vec![f64::NAN; fine.len()],
     };
     let limit_error = difference_norms(&limit, fine).l1;
+    // Rates between differences at rounding level mean nothing: an exact field has none.
+    let (r1, r2, rinf) = if v == Verdict::Exact {
+        let none = vec![f64::NAN; r1.len()];
+        (none.clone(), none.clone(), none)
+    } else {
+        (r1, r2, rinf)
+    };
     AtTime {
         norms,
         rates: [r1, r2, rinf],

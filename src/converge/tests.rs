@@ -32,11 +32,28 @@ fn verdicts() {
         verdict(&[4.0, 2.0, 3.0], &[1.0, -0.58], r),
         Verdict::NotMonotone
     );
+    // A failed run's NaN differences are a failure, not a shape of the differences.
     assert_eq!(
         verdict(&[4.0, f64::NAN, 1.0], &[f64::NAN, f64::NAN], r),
-        Verdict::NotMonotone
+        Verdict::Failed
     );
     assert_eq!(verdict(&[4.0, 2.0], &[1.0], r), Verdict::TooFewRates);
+    // Differences within 100 times the rounding level that still fall steadily (f32 at modest
+    // N: 1.07e-4, 2.54e-5 against a level of 1.9e-6) are judged by their rates.
+    let f32_level = 1.9e-6;
+    assert_eq!(
+        verdict(&[1.07e-4, 2.54e-5], &[2.07], f32_level),
+        Verdict::TooFewRates
+    );
+    assert_eq!(
+        verdict(&[4.3e-4, 1.07e-4, 2.54e-5], &[2.0, 2.07], f32_level),
+        Verdict::Asymptotic
+    );
+    // ... and rounding_limited where the last rate shows the rounding.
+    assert_eq!(
+        verdict(&[4.3e-4, 2.0e-5, 1.5e-5], &[4.4, 0.4], f32_level),
+        Verdict::RoundingLimited
+    );
     assert_eq!(verdict(&[4.0], &[], r), Verdict::TooFewRates);
 }
 

@@ -279,6 +279,13 @@ fn validate_model(m: &ModelSection, parameters: &[(String, f64)]) -> Result<Mode
         Range::count(2, 8),
         "Gauss-Legendre points per particle for the forcing integral",
     )?;
+    if m.quadrature.is_some() && forcing.is_none() {
+        // The scene asks for something it would not get: no forcing, no integral.
+        return Err(Error::missing(
+            "model.quadrature",
+            "only with model.forcing (the points integrate the forcing over each particle); remove it, or give a forcing",
+        ));
+    }
     Ok(Model {
         particles: particles.map(|n| n as usize),
         gamma,

@@ -31,6 +31,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
     vec![
         ("name", edit(BASE, "name = \"base\"", "name = \"a b\""), "name = \"a b\": the name is used as a directory name (allowed: a non-empty name of letters, digits, '_', '-', '.', not . or ..)"),
         ("name dot", edit(BASE, "name = \"base\"", "name = \".\""), "name = \".\": the name is used as a directory name (allowed: a non-empty name of letters, digits, '_', '-', '.', not . or ..)"),
+        ("quadrature without forcing", edit(BASE, "gamma = 1.0", "gamma = 1.0\nquadrature = 4"), "model.quadrature: only with model.forcing (the points integrate the forcing over each particle); remove it, or give a forcing"),
         ("particles low", edit(BASE, "particles = 10", "particles = 1"), "model.particles = 1: N counts the particles 0..N, so at least one particle moves (allowed: 2 <= particles <= 100000000)"),
         ("particles high", edit(BASE, "particles = 10", "particles = 200000000"), "model.particles = 200000000: N counts the particles 0..N, so at least one particle moves (allowed: 2 <= particles <= 100000000)"),
         ("mu negative", edit(BASE, "mu = 0.01", "mu = -1"), "model.mu = -1: the lubrication coefficient must be positive (allowed: 0 < mu <= 1e12)"),
