@@ -378,6 +378,9 @@ impl Ladder<'_> {
                 m.worst_point
                     .map_or(String::new(), |p| format!("  (worst: point {p})"))
             );
+            if let Some(reason) = &run.failure {
+                eprintln!("    failed: {reason}");
+            }
         }
         let error = errors.map(|e| e.worst());
         if error.is_some_and(|e| e <= self.target) {
