@@ -1246,6 +1246,15 @@ fn many_output_times_are_thinned_in_plots_only() {
     assert_png(&out_dir.join("plots").join("member_0000.png"));
 }
 
+/// `roughlub ARGS` run in `dir` (paths in ARGS relative to it).
+fn roughlub_in(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_roughlub"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .unwrap()
+}
+
 /// `--out .` (or `DIR/.`, which Path reads as DIR but a rename does not) cannot be swapped in
 /// whole by a rename: refused with exit 2 before the run, nothing written.
 #[test]
@@ -1255,11 +1264,10 @@ fn out_dot_is_refused() {
         let scene = tmp.path().join("s.toml");
         std::fs::write(&scene, BASE).unwrap();
         std::fs::create_dir(tmp.path().join("sub")).unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
-            .current_dir(tmp.path())
-            .args(["run", "s.toml", "--out", target, "--quiet", "--force"])
-            .output()
-            .unwrap();
+        let out = roughlub_in(
+            tmp.path(),
+            &["run", "s.toml", "--out", target, "--quiet", "--force"],
+        );
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{target}: {stderr}");
         assert!(
@@ -1303,11 +1311,10 @@ fn the_manifest_records_the_particle_file_it_read() {
         GOOD_CSV.replace("0.25,0.1", "0.25,0.11"),
     ] {
         std::fs::write(tmp.path().join("p.csv"), &csv).unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
-            .current_dir(tmp.path())
-            .args(["run", "s.toml", "--out", "o", "--quiet", "--force"])
-            .output()
-            .unwrap();
+        let out = roughlub_in(
+            tmp.path(),
+            &["run", "s.toml", "--out", "o", "--quiet", "--force"],
+        );
         assert!(
             out.status.success(),
             "{}",
@@ -1333,11 +1340,10 @@ fn out_below_a_file_is_refused_naming_the_file() {
     let tmp = tempfile::tempdir().unwrap();
     std::fs::write(tmp.path().join("s.toml"), BASE).unwrap();
     std::fs::write(tmp.path().join("afile"), "not a directory").unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_roughlub"))
-        .current_dir(tmp.path())
-        .args(["run", "s.toml", "--out", "afile/sub", "--quiet"])
-        .output()
-        .unwrap();
+    let out = roughlub_in(
+        tmp.path(),
+        &["run", "s.toml", "--out", "afile/sub", "--quiet"],
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(

@@ -43,6 +43,11 @@ fn merge(inputs: &[&Path], out: &Path, extra: &[&str]) -> Output {
     roughlub(&args)
 }
 
+/// `manifest.json` of a run or merge directory.
+fn manifest(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap()
+}
+
 #[test]
 fn a_missing_shard_is_refused_unless_allowed_and_then_named() {
     let tmp = tempfile::tempdir().unwrap();
@@ -63,9 +68,7 @@ fn a_missing_shard_is_refused_unless_allowed_and_then_named() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("members 32..64 are missing"), "{err}");
-    let m: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(merged.join("manifest.json")).unwrap())
-            .unwrap();
+    let m = manifest(&merged);
     assert_eq!(m["complete"], false);
     assert_eq!(m["members_covered"], 64);
     assert_eq!(m["missing_member_ranges"], serde_json::json!([[32, 64]]));
@@ -108,9 +111,6 @@ fn merge_records_the_largest_error_estimate_of_its_shards() {
     for (k, d) in dirs.iter().enumerate() {
         shard(d, k as u64);
     }
-    let manifest = |dir: &Path| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap()
-    };
     let shards: Vec<serde_json::Value> = dirs.iter().map(|d| manifest(d)).collect();
     let expected = shards
         .iter()
