@@ -26,7 +26,7 @@ fn load() -> Vec<(String, Plan, Vec<Chain>)> {
             let text = std::fs::read_to_string(&path).unwrap();
             let scene = Scene::from_toml(&text, &path).unwrap();
             let chain = scene.initial_chain().unwrap();
-            let plan = scene.plan(&chain);
+            let plan = scene.plan(&chain, scene.precision);
             let members = plan.members.len();
             let name = path.file_stem().unwrap().to_string_lossy().into_owned();
             (name, plan, vec![chain; members])

@@ -23,7 +23,7 @@ fn case1() -> (Plan, Chain) {
     let text = std::fs::read_to_string(&path).unwrap();
     let scene = Scene::from_toml(&text, &path).unwrap();
     let chain = scene.initial_chain().unwrap();
-    let mut plan = scene.plan(&chain);
+    let mut plan = scene.plan(&chain, scene.precision);
     plan.fields = OutputFields::none();
     plan.fields.gaps = true;
     plan.fields.velocities = true;

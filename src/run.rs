@@ -165,7 +165,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         }
         crate::scene::InitialSpec::Profiles { .. } => Default::default(),
     };
-    let plan = scene.plan(&chain);
+    let plan = scene.plan(&chain, precision);
     let engine = select(requested, precision, &plan)?;
     if !options.quiet {
         eprintln!("{}", engine.record.line());

@@ -69,7 +69,7 @@ plots = false
 fn estimate_and_error(text: &str) -> (f64, f64) {
     let scene = Scene::from_toml(text, Path::new("estimate.toml")).expect("valid scene");
     let chain = scene.initial_chain().expect("initial chain");
-    let plan = scene.plan(&chain);
+    let plan = scene.plan(&chain, scene.precision);
     let members = plan.members.len();
     let engine = select(Backend::Cpu, Precision::F64, &plan).unwrap();
     let last = |plan: Plan| {
@@ -245,7 +245,7 @@ fn output_status_is_what_the_reports_say() {
     let text = format!("{}\n[batch]\nmu = [1e-3, 1e-2, 0.1]\n", near_contact(""));
     let scene = Scene::from_toml(&text, Path::new("estimate.toml")).expect("valid scene");
     let chain = scene.initial_chain().expect("initial chain");
-    let plan = scene.plan(&chain);
+    let plan = scene.plan(&chain, scene.precision);
     let members = plan.members.len();
     assert_eq!(members, 3);
     let engine = select(Backend::Cpu, Precision::F64, &plan).unwrap();
@@ -305,7 +305,7 @@ fn output_status_is_what_the_reports_say() {
 fn smallest_log_gaps(text: &str) -> (Vec<f64>, Vec<roughlub::backend::MemberReport>) {
     let scene = Scene::from_toml(text, Path::new("estimate.toml")).expect("valid scene");
     let chain = scene.initial_chain().expect("initial chain");
-    let plan = scene.plan(&chain);
+    let plan = scene.plan(&chain, scene.precision);
     let engine = select(Backend::Cpu, Precision::F64, &plan).unwrap();
     let mut solver = engine.solver(plan, vec![chain]).unwrap();
     let mut smallest = Vec::new();

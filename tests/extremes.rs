@@ -292,7 +292,7 @@ fn fixed_high_orders_complete_where_a_contact_pair_flies_apart() {
         let chain = scene.initial_chain().unwrap();
         let total: f64 = chain.gaps.iter().sum();
         for sequence in [Sequence::FromOne, Sequence::FromTwo] {
-            let mut plan = scene.plan(&chain);
+            let mut plan = scene.plan(&chain, scene.precision);
             plan.order = Order::Fixed(4);
             plan.sequence = sequence;
             let members = plan.members.len();
@@ -376,7 +376,7 @@ fn order_eight_completes_where_the_energy_barely_falls() {
     let chain = scene.initial_chain().unwrap();
     assert_eq!(chain.gaps.len(), 24);
     let total: f64 = chain.gaps.iter().sum();
-    let mut reference_plan = scene.plan(&chain);
+    let mut reference_plan = scene.plan(&chain, scene.precision);
     assert_eq!(reference_plan.members.len(), 1);
     assert_eq!(reference_plan.members[0].gamma, 1000.0);
     reference_plan.order = Order::Auto;
@@ -389,7 +389,7 @@ fn order_eight_completes_where_the_energy_barely_falls() {
     assert_eq!(solver.reports()[0].status, MemberStatus::Ok);
     let reference = &reference.last().unwrap()[0];
     for sequence in [Sequence::FromOne, Sequence::FromTwo] {
-        let mut plan = scene.plan(&chain);
+        let mut plan = scene.plan(&chain, scene.precision);
         plan.order = Order::Fixed(8);
         plan.sequence = sequence;
         let (snaps, solver) = run_all(plan.clone(), vec![chain.clone()]);
@@ -467,7 +467,7 @@ fn extremes_matrix_completes_conserves_and_never_gains_energy() {
         let text = std::fs::read_to_string(&path).unwrap();
         let scene = Scene::from_toml(&text, &path).unwrap();
         let chain = scene.initial_chain().unwrap();
-        let plan = scene.plan(&chain);
+        let plan = scene.plan(&chain, scene.precision);
         let members = plan.members.len();
         assert_eq!(members, 16);
         let total: f64 = chain.gaps.iter().sum();

@@ -249,7 +249,7 @@ fn reference(scene_path: &Path) -> Reference {
         params.push(inputs.params);
         factor.push(inputs.velocity_factor);
     }
-    let mut plan = scene.plan(&chains[0]);
+    let mut plan = scene.plan(&chains[0], scene.precision);
     plan.members = params;
     plan.repulsion = chains[0].dstar.is_some();
     plan.fields.rho_star = plan.repulsion;
@@ -1110,7 +1110,7 @@ fn error_estimates_per_member_and_output_time() {
         chains.push(inputs.chain);
         params.push(inputs.params);
     }
-    let mut plan = parsed.plan(&chains[0]);
+    let mut plan = parsed.plan(&chains[0], parsed.precision);
     plan.members = params;
     plan.repulsion = true;
     plan.fields.rho_star = true;

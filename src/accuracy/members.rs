@@ -68,7 +68,8 @@ pub(super) fn measured_members(
                 params.push(inputs.params);
             }
             let setup = members.setup(p)?;
-            let mut plan = setup.scene.plan(&chains[0]);
+            // The sequence, as order and stepping, is each setting's (`solve`).
+            let mut plan = setup.scene.plan(&chains[0], setup.scene.precision);
             plan.members = params;
             groups.push(MeasuredGroup {
                 plan,
@@ -89,7 +90,7 @@ pub(super) fn measured_members(
     } else {
         vec![0]
     };
-    let mut plan = scene.plan(&chain);
+    let mut plan = scene.plan(&chain, scene.precision);
     plan.members = chosen.iter().map(|&m| all[m as usize]).collect();
     let chains = vec![chain; plan.members.len()];
     // With several listed members, each is a group of its own, so the worst can be named.

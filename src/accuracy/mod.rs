@@ -136,31 +136,38 @@ fn ladder_orders(precision: Precision) -> impl Iterator<Item = Order> {
 /// adaptive at 1e-8 would take minutes where auto needs milliseconds).
 const LINE_BUDGET: f64 = 20.0;
 
-/// The adaptive lines: auto and orders 8, 6, 4, 2, 1 on each backend with the scene's sequence,
-/// and auto with the other one, tolerances 1e-2, 1e-3, ... down to a hundredth of the target (no
-/// tighter than ten times the reference's tolerance). Which sequence is cheaper depends on the
-/// scene (from_2 1.3-1.5 times less work on a chain away from contact, 1.4 times more near
-/// contact at 1e-9: docs/accuracy.md), so auto, the usual choice, is measured with both in f64;
-/// the fixed orders keep the scene's. Not in f32: there from_2's weights amplify the rounding
-/// ~3 times more, its error stopped falling with the tolerance and it took 7-12 times the
-/// steps at 1e-6 (case 1 and the N = 200 random chain), so it never paid.
+/// The adaptive lines: auto and orders 8, 6, 4, 2, 1 on each backend with the sequence the
+/// scene's `sequence` gives them (its default, auto: from_2 for order auto in f64, from_1
+/// otherwise), and auto with the other one, tolerances 1e-2, 1e-3, ... down to a hundredth of
+/// the target (no tighter than ten times the reference's tolerance). Which sequence is cheaper
+/// depends on the scene (from_2 1.3-1.5 times less work on a chain away from contact, 1.2
+/// times more in collisions at 1e-9: docs/accuracy.md), so auto, the usual choice, is measured
+/// with both in f64. Not in f32: there from_2's weights amplify the rounding ~3 times more,
+/// its error stopped falling with the tolerance and it took 7-12 times the steps at 1e-6 (case
+/// 1 and the N = 200 random chain), so it never paid.
 fn adaptive_ladder(
     scene: &Scene,
     target: f64,
     reference_tolerance: f64,
     backends: &[(Backend, Precision)],
 ) -> Vec<Vec<Setting>> {
-    let other = match scene.sequence {
+    let other = |sequence| match sequence {
         Sequence::FromOne => Sequence::FromTwo,
         Sequence::FromTwo => Sequence::FromOne,
     };
     let mut lines = Vec::new();
     for &(backend, precision) in backends {
         let both = precision == Precision::F64;
-        let schemes = [(Order::Auto, scene.sequence)]
+        let stepping = |tolerance| Stepping::Adaptive {
+            tolerance,
+            dt_initial: 1e-4 * scene.end,
+            dt_min: scene.stepping.dt_min(),
+        };
+        let own = |order| scene.sequence.resolve(order, stepping(1e-6), precision);
+        let schemes = [(Order::Auto, own(Order::Auto))]
             .into_iter()
-            .chain(both.then_some((Order::Auto, other)))
-            .chain(ladder_orders(precision).map(|o| (o, scene.sequence)));
+            .chain(both.then_some((Order::Auto, other(own(Order::Auto)))))
+            .chain(ladder_orders(precision).map(|o| (o, own(o))));
         for (order, sequence) in schemes {
             let mut line = Vec::new();
             // f32 runs refuse tolerances below their order's rounding (`f32_tolerance_floor`).
@@ -177,11 +184,7 @@ fn adaptive_ladder(
                 }
                 line.push(Setting {
                     order,
-                    stepping: Stepping::Adaptive {
-                        tolerance,
-                        dt_initial: 1e-4 * scene.end,
-                        dt_min: scene.stepping.dt_min(),
-                    },
+                    stepping: stepping(tolerance),
                     sequence: sequence.of(order),
                     jacobian: scene.jacobian,
                     backend,
@@ -204,13 +207,14 @@ fn fixed_setting(
     precision: Precision,
 ) -> Setting {
     let dt = scene.end / 25.0 / f64::from(1u32 << k);
+    let stepping = Stepping::Fixed {
+        dt,
+        dt_min: scene.stepping.dt_min().min(dt * 1e-6),
+    };
     Setting {
         order,
-        stepping: Stepping::Fixed {
-            dt,
-            dt_min: scene.stepping.dt_min().min(dt * 1e-6),
-        },
-        sequence: scene.sequence.of(order),
+        stepping,
+        sequence: scene.sequence.resolve(order, stepping, precision),
         jacobian: scene.jacobian,
         backend,
         precision,

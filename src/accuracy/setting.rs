@@ -32,7 +32,7 @@ impl Setting {
         )
     }
 
-    /// The order, and the sequence where it is not the default one.
+    /// The order, and the sequence where it is from_2 ("order auto" alone is from_1).
     fn order_label(&self) -> String {
         match self.sequence.record(self.order) {
             "from_1" => self.order.label(),

@@ -377,7 +377,7 @@ pub fn run_convergence(scene: &Scene, options: &ConvergeOptions) -> Result<Conve
     {
         let s = scene_at(scene, ns[0]);
         let chain = s.initial_chain()?;
-        select(requested, precision, &s.plan(&chain))?;
+        select(requested, precision, &s.plan(&chain, precision))?;
     }
 
     check_memory(scene, k_count)?;
@@ -554,7 +554,7 @@ fn run_at_n(
     let run_started = Instant::now();
     let s = scene_at(scene, n);
     let chain = s.initial_chain()?;
-    let plan = s.plan(&chain);
+    let plan = s.plan(&chain, precision);
     let engine = select(requested, precision, &plan)?;
     let eps = plan.eps;
     let dstar = chain.dstar.clone();

@@ -110,10 +110,10 @@ impl Jacobian {
     }
 }
 
-/// The substeps of the extrapolation tableau's rows (`[solver] sequence`): 1, 2, 3, … (the
-/// default) or 2, 3, 4, … (`roughlub_kernels::shared::control::sequence_from_two`: on chains
-/// that stay away from contact 1.3-1.5 times less work at an error of 3e-8, not near contact;
-/// docs/accuracy.md).
+/// The substeps of the extrapolation tableau's rows, as a run takes them: 1, 2, 3, … or 2, 3,
+/// 4, … (`roughlub_kernels::shared::control::sequence_from_two`). A scene asks for one with
+/// [`SequenceChoice`]; a [`Plan`](crate::model::plan::Plan) holds the one that runs (`FromOne`
+/// where a plan is built without a scene).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
 pub enum Sequence {
     #[default]
@@ -142,6 +142,55 @@ impl Sequence {
             Sequence::FromTwo => "from_2",
             Sequence::FromOne => "from_1",
         }
+    }
+}
+
+/// `[solver] sequence` as a scene asks for it. `Auto` (the default) takes `FromTwo` for
+/// `order = "auto"` with adaptive steps in f64 and `FromOne` otherwise. Measured
+/// (docs/accuracy.md): with auto's adaptive steps in f64 the rows from 2 met an error of 3e-8
+/// on the N = 200 random chain in 1.3-1.5 times less time, took fewer steps at every tolerance
+/// on the near-contact chain of `tolerance_check.py` (N = 300, gaps to ln d = -27), and the
+/// paper's scenes at 1e-3 in 1.3-1.9 times less; in collisions with little lubrication
+/// (`docs/work_precision_extreme.toml`) they cost the same down to 1e-8 and 1.2 times more at
+/// 1e-9. In f32 their weights amplify the rows' rounding ~3 times more (its error stopped
+/// following the tolerance), and with fixed steps (or a fixed order) a step costs p(p+3)/2
+/// substeps instead of p(p+1)/2 for 2.5-3.5 times less error, which does not pay at a given
+/// error: there `FromOne`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+pub enum SequenceChoice {
+    #[default]
+    #[value(name = "auto")]
+    #[serde(rename = "auto")]
+    Auto,
+    #[value(name = "from_1")]
+    #[serde(rename = "from_1")]
+    FromOne,
+    #[value(name = "from_2")]
+    #[serde(rename = "from_2")]
+    FromTwo,
+}
+
+impl SequenceChoice {
+    /// The sequence a run of `order` with `stepping` in `precision` takes.
+    pub fn resolve(
+        self,
+        order: Order,
+        stepping: Stepping,
+        precision: crate::backend::Precision,
+    ) -> Sequence {
+        let chosen = match self {
+            SequenceChoice::FromOne => Sequence::FromOne,
+            SequenceChoice::FromTwo => Sequence::FromTwo,
+            SequenceChoice::Auto => {
+                let adaptive = matches!(stepping, Stepping::Adaptive { .. });
+                if order == Order::Auto && adaptive && precision == crate::backend::Precision::F64 {
+                    Sequence::FromTwo
+                } else {
+                    Sequence::FromOne
+                }
+            }
+        };
+        chosen.of(order)
     }
 }
 

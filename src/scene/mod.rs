@@ -27,7 +27,7 @@ use crate::error::{Error, Result};
 use crate::expr::Expr;
 pub(crate) use crate::input::number_text;
 use crate::model::params::{
-    Jacobian, MemberParams, Order, OutputFields, Sequence, Stepping, FIELD_NAMES, MAX_ORDER,
+    Jacobian, MemberParams, Order, OutputFields, SequenceChoice, Stepping, FIELD_NAMES, MAX_ORDER,
 };
 use checks::{
     approx_text, check_gamma, check_mu, check_non_empty, check_profile, check_range, parse_expr,
@@ -79,8 +79,9 @@ pub struct Scene {
     pub error_estimate: bool,
     /// `[solver] jacobian`: the matrix of the extrapolated steps ([`Jacobian`]).
     pub jacobian: Jacobian,
-    /// `[solver] sequence`: the substeps of the tableau's rows ([`Sequence`]).
-    pub sequence: Sequence,
+    /// `[solver] sequence`: the substeps of the tableau's rows as asked for ([`SequenceChoice`];
+    /// the plan holds the one that runs).
+    pub sequence: SequenceChoice,
     pub grid: usize,
     pub fields: OutputFields,
     pub plots: bool,
@@ -114,7 +115,7 @@ impl Scene {
     pub fn ignored_settings(&self) -> Vec<String> {
         let mut notes = Vec::new();
         if self.order == Order::Fixed(1) {
-            if self.sequence == Sequence::FromTwo {
+            if self.sequence == SequenceChoice::FromTwo {
                 notes.push(
                     "solver.sequence = \"from_2\" has no effect with order 1 (its rows are one \
                      Euler step and its two halves); the run uses from_1"
@@ -200,7 +201,7 @@ impl Scene {
                 "solver.sequence",
                 "substeps of the tableau's rows",
                 file.solver.sequence.as_deref(),
-                Sequence::FromOne,
+                SequenceChoice::Auto,
             )?,
             grid: output.grid,
             fields: output.fields,

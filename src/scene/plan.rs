@@ -2,13 +2,15 @@
 //! for (built here, so that `model/` knows nothing of scenes).
 
 use super::Scene;
+use crate::backend::Precision;
 use crate::model::chain::Chain;
 use crate::model::plan::{Forcing, Plan};
 use crate::model::quadrature::GaussLegendre;
 
 impl Scene {
-    /// The plan a solver runs for `chain` under this scene.
-    pub fn plan(&self, chain: &Chain) -> Plan {
+    /// The plan a solver runs for `chain` under this scene in `precision` (which decides the
+    /// tableau's sequence where the scene leaves it to auto).
+    pub fn plan(&self, chain: &Chain, precision: Precision) -> Plan {
         let scene = self;
         let mut fields = scene.fields;
         // Without roughness there is no rho* to output.
@@ -31,7 +33,9 @@ impl Scene {
             grid: scene.grid,
             companion_estimate: scene.error_estimate,
             jacobian: scene.jacobian,
-            sequence: scene.sequence,
+            sequence: scene
+                .sequence
+                .resolve(scene.order, scene.stepping, precision),
             peak_centre: false,
             overrides: scene.overrides.clone(),
         }

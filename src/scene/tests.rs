@@ -95,7 +95,7 @@ fn cases() -> Vec<(&'static str, String, &'static str)> {
         ("backend", edit(BASE, "backend = \"cpu\"", "backend = \"tpu\""), "solver.backend = \"tpu\": unknown backend (allowed: \"cpu\", \"gpu\" or \"auto\")"),
         ("precision", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\nprecision = \"f16\""), "solver.precision = \"f16\": unknown precision (allowed: \"f64\" or \"f32\")"),
         ("jacobian", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\njacobian = \"newton\""), "solver.jacobian = \"newton\": unknown matrix of the extrapolated steps (allowed: \"auto\", \"exact\" or \"frozen\")"),
-        ("sequence", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\nsequence = \"from_3\""), "solver.sequence = \"from_3\": unknown substeps of the tableau's rows (allowed: \"from_1\" or \"from_2\")"),
+        ("sequence", edit(BASE, "backend = \"cpu\"", "backend = \"cpu\"\nsequence = \"from_3\""), "solver.sequence = \"from_3\": unknown substeps of the tableau's rows (allowed: \"auto\", \"from_1\" or \"from_2\")"),
         ("batch mu empty", format!("{BASE}\n[batch]\nmu = []\n"), "batch.mu = []: empty sweep (allowed: a non-empty list of 0 < mu <= 1e12)"),
         ("batch mu negative", format!("{BASE}\n[batch]\nmu = [1.0, -1.0]\n"), "batch.mu[1] = -1: the lubrication coefficient must be positive (allowed: 0 < mu <= 1e12)"),
         ("batch mu huge", format!("{BASE}\n[batch]\nmu = [1.0, 1e300]\n"), "batch.mu[1] = 1e300: the step's lubrication coefficients mu/d_i overflow f64 for every gap d_i < mu/f64::MAX = 5.563e-9; mu <= 1e12 keeps them finite down to gaps of 5.563e-297 (allowed: 0 < mu <= 1e12)"),
@@ -202,4 +202,60 @@ fn initial_chain_messages_are_unchanged() {
         }
     }
     assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+/// `[solver] sequence`'s default, auto: the rows from 2 for order auto with adaptive steps in
+/// f64 only (the measured rule of `SequenceChoice`), and what a scene names is what runs.
+#[test]
+fn the_default_sequence_is_from_2_only_for_adaptive_auto_in_f64() {
+    use crate::backend::Precision::{F32, F64};
+    use crate::model::params::Sequence::{FromOne, FromTwo};
+    let auto_order = |text: &str| edit(text, "order = 1", "order = \"auto\"");
+    let cases = [
+        (
+            "auto, adaptive, f64",
+            auto_order(&adaptive("")),
+            F64,
+            FromTwo,
+        ),
+        (
+            "auto, adaptive, f32",
+            auto_order(&adaptive("")),
+            F32,
+            FromOne,
+        ),
+        (
+            "order 4, fixed dt, f64",
+            edit(BASE, "order = 1", "order = 4"),
+            F64,
+            FromOne,
+        ),
+        (
+            "order 4, adaptive, f64",
+            edit(&adaptive(""), "order = 1", "order = 4"),
+            F64,
+            FromOne,
+        ),
+        ("order 1, adaptive, f64", adaptive(""), F64, FromOne),
+        (
+            "auto, adaptive, f64, from_1 named",
+            auto_order(&adaptive("")).replace(
+                "backend = \"cpu\"",
+                "backend = \"cpu\"\nsequence = \"from_1\"",
+            ),
+            F64,
+            FromOne,
+        ),
+        (
+            "order 4, fixed dt, from_2 named",
+            edit(BASE, "order = 1", "order = 4\nsequence = \"from_2\""),
+            F64,
+            FromTwo,
+        ),
+    ];
+    for (case, text, precision, expected) in cases {
+        let scene = Scene::from_toml(&text, Path::new("dir/scene.toml")).unwrap();
+        let chain = scene.initial_chain().unwrap();
+        assert_eq!(scene.plan(&chain, precision).sequence, expected, "{case}");
+    }
 }

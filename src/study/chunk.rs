@@ -12,7 +12,7 @@ use super::files::{MemberRow, StudyHeader};
 use super::state::StudyState;
 use super::{ERROR_ESTIMATE, SCALARS};
 use crate::backend::report::GpuStats;
-use crate::backend::{Engine, MemberReport, MemberStatus};
+use crate::backend::{Engine, MemberReport, MemberStatus, Precision};
 use crate::error::Result;
 use crate::model::chain::Chain;
 use crate::model::observables::Snapshot;
@@ -40,8 +40,9 @@ pub(super) fn chunk_plan(
     members: Vec<MemberParams>,
     store_members: bool,
     detailed: bool,
+    precision: Precision,
 ) -> Plan {
-    let mut plan = scene.plan(first_chain);
+    let mut plan = scene.plan(first_chain, precision);
     plan.members = members;
     plan.repulsion = first_chain.dstar.is_some();
     plan.fields.rho_star = detailed && plan.repulsion && scene.fields.rho_star;

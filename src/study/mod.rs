@@ -163,6 +163,7 @@ fn select_for_study(
     let inputs = members.member(first)?;
     let largest_chunk = (spec.chunk as u64).min(end.saturating_sub(first)).max(1) as usize;
     let setup = inputs.setup.clone();
+    let precision = options.precision.unwrap_or(scene.precision);
     let plan = chunk_plan(
         &setup.scene,
         &inputs.chain,
@@ -170,12 +171,9 @@ fn select_for_study(
         spec.store_members,
         // The engine is chosen for the heaviest chunk: one with detailed members.
         true,
+        precision,
     );
-    select(
-        options.backend.unwrap_or(scene.backend),
-        options.precision.unwrap_or(scene.precision),
-        &plan,
-    )
+    select(options.backend.unwrap_or(scene.backend), precision, &plan)
 }
 
 /// `roughlub run` of an `[ensemble]` scene: solves this shard's members chunk by chunk (reusing
@@ -313,7 +311,10 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             ),
             input_files: header.input_files.clone(),
             jacobian: scene.jacobian.record(scene.order, scene.stepping),
-            sequence: scene.sequence.record(scene.order),
+            sequence: scene
+                .sequence
+                .resolve(scene.order, scene.stepping, engine.record.precision)
+                .record(scene.order),
             chunks,
             chunks_reused: reused,
             chunks_solved_twice: costs.chunks_solved_twice,

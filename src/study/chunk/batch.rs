@@ -102,6 +102,7 @@ pub(super) fn solve_batch(
         params,
         spec.store_members,
         detailed,
+        engine.record.precision,
     );
     if let (Some(expr), Some(forcing)) = (members.symbolic_forcing(), plan.forcing.as_mut()) {
         forcing.expr = expr.clone();
