@@ -149,12 +149,13 @@ impl Sequence {
 /// `order = "auto"` with adaptive steps in f64 and `FromOne` otherwise. Measured
 /// (docs/accuracy.md): with auto's adaptive steps in f64 the rows from 2 met an error of 3e-8
 /// on the N = 200 random chain in 1.3-1.5 times less time, took fewer steps at every tolerance
-/// on the near-contact chain of `tolerance_check.py` (N = 300, gaps to ln d = -27), and the
-/// paper's scenes at 1e-3 in 1.3-1.9 times less; in collisions with little lubrication
+/// on the near-contact chain of `tolerance_check.py` (N = 300, gaps to ln d = -27), and met
+/// 1e-3 on the paper's four cases in 13 steps where from_1 took 16-20 (two shipped scenes
+/// met it slightly cheaper with from_1 and name it); in collisions with little lubrication
 /// (`docs/work_precision_extreme.toml`) they cost the same down to 1e-8 and 1.2 times more at
 /// 1e-9. In f32 their weights amplify the rows' rounding ~3 times more (its error stopped
 /// following the tolerance), and with fixed steps (or a fixed order) a step costs p(p+3)/2
-/// substeps instead of p(p+1)/2 for 2.5-3.5 times less error, which does not pay at a given
+/// substeps instead of p(p+1)/2 for 2.5-3.5 times less error, about even or worse at a given
 /// error: there `FromOne`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
 pub enum SequenceChoice {
