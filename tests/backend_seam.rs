@@ -103,6 +103,49 @@ fn resume_on_another_backend_or_precision_is_refused() {
     assert!(!dir.join("manifest.json").exists());
 }
 
+/// `--resume` refuses members computed with other tableau rows (the default sequence changed
+/// within one version), naming them; a header written before the field existed counts as
+/// from_1, which an order-1 study still runs, so it resumes.
+#[test]
+fn resume_with_another_tableau_sequence_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s");
+    assert!(study(&dir, &[]).status.success());
+    let header_path = dir.join("study.json");
+    let header: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&header_path).unwrap()).unwrap();
+    assert_eq!(header["sequence"], "from_1", "{header}");
+    let with_sequence = |value: Option<&str>| {
+        let mut h = header.clone();
+        match value {
+            Some(v) => h["sequence"] = v.into(),
+            None => {
+                h.as_object_mut().unwrap().remove("sequence");
+            }
+        }
+        std::fs::write(&header_path, serde_json::to_string(&h).unwrap()).unwrap();
+        std::fs::remove_file(dir.join("manifest.json")).unwrap();
+        study(&dir, &["--resume"])
+    };
+    let out = with_sequence(Some("from_2"));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("tableau sequence") && err.contains("differ"),
+        "{err}"
+    );
+    assert!(!dir.join("manifest.json").exists());
+    // Put back as an older version wrote it: no field at all.
+    std::fs::write(dir.join("manifest.json"), "{}").unwrap();
+    let out = with_sequence(None);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(manifest(&dir)["sequence"], "from_1");
+}
+
 /// Shards computed on different backends are not merged.
 #[test]
 fn merge_of_shards_from_different_backends_is_refused() {

@@ -54,6 +54,12 @@ pub struct StudyHeader {
     /// What computed the members: resume and merge refuse to mix backends or precisions.
     pub backend: RunsOn,
     pub precision: Precision,
+    /// The tableau's rows the members ran ("from_1" or "from_2"): its default changed within
+    /// one version (auto takes from_2 for order auto in f64 since 2026-11-30), so resume and
+    /// merge refuse to mix them. A header written before has none, and ran from_1 unless its
+    /// scene named from_2 (then this refuses to resume it, which is safe).
+    #[serde(default = "sequence_before_auto")]
+    pub sequence: String,
     /// Every file the members are built from (a particle file, a roughness file), path →
     /// FNV-1a of its bytes: resume and merge refuse a study whose inputs changed.
     #[serde(default)]
@@ -388,6 +394,11 @@ pub(super) fn header_for(
         out_dir: out_dir.display().to_string(),
         backend: engine.backend,
         precision: engine.precision,
+        sequence: scene
+            .sequence
+            .resolve(scene.order, scene.stepping, engine.precision)
+            .record(scene.order)
+            .to_string(),
         input_files: BTreeMap::new(),
     }
 }
@@ -415,6 +426,10 @@ fn log_scaled(axis: &crate::ensemble::Axis) -> bool {
     }
 }
 
+fn sequence_before_auto() -> String {
+    "from_1".to_string()
+}
+
 /// What differs between two headers of what should be the same study (for resume, merge and the
 /// partial statistics of a directory), by name.
 pub(super) fn study_differences(a: &StudyHeader, b: &StudyHeader) -> Vec<&'static str> {
@@ -424,6 +439,7 @@ pub(super) fn study_differences(a: &StudyHeader, b: &StudyHeader) -> Vec<&'stati
         ("roughlub version", a.roughlub_version != b.roughlub_version),
         ("backend", a.backend != b.backend),
         ("precision", a.precision != b.precision),
+        ("tableau sequence", a.sequence != b.sequence),
         // Its default changed within one version (sampled designs of one member a point).
         ("detailed points", a.detailed_points != b.detailed_points),
     ];
