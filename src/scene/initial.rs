@@ -199,9 +199,66 @@ impl Scene {
                 };
                 check_repulsion_at_start(&chain, gamma, &field, precision)?;
             }
+            // Under a sweep each point's scene is checked (its parameters in the forcing), and a
+            // forcing of swept parameters is each member's (a member it fails fails).
+            let checked_here = self.sweep.is_none();
+            if let Some(forcing) = self
+                .forcing
+                .as_ref()
+                .filter(|f| checked_here && f.symbolic_count() == 0)
+            {
+                check_forcing_at_start(&chain, forcing, self.quadrature_points, precision)?;
+            }
         }
         Ok(chain)
     }
+}
+
+/// Refuses a forcing whose force on some moving particle, F_i = ∫ f(0, x) dx over the particle
+/// (by the run's Gauss–Legendre rule, at the centres the step computes), is not finite in
+/// `precision` at t = 0: every member would fail at its first step.
+pub fn check_forcing_at_start(
+    chain: &Chain,
+    forcing: &Expr,
+    quadrature_points: usize,
+    precision: Precision,
+) -> Result<()> {
+    use roughlub_kernels::step::Forcing as _;
+    let rule = crate::model::plan::Forcing {
+        expr: forcing.clone(),
+        rule: GaussLegendre::new(quadrature_points),
+        params: Vec::new(),
+    };
+    let limit = match precision {
+        Precision::F64 => f64::MAX,
+        Precision::F32 => f64::from(f32::MAX),
+    };
+    let mut q = 0.0;
+    for (i, &d) in chain.gaps.iter().enumerate().take(chain.particles() - 1) {
+        q += d + 2.0 * chain.eps;
+        let f = rule.particle_force(&[], chain.eps, 0.0, q);
+        if !(f.abs() <= limit) {
+            let float = match precision {
+                Precision::F64 => "f64",
+                Precision::F32 => "f32",
+            };
+            return Err(Error::invalid(
+                "model.forcing",
+                format!("\"{}\"", forcing.source()),
+                format!(
+                    "the force on particle {} (x = {}) at t = 0, its integral over the particle by \
+                     {quadrature_points} Gauss-Legendre points, is {f} in {float}: every member \
+                     would fail at its first step",
+                    i + 1,
+                    approx_text(q)
+                ),
+                format!(
+                    "a forcing whose integral over every particle is finite in {float} at t = 0"
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Refuses a gamma whose repulsion G_i = (rho_i/rho*_i)^gamma = ((d*_i + 2 eps)/(d_i + 2 eps))^gamma
