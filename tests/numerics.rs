@@ -956,7 +956,8 @@ fn assert_reference_resolved(what: &str, resolution: f64, bound: f64) {
 /// the output spacing, not the tolerance, sets the last steps, the error can stay put from one
 /// half decade to the next (2.514e-8 at both 3.16e-8 and 1e-8 while both took the exact matrix:
 /// two halves of 0.015 at order 8). Measured 0.10 to 2.51 times the tolerance. The same holds with
-/// `[solver] sequence = "from_2"` (measured 0.02 to 1.49 times, 2026-11-29); while auto took the
+/// `[solver] sequence = "from_2"`, auto's default in f64 since 2026-11-30 (measured 0.02 to 1.49
+/// times, 2026-11-29); while auto took the
 /// exact matrix from 1e-7 (now from 1e-8) it did not fall there: 5.6e-8 at 3.16e-7 (33 steps),
 /// 1.1e-7 at 1e-7 (25 steps).
 #[test]
