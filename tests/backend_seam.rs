@@ -103,41 +103,119 @@ fn resume_on_another_backend_or_precision_is_refused() {
     assert!(!dir.join("manifest.json").exists());
 }
 
+/// The study scene with auto at tolerance 1e-4 (auto's sequence then depends on the precision)
+/// and 4 members, written into `dir`; with `ensemble` false, no `[ensemble]`: a single run.
+fn auto_scene(dir: &Path, ensemble: bool, solver_extra: &str) -> PathBuf {
+    let text = std::fs::read_to_string(study_scene()).unwrap();
+    let mut text = text
+        .replace("dt = 1e-3", "tolerance = 1e-4")
+        .replace("order = 1", &format!("order = \"auto\"\n{solver_extra}"))
+        .replace("members = 96", "members = 4")
+        .replace("chunk = 16", "chunk = 4");
+    if !ensemble {
+        text.truncate(text.find("[ensemble]").unwrap());
+    }
+    let path = dir.join(if ensemble { "study.toml" } else { "run.toml" });
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn read_json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// The tableau's rows that ran are recorded where a result is: `[solver] sequence`'s default
+/// (auto) is from_2 for order auto with adaptive steps in f64 and from_1 in f32, in a run's
+/// manifest (`plan.sequence`) and a study's (`sequence`, and its `study.json`); a scene that
+/// names one runs it.
+#[test]
+fn the_sequence_that_ran_is_recorded_for_runs_and_studies() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cases: [(&str, &[&str], &str); 5] = [
+        ("", &[], "from_2"),
+        ("", &["--precision", "f32"], "from_1"),
+        ("sequence = \"auto\"", &[], "from_2"),
+        ("sequence = \"from_1\"", &[], "from_1"),
+        ("sequence = \"from_2\"", &["--precision", "f32"], "from_2"),
+    ];
+    for (k, (extra, args, expected)) in cases.iter().enumerate() {
+        for ensemble in [false, true] {
+            let case = tmp.path().join(format!("case{k}_{ensemble}"));
+            std::fs::create_dir(&case).unwrap();
+            let scene = auto_scene(&case, ensemble, extra);
+            let out_dir = case.join("out");
+            let mut all = vec![
+                "run",
+                scene.to_str().unwrap(),
+                "--out",
+                out_dir.to_str().unwrap(),
+                "--quiet",
+            ];
+            all.extend_from_slice(args);
+            let out = run(&all, &[]);
+            assert!(
+                out.status.success(),
+                "{extra} {args:?}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let m = manifest(&out_dir);
+            if ensemble {
+                assert_eq!(m["sequence"], *expected, "study, {extra} {args:?}");
+                let header = read_json(&out_dir.join("study.json"));
+                assert_eq!(
+                    header["sequence"], *expected,
+                    "study.json, {extra} {args:?}"
+                );
+            } else {
+                assert_eq!(m["plan"]["sequence"], *expected, "run, {extra} {args:?}");
+            }
+        }
+    }
+}
+
 /// `--resume` refuses members computed with other tableau rows (the default sequence changed
-/// within one version), naming them; a header written before the field existed counts as
+/// within one version), naming both; a header written before the field existed counts as
 /// from_1, which an order-1 study still runs, so it resumes.
 #[test]
 fn resume_with_another_tableau_sequence_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("s");
-    assert!(study(&dir, &[]).status.success());
+    // Order auto in f64: from_2; the header edited as if from_1 had run.
+    let scene = auto_scene(tmp.path(), true, "");
+    let dir = tmp.path().join("auto");
+    let args = [
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        dir.to_str().unwrap(),
+        "--quiet",
+    ];
+    assert!(run(&args, &[]).status.success());
     let header_path = dir.join("study.json");
-    let header: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&header_path).unwrap()).unwrap();
-    assert_eq!(header["sequence"], "from_1", "{header}");
-    let with_sequence = |value: Option<&str>| {
-        let mut h = header.clone();
-        match value {
-            Some(v) => h["sequence"] = v.into(),
-            None => {
-                h.as_object_mut().unwrap().remove("sequence");
-            }
-        }
-        std::fs::write(&header_path, serde_json::to_string(&h).unwrap()).unwrap();
-        std::fs::remove_file(dir.join("manifest.json")).unwrap();
-        study(&dir, &["--resume"])
-    };
-    let out = with_sequence(Some("from_2"));
+    let mut header = read_json(&header_path);
+    assert_eq!(header["sequence"], "from_2", "{header}");
+    header["sequence"] = "from_1".into();
+    std::fs::write(&header_path, serde_json::to_string(&header).unwrap()).unwrap();
+    std::fs::remove_file(dir.join("manifest.json")).unwrap();
+    let out = run(&[&args[..], &["--resume"]].concat(), &[]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
-        err.contains("tableau sequence") && err.contains("differ"),
+        err.contains("tableau sequence")
+            && err.contains("with sequence from_1, this run would take from_2"),
         "{err}"
     );
     assert!(!dir.join("manifest.json").exists());
-    // Put back as an older version wrote it: no field at all.
-    std::fs::write(dir.join("manifest.json"), "{}").unwrap();
-    let out = with_sequence(None);
+
+    // An order-1 study whose header has no sequence (an older version's) resumes.
+    let dir = tmp.path().join("order1");
+    assert!(study(&dir, &[]).status.success());
+    let header_path = dir.join("study.json");
+    let mut header = read_json(&header_path);
+    assert_eq!(header["sequence"], "from_1", "{header}");
+    header.as_object_mut().unwrap().remove("sequence");
+    std::fs::write(&header_path, serde_json::to_string(&header).unwrap()).unwrap();
+    std::fs::remove_file(dir.join("manifest.json")).unwrap();
+    let out = study(&dir, &["--resume"]);
     assert!(
         out.status.success(),
         "{}",

@@ -1216,3 +1216,39 @@ fn resume_finishes_an_interrupted_rerun_over_an_earlier_study() {
     assert!(manifest(&dir)["chunks_reused"].as_u64().unwrap() >= 1);
     assert_eq!(manifest(&dir)["members_total"], 2000);
 }
+
+/// A forcing that is not finite at t = 0 at one sweep point fails that point's members, each with
+/// its reason, and the study completes (a single run of such a scene is refused instead): point 0
+/// (a = 0: 1/t) fails both its members, point 1 (a = 1) completes.
+#[test]
+fn a_forcing_infinite_at_one_sweep_point_fails_its_members_not_the_study() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = scene_variant(
+        "study_basic.toml",
+        &[
+            (
+                "gamma = 1.0",
+                "gamma = 1.0\nforcing = \"1/(t + a)\"\n\n[parameters]\na = 0.5",
+            ),
+            ("members = 96", "members = 2"),
+            ("chunk = 16", "chunk = 2"),
+            ("roughness = { kind = \"lognormal\", spread = 0.3 }\n", ""),
+            ("jitter = 0.05", "jitter = 0.0\n\n[sweep]\na = [0.0, 1.0]"),
+        ],
+        tmp.path(),
+        "forced.toml",
+    );
+    let out = tmp.path().join("out");
+    let o = run(&scene, &out, &[]);
+    assert_success(&o, "the study");
+    let man = manifest(&out);
+    assert_eq!(man["failed_members"], serde_json::json!([0, 1]), "{man}");
+    let (header, rows) = members_csv(&out);
+    let reason = column(&header, "failure_reason");
+    assert!(
+        rows[0][reason].contains("forcing is not finite at t = 0"),
+        "{:?}",
+        rows[0][reason]
+    );
+    assert_eq!(rows[2][column(&header, "status")], "ok");
+}

@@ -22,7 +22,7 @@ Printed per tolerance: the error, error / tolerance, the matrix that ran, accept
 steps, and where the error did not fall from the looser tolerance.
 
     python3 docs/scipy_comparison/tolerance_check.py target/release/roughlub [CHAIN ...]
-        [--jacobian auto|exact|frozen] [--sequence from_1|from_2] [--tolerances 1e-11,1e-12]
+        [--jacobian auto|exact|frozen] [--sequence auto|from_1|from_2] [--tolerances 1e-11,1e-12]
         (from the repository root)
 """
 import argparse, json, os, subprocess, time
@@ -159,7 +159,8 @@ def main():
     p.add_argument("binary")
     p.add_argument("chains", nargs="*", default=[k for k in CHAINS if k != "C_deep"])
     p.add_argument("--jacobian", default="auto", choices=["auto", "exact", "frozen"])
-    p.add_argument("--sequence", default="from_1", choices=["from_1", "from_2"])
+    # auto: roughlub's default (from_2 here: order auto, adaptive, f64); from_1 until 2026-11-30.
+    p.add_argument("--sequence", default="auto", choices=["auto", "from_1", "from_2"])
     p.add_argument("--tolerances", default=",".join("%.4e" % t for t in TOLERANCES),
                    help="comma list (default: the half decades from 1e-4 to 1e-10)")
     a = p.parse_args()

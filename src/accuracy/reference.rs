@@ -9,8 +9,8 @@ use crate::model::params::{Order, Sequence, Stepping};
 use crate::scene::Scene;
 
 /// The reference of an accuracy run: order auto, adaptive, at `tolerance`.
-/// The reference: auto with the default sequence whatever the scene's (from_2's error is not
-/// monotone in the tolerance on the N = 200 random chain: docs/accuracy.md).
+/// The reference: auto with `from_1` whatever the scene's (the reference the measurements of
+/// docs/accuracy.md were taken against, independent of the sequence auto takes by default).
 pub(super) fn reference_setting(scene: &Scene, tolerance: f64) -> Setting {
     Setting {
         order: Order::Auto,

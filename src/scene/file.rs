@@ -115,7 +115,7 @@ pub(super) struct SolverSection {
     pub error_estimate: Option<bool>,
     /// "auto", "exact" or "frozen": the matrix of the extrapolated steps.
     pub jacobian: Option<String>,
-    /// "from_1" or "from_2": the substeps of the tableau's rows.
+    /// "auto", "from_1" or "from_2": the substeps of the tableau's rows.
     pub sequence: Option<String>,
 }
 

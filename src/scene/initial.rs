@@ -199,9 +199,9 @@ impl Scene {
                 };
                 check_repulsion_at_start(&chain, gamma, &field, precision)?;
             }
-            // Under a sweep each point's scene is checked (its parameters in the forcing), and a
-            // forcing of swept parameters is each member's (a member it fails fails).
-            let checked_here = self.sweep.is_none();
+            // Under a sweep a forcing that is not finite at some point fails that point's
+            // members, each with its reason, not the study.
+            let checked_here = self.sweep.is_none() && self.sweep_point.is_none();
             if let Some(forcing) = self
                 .forcing
                 .as_ref()

@@ -91,6 +91,10 @@ pub struct Scene {
     pub parameters: Vec<(String, f64)>,
     /// `[sweep]` of an ensemble (or its `[batch]` lists as a grid); `None`: one point.
     pub sweep: Option<SweepSpec>,
+    /// The sweep point this scene was made for ([`Scene::at_point`]), whose members' failures
+    /// are the study's to report (a forcing not finite at t = 0 fails that point's members
+    /// rather than the whole study); `None` for a scene read from a file.
+    pub sweep_point: Option<u64>,
     /// Not from the file: what the environment overrides, set by the command line after loading
     /// (`Overrides::from_env`, read once in `main`) and passed on to every plan built from the
     /// scene. The default overrides nothing.
@@ -210,6 +214,7 @@ impl Scene {
             ensemble,
             parameters,
             sweep,
+            sweep_point: None,
             overrides: Default::default(),
         })
     }

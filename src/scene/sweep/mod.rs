@@ -514,6 +514,7 @@ impl Scene {
         let Some(sweep) = scene.sweep.take() else {
             return Ok(scene);
         };
+        scene.sweep_point = Some(p);
         let values = sweep.design.values(p);
         let context = |e: Error| -> Error {
             let point: Vec<String> = sweep
