@@ -32,11 +32,13 @@ impl Setting {
         )
     }
 
-    /// The order, and the sequence where it is from_2 ("order auto" alone is from_1).
+    /// The order, and its sequence where that is not from_1 or the order is auto (measured with
+    /// both in f64, and whose default depends on the precision): "order 4", "order 4 from_2",
+    /// "order auto from_1", "order auto from_2".
     fn order_label(&self) -> String {
         match self.sequence.record(self.order) {
-            "from_1" => self.order.label(),
-            other => format!("{} {other}", self.order.label()),
+            "from_1" if self.order != Order::Auto => self.order.label(),
+            sequence => format!("{} {sequence}", self.order.label()),
         }
     }
 
