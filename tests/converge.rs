@@ -105,6 +105,11 @@ fn case1_rates_are_stable_and_the_limit_is_closer_to_4n_than_the_largest_n() {
     );
     assert_eq!(m["ratios_equal"], true);
     assert_eq!(m["asymptotic"], true, "stderr:\n{}", stderr_of(&out));
+    // Each N's run records what it ran: case 1 is order auto, adaptive, in f64, so the tableau's
+    // default sequence there, from_2.
+    for run in m["runs"].as_array().unwrap() {
+        assert_eq!(run["plan"]["sequence"], "from_2", "{run}");
+    }
 
     let rho = m["fields"]
         .as_array()

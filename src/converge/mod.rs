@@ -557,6 +557,7 @@ fn run_at_n(
     let plan = s.plan(&chain, precision);
     let engine = select(requested, precision, &plan)?;
     let eps = plan.eps;
+    let summary = plan.summary();
     let dstar = chain.dstar.clone();
     let mut solver = engine.solver(plan, vec![chain])?;
     let mut per_field: [Vec<Vec<f64>>; 3] = Default::default();
@@ -573,6 +574,7 @@ fn run_at_n(
         eps,
         adapter: engine.record.short(),
         wall_seconds: run_started.elapsed().as_secs_f64(),
+        plan: summary,
         member,
     };
     Ok(RunAtN {

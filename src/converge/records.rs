@@ -72,6 +72,9 @@ pub(super) struct RunRecord {
     pub(super) eps: f64,
     pub(super) adapter: String,
     pub(super) wall_seconds: f64,
+    /// What the run at this N modelled and how it stepped (the terms, the matrix and the
+    /// tableau's sequence), as a single run's manifest records it.
+    pub(super) plan: crate::model::plan::PlanSummary,
     pub(super) member: MemberReport,
 }
 
