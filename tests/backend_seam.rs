@@ -23,12 +23,16 @@ fn run(args: &[&str], env: &[(&str, &str)]) -> Output {
     cmd.output().expect("roughlub runs")
 }
 
-fn manifest(dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap()
+fn read_json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
-fn study(dir: &Path, extra: &[&str]) -> Output {
-    let scene = study_scene();
+fn manifest(dir: &Path) -> serde_json::Value {
+    read_json(&dir.join("manifest.json"))
+}
+
+/// `roughlub run SCENE --out DIR --quiet [extra...]`.
+fn run_scene(scene: &Path, dir: &Path, extra: &[&str]) -> Output {
     let mut args = vec![
         "run",
         scene.to_str().unwrap(),
@@ -38,6 +42,10 @@ fn study(dir: &Path, extra: &[&str]) -> Output {
     ];
     args.extend_from_slice(extra);
     run(&args, &[])
+}
+
+fn study(dir: &Path, extra: &[&str]) -> Output {
+    run_scene(&study_scene(), dir, extra)
 }
 
 /// A study's manifest records the backend fields of a single run; with `auto` and no usable
@@ -120,10 +128,6 @@ fn auto_scene(dir: &Path, ensemble: bool, solver_extra: &str) -> PathBuf {
     path
 }
 
-fn read_json(path: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
-}
-
 /// The tableau's rows that ran are recorded where a result is: `[solver] sequence`'s default
 /// (auto) is from_2 for order auto with adaptive steps in f64 and from_1 in f32, in a run's
 /// manifest (`plan.sequence`) and a study's (`sequence`, and its `study.json`); a scene that
@@ -144,15 +148,7 @@ fn the_sequence_that_ran_is_recorded_for_runs_and_studies() {
             std::fs::create_dir(&case).unwrap();
             let scene = auto_scene(&case, ensemble, extra);
             let out_dir = case.join("out");
-            let mut all = vec![
-                "run",
-                scene.to_str().unwrap(),
-                "--out",
-                out_dir.to_str().unwrap(),
-                "--quiet",
-            ];
-            all.extend_from_slice(args);
-            let out = run(&all, &[]);
+            let out = run_scene(&scene, &out_dir, args);
             assert!(
                 out.status.success(),
                 "{extra} {args:?}: {}",
@@ -182,21 +178,14 @@ fn resume_with_another_tableau_sequence_is_refused() {
     // Order auto in f64: from_2; the header edited as if from_1 had run.
     let scene = auto_scene(tmp.path(), true, "");
     let dir = tmp.path().join("auto");
-    let args = [
-        "run",
-        scene.to_str().unwrap(),
-        "--out",
-        dir.to_str().unwrap(),
-        "--quiet",
-    ];
-    assert!(run(&args, &[]).status.success());
+    assert!(run_scene(&scene, &dir, &[]).status.success());
     let header_path = dir.join("study.json");
     let mut header = read_json(&header_path);
     assert_eq!(header["sequence"], "from_2", "{header}");
     header["sequence"] = "from_1".into();
     std::fs::write(&header_path, serde_json::to_string(&header).unwrap()).unwrap();
     std::fs::remove_file(dir.join("manifest.json")).unwrap();
-    let out = run(&[&args[..], &["--resume"]].concat(), &[]);
+    let out = run_scene(&scene, &dir, &["--resume"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(

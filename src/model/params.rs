@@ -114,13 +114,11 @@ impl Jacobian {
 /// 4, … (`roughlub_kernels::shared::control::sequence_from_two`). A scene asks for one with
 /// [`SequenceChoice`]; a [`Plan`](crate::model::plan::Plan) holds the one that runs (`FromOne`
 /// where a plan is built without a scene).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub enum Sequence {
     #[default]
-    #[value(name = "from_1")]
     #[serde(rename = "from_1")]
     FromOne,
-    #[value(name = "from_2")]
     #[serde(rename = "from_2")]
     FromTwo,
 }
@@ -153,8 +151,9 @@ impl Sequence {
 /// 1e-3 on the paper's four cases in 13 steps where from_1 took 16-20 (two shipped scenes
 /// met it slightly cheaper with from_1 and name it); in collisions with little lubrication
 /// (`docs/work_precision_extreme.toml`) they cost the same down to 1e-8 and 1.2 times more at
-/// 1e-9, and on the extremes matrix at 1e-6 1.0-1.3 times more at the same tolerance. In f32 their weights amplify the rows' rounding ~3 times more (its error stopped
-/// following the tolerance), and with fixed steps (or a fixed order) a step costs p(p+3)/2
+/// 1e-9, and on the extremes matrix at 1e-6 1.0-1.3 times more at the same tolerance. In f32
+/// their weights amplify the rows' rounding ~3 times more (its error stopped following the
+/// tolerance), and with fixed steps (or a fixed order) a step costs p(p+3)/2
 /// substeps instead of p(p+1)/2 for 2.5-3.5 times less error, about even or worse at a given
 /// error: there `FromOne`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]

@@ -171,8 +171,9 @@ pub struct StudyManifest {
     pub input_files: BTreeMap<String, String>,
     /// "exact" or "frozen": the matrix of the extrapolated steps (`[solver] jacobian`).
     pub jacobian: &'static str,
-    /// "from_1" or "from_2": the substeps of the tableau's rows (`[solver] sequence`).
-    pub sequence: &'static str,
+    /// "from_1" or "from_2": the substeps of the tableau's rows (`[solver] sequence`, as
+    /// resolved for the study's precision: its header's).
+    pub sequence: String,
     pub chunks: usize,
     pub chunks_reused: usize,
     /// Chunks solved a second time because a member failed after its point's rows had been

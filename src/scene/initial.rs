@@ -238,10 +238,7 @@ pub fn check_forcing_at_start(
         q += d + 2.0 * chain.eps;
         let f = rule.particle_force(&[], chain.eps, 0.0, q);
         if !(f.abs() <= limit) {
-            let float = match precision {
-                Precision::F64 => "f64",
-                Precision::F32 => "f32",
-            };
+            let float = precision.name();
             return Err(Error::invalid(
                 "model.forcing",
                 format!("\"{}\"", forcing.source()),

@@ -311,10 +311,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             ),
             input_files: header.input_files.clone(),
             jacobian: scene.jacobian.record(scene.order, scene.stepping),
-            sequence: scene
-                .sequence
-                .resolve(scene.order, scene.stepping, engine.record.precision)
-                .record(scene.order),
+            sequence: header.sequence.clone(),
             chunks,
             chunks_reused: reused,
             chunks_solved_twice: costs.chunks_solved_twice,
