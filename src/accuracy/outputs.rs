@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use super::members::MeasuredGroup;
-use super::setting::{backend_name, precision_name};
+use super::setting::backend_name;
 use super::Measurement;
 use crate::error::{Error, Result};
 use crate::model::observables::Snapshot;
@@ -48,7 +48,7 @@ pub(super) fn write_csv(path: &Path, measurements: &[Measurement]) -> Result<()>
         let num = |v: Option<f64>| v.map_or("NaN".to_string(), |v| format!("{v:e}"));
         w.write_record([
             backend_name(s.backend).to_string(),
-            precision_name(s.precision).to_string(),
+            s.precision.name().to_string(),
             s.order.label(),
             s.sequence.record(s.order).to_string(),
             s.jacobian.record(s.order, s.stepping).to_string(),

@@ -28,7 +28,7 @@ impl Setting {
             "order {}, {step}, {} {}",
             self.order_label(),
             backend_name(self.backend),
-            precision_name(self.precision)
+            self.precision.name()
         )
     }
 
@@ -52,7 +52,7 @@ impl Setting {
             "order {} {kind}, {} {}",
             self.order_label(),
             backend_name(self.backend),
-            precision_name(self.precision)
+            self.precision.name()
         )
     }
 
@@ -72,7 +72,7 @@ impl Setting {
             self.sequence.record(self.order),
             self.jacobian.label(),
             backend_name(self.backend),
-            precision_name(self.precision)
+            self.precision.name()
         )
     }
 }
@@ -82,12 +82,5 @@ pub(super) fn backend_name(b: Backend) -> &'static str {
         Backend::Cpu => "cpu",
         Backend::Gpu => "gpu",
         Backend::Auto => "auto",
-    }
-}
-
-pub(super) fn precision_name(p: Precision) -> &'static str {
-    match p {
-        Precision::F64 => "f64",
-        Precision::F32 => "f32",
     }
 }
