@@ -1252,3 +1252,31 @@ fn a_forcing_infinite_at_one_sweep_point_fails_its_members_not_the_study() {
     );
     assert_eq!(rows[2][column(&header, "status")], "ok");
 }
+
+/// A study rerun killed between the two renames of its commit (the earlier study moved aside,
+/// the finished rerun not yet in place) is repaired by --resume as by a plain run: the finished
+/// rerun is put in place, and nothing is left beside --out.
+#[test]
+fn resume_repairs_a_commit_killed_between_its_renames() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("o");
+    assert_success(&run(&data("study_basic.toml"), &dir, &[]), "earlier study");
+    let scene = data("study_resume.toml");
+    let finished = tmp.path().join("finished");
+    assert_success(&run(&scene, &finished, &[]), "the rerun, finished");
+    // The kill: the earlier study renamed aside, the rerun still under its staging name, of a
+    // dead process (a PID larger than any Linux pid_max).
+    std::fs::rename(&dir, tmp.path().join(".o.old-99999998")).unwrap();
+    std::fs::rename(&finished, tmp.path().join(".o.partial-99999998")).unwrap();
+    let resumed = run(&scene, &dir, &["--resume"]);
+    assert_success(&resumed, "resume");
+    let stderr = String::from_utf8_lossy(&resumed.stderr);
+    assert!(stderr.contains("the finished run"), "{stderr}");
+    assert_eq!(manifest(&dir)["members_total"], 2000);
+    let beside: Vec<String> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name.starts_with(".o."))
+        .collect();
+    assert!(beside.is_empty(), "left beside --out: {beside:?}");
+}

@@ -248,7 +248,7 @@ impl StagedDir {
     /// A run killed between the two renames of its commit leaves the earlier run as
     /// `.NAME.old-PID` and no `target`: the finished new run (`.NAME.partial-PID` with its
     /// manifest) is put in place, or else the earlier run is put back.
-    fn recover_interrupted_commit(target: &Path) -> Result<()> {
+    pub fn recover_interrupted_commit(target: &Path) -> Result<()> {
         if target.exists() {
             return Ok(());
         }
@@ -273,6 +273,10 @@ impl StagedDir {
             );
             std::fs::rename(restore, target).map_err(|e| Error::io(restore, e))?;
             let _ = std::fs::remove_file(target.join(STAGING_MARKER));
+            if restore == &partial {
+                // The earlier run was being replaced by this one: nothing left to keep of it.
+                std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))?;
+            }
             return Ok(());
         }
         Ok(())

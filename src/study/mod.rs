@@ -503,6 +503,9 @@ fn study_dir(header: &StudyHeader, options: &StudyOptions) -> Result<(PathBuf, O
         fresh.keep_on_failure();
         return Ok((fresh.staging.clone(), Some(fresh)));
     }
+    // A commit killed between its two renames first (as a run without --resume repairs it:
+    // the finished run, or else the earlier one, put back in place, nothing left beside it).
+    StagedDir::recover_interrupted_commit(target)?;
     // An interrupted run of this very study beside --out first (a rerun into a directory that
     // holds a complete study), else the study in --out itself.
     let same_study = |path: &Path| {
