@@ -140,6 +140,19 @@ fn merge_records_the_largest_error_estimate_of_its_shards() {
             m["error_estimate"]["method"], shards[0]["error_estimate"]["method"],
             "{dir:?}"
         );
+        assert_eq!(m["jacobian"], shards[0]["jacobian"], "{dir:?}");
+        assert_eq!(m["sequence"], shards[0]["sequence"], "{dir:?}");
+    }
+    // Where each shard ran, as its manifest says: the adapter and the backend asked for.
+    let ran = manifest(&merged)["shard_backends"].clone();
+    assert_eq!(ran.as_array().map(Vec::len), Some(3), "{ran}");
+    // A merge of that merge passes on the same shards.
+    assert_eq!(manifest(&again)["shard_backends"], ran);
+    for (k, shard) in shards.iter().enumerate() {
+        assert_eq!(ran[k]["adapter"], shard["adapter"], "{ran}");
+        assert_eq!(ran[k]["backend_requested"], shard["backend_requested"]);
+        assert_eq!(ran[k]["member_range"], shard["member_range"]);
+        assert!(!shard["adapter"].is_null(), "{shard}");
     }
 }
 

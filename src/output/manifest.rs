@@ -216,8 +216,24 @@ pub struct MergedManifest {
     pub error_estimate: ErrorEstimateRecord,
     /// The files the shards read (the same in every shard: merge refuses others).
     pub input_files: BTreeMap<String, String>,
+    /// "exact" or "frozen", as the inputs' manifests record it (None where none does).
+    pub jacobian: Option<String>,
+    /// "from_1" or "from_2": the shards' (merge refuses a mixture).
+    pub sequence: String,
+    /// Where each shard ran.
+    pub shard_backends: Vec<ShardBackend>,
     pub wall_seconds: f64,
     pub quantile_method: QuantileMethod,
+}
+
+/// One input of a merge: the backend it asked for and the adapter it ran on, from its manifest
+/// (null where it has none). A merge of merges lists the shards of its inputs.
+#[derive(Debug, Serialize, serde::Deserialize)]
+pub struct ShardBackend {
+    pub input: String,
+    pub member_range: (u64, u64),
+    pub backend_requested: Option<serde_json::Value>,
+    pub adapter: Option<serde_json::Value>,
 }
 
 /// How a study's quantiles and histograms are computed (and how accurate they are).

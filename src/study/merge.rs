@@ -9,7 +9,7 @@ use super::state::StudyState;
 use super::{StudySummary, ERROR_ESTIMATE, OLD_PARTIAL, PARTIAL};
 use crate::error::{Error, Result};
 use crate::output::manifest::{
-    large_error_warning, ErrorEstimateRecord, MergedManifest, StudySceneRecord,
+    large_error_warning, ErrorEstimateRecord, MergedManifest, ShardBackend, StudySceneRecord,
     ERROR_ESTIMATE_UNAVAILABLE, VERSION,
 };
 use crate::output::state_file::old_format_error;
@@ -119,9 +119,29 @@ pub fn merge_studies(
     // manifests, the largest from their members' rows.
     let mut estimate_method: Option<String> = None;
     let mut largest_error_estimate: Option<f64> = None;
+    // Where each shard ran (shards of one study may run on different machines) and the matrix
+    // they ran with, as their manifests record them.
+    let mut shard_backends = Vec::new();
+    let mut jacobian: Option<String> = None;
     for (dir, p) in partials {
+        let recorded = input_manifest(&dir)?;
+        let field = |name: &str| recorded.as_ref().and_then(|m| m.get(name)).cloned();
         if estimate_method.is_none() {
-            estimate_method = recorded_estimate_method(&dir)?;
+            estimate_method = field("error_estimate")
+                .and_then(|e| e.get("method").and_then(|m| m.as_str()).map(str::to_owned));
+        }
+        if jacobian.is_none() {
+            jacobian = field("jacobian").and_then(|j| j.as_str().map(str::to_owned));
+        }
+        // A merge given as an input passes on its own inputs' entries.
+        match field("shard_backends").and_then(|v| serde_json::from_value(v).ok()) {
+            Some(inner) => shard_backends.extend::<Vec<ShardBackend>>(inner),
+            None => shard_backends.push(ShardBackend {
+                input: dir.display().to_string(),
+                member_range: p.header.member_range,
+                backend_requested: field("backend_requested"),
+                adapter: field("adapter"),
+            }),
         }
         match &mut state {
             None => state = Some(p.state),
@@ -207,6 +227,9 @@ pub fn merge_studies(
             failed_members: state.failed.clone(),
             error_estimate: error_estimate.clone(),
             input_files: merged_header.input_files.clone(),
+            jacobian,
+            sequence: merged_header.sequence.clone(),
+            shard_backends,
             wall_seconds: started.elapsed().as_secs_f64(),
             quantile_method: quantile_method(&merged_header),
         },
@@ -223,18 +246,13 @@ pub fn merge_studies(
 const UNRECORDED_ESTIMATE_METHOD: &str =
     "not recorded in the inputs' manifests; the largest is that of their members' rows";
 
-/// The `error_estimate.method` an input's manifest records (None where it has none).
-fn recorded_estimate_method(dir: &Path) -> Result<Option<String>> {
+/// An input's `manifest.json` (None where it has none: a shard still running or killed).
+fn input_manifest(dir: &Path) -> Result<Option<serde_json::Value>> {
     let path = dir.join(MANIFEST);
     if !path.exists() {
         return Ok(None);
     }
-    let manifest: serde_json::Value = read_json(&path)?;
-    Ok(manifest
-        .get("error_estimate")
-        .and_then(|e| e.get("method"))
-        .and_then(|m| m.as_str())
-        .map(str::to_owned))
+    Ok(Some(read_json(&path)?))
 }
 
 /// Member ranges [first, end) of the study that no shard covers; shards that overlap (a member
