@@ -159,12 +159,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
 
     // Everything a user supplies is validated before the directory is touched.
     let chain = scene.initial_chain_in(precision)?;
-    let input_files = match &scene.initial {
-        crate::scene::InitialSpec::Particles { path, .. } => {
-            crate::output::input_file_hashes(&[path.as_path()])?
-        }
-        crate::scene::InitialSpec::Profiles { .. } => Default::default(),
-    };
+    let input_files = crate::output::input_file_hashes(&scene.files_read())?;
     let plan = scene.plan(&chain, precision);
     let engine = select(requested, precision, &plan)?;
     if !options.quiet {

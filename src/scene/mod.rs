@@ -112,6 +112,22 @@ pub const MAX_VELOCITY: f64 = 1e12;
 pub use crate::ensemble::MAX_ROUGHNESS_RADIUS;
 
 impl Scene {
+    /// Every file the scene's members are read from besides the scene itself (a particle file,
+    /// an ensemble's roughness file): what a run's manifest hashes and `--resume` and `merge`
+    /// compare.
+    pub fn files_read(&self) -> Vec<&Path> {
+        let mut paths: Vec<&Path> = Vec::new();
+        if let InitialSpec::Particles { path, .. } = &self.initial {
+            paths.push(path);
+        }
+        if let Some(r) = self.ensemble.as_ref().and_then(|e| e.roughness.as_ref()) {
+            if let crate::ensemble::RoughnessKind::File(path) = &r.kind {
+                paths.push(path);
+            }
+        }
+        paths
+    }
+
     /// Settings the scene asks for that its order ignores, each as a sentence: order 1's rows
     /// are one Euler step and its two halves with the frozen matrix, whatever `sequence` and
     /// `jacobian` say (the manifest records what ran, so the value asked for would be lost

@@ -151,23 +151,6 @@ fn scene_hash(text: &str) -> String {
     crate::output::fnv1a(text.as_bytes())
 }
 
-/// The files the study's members are read from, each with the FNV-1a of its bytes.
-pub(super) fn input_file_hashes(
-    scene: &Scene,
-    spec: &EnsembleSpec,
-) -> Result<BTreeMap<String, String>> {
-    let mut paths: Vec<&Path> = Vec::new();
-    if let crate::scene::InitialSpec::Particles { path, .. } = &scene.initial {
-        paths.push(path);
-    }
-    if let Some(r) = &spec.roughness {
-        if let crate::ensemble::RoughnessKind::File(path) = &r.kind {
-            paths.push(path);
-        }
-    }
-    crate::output::input_file_hashes(&paths)
-}
-
 /// members.csv, written row by row as chunks (or shards) are read, in member order: memory does
 /// not grow with the number of members. It is written as `members.csv.partial` and renamed when
 /// complete, so an interrupted run leaves no complete-looking table.

@@ -198,7 +198,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         &options.out_dir,
         &engine.record,
     );
-    header.input_files = files::input_file_hashes(scene, spec)?;
+    header.input_files = crate::output::input_file_hashes(&scene.files_read())?;
     // The order-1 error estimate solves a companion batch beside each chunk's.
     let solvers = if scene.error_estimate
         && crate::backend::companion::needs_companion_for(scene.order, scene.stepping)
