@@ -263,3 +263,25 @@ fn the_default_sequence_is_from_2_only_for_adaptive_auto_in_f64() {
         assert_eq!(scene.plan(&chain, precision).sequence, expected, "{case}");
     }
 }
+
+/// `[solver] order` unset: auto with a tolerance (whose error follows the tolerance), 1 with a
+/// dt; a named order is what runs either way.
+#[test]
+fn the_default_order_is_auto_with_a_tolerance_and_1_with_a_dt() {
+    use crate::model::params::Order;
+    let unset = |text: &str| edit(text, "order = 1\n", "");
+    let cases = [
+        ("tolerance, unset", unset(&adaptive("")), Order::Auto),
+        ("dt, unset", unset(BASE), Order::Fixed(1)),
+        ("tolerance, order 1", adaptive(""), Order::Fixed(1)),
+        (
+            "dt, order 4",
+            edit(BASE, "order = 1", "order = 4"),
+            Order::Fixed(4),
+        ),
+    ];
+    for (case, text, expected) in cases {
+        let scene = Scene::from_toml(&text, Path::new("dir/scene.toml")).unwrap();
+        assert_eq!(scene.order, expected, "{case}");
+    }
+}
