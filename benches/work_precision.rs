@@ -1,44 +1,61 @@
-//! Work–precision of the extrapolated schemes on the paper's case 1 (scenes/case1.toml, N = 400,
-//! t = 0.4): wall time per member, in a batch of 256 members on the CPU, of the cheapest setting
-//! `roughlub accuracy scenes/case1.toml --target 1e-10` found for each error 1e-4, 1e-6, 1e-8
-//! and 1e-10. Before the measurements it prints the error each setting reaches against a
-//! reference (order auto, tolerance 1e-11; the measured floor of that reference is ~5e-11).
+//! Work–precision of the default scheme on the realistic chain of issue 22
+//! (docs/work_precision_random_n200.toml: N = 200, radii uniform within ±30 % of the mean
+//! profile, gamma 2, mu 0.01, u0 = 0.5 sin 2πx, t = 0.3, 11 outputs; its first member): wall
+//! time per member, in a batch of 64 copies of it on the CPU, of `order = "auto"` with the
+//! default sequence at tolerances 1e-4 … 1e-10, as docs/scipy_comparison/compare.py times
+//! roughlub against scipy's Radau. Before the measurements it prints the error each tolerance
+//! reaches against a reference (auto from 1 at 1e-12, itself checked against 1e-11) and its
+//! steps.
 
 use std::path::Path;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use roughlub::backend::cpu::CpuSolver;
-use roughlub::backend::BatchSolver;
+use roughlub::backend::{BatchSolver, MemberStatus};
 use roughlub::model::chain::Chain;
 use roughlub::model::observables::Snapshot;
-use roughlub::model::params::{Order, OutputFields, Stepping};
+use roughlub::model::params::{Order, OutputFields, Sequence, Stepping};
 use roughlub::model::plan::Plan;
+use roughlub::scene::members::EnsembleMembers;
 use roughlub::scene::Scene;
 
-const MEMBERS: usize = 256;
+const MEMBERS: usize = 64;
+const TOLERANCES: [f64; 5] = [1e-4, 1e-6, 3.16e-7, 1e-8, 1e-10];
 
-fn case1() -> (Plan, Chain) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/case1.toml");
-    let text = std::fs::read_to_string(&path).unwrap();
+/// The scene's plan at tolerance 1e-8 (the default sequence resolved for it) and its first
+/// member's chain.
+fn random_chain() -> (Plan, Chain) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/work_precision_random_n200.toml");
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("dt = 1e-3", "tolerance = 1e-8");
     let scene = Scene::from_toml(&text, &path).unwrap();
-    let chain = scene.initial_chain().unwrap();
-    let mut plan = scene.plan(&chain, scene.precision);
+    let spec = scene.ensemble.clone().unwrap();
+    let member = EnsembleMembers::new(&scene, &spec)
+        .unwrap()
+        .member(0)
+        .unwrap();
+    let mut plan = scene.plan(&member.chain, scene.precision);
+    plan.members = vec![member.params];
     plan.fields = OutputFields::none();
     plan.fields.gaps = true;
     plan.fields.velocities = true;
-    (plan, chain)
+    (plan, member.chain)
 }
 
-fn adaptive(tolerance: f64) -> Stepping {
-    Stepping::Adaptive {
+fn at_tolerance(base: &Plan, tolerance: f64) -> Plan {
+    let mut plan = base.clone();
+    plan.stepping = Stepping::Adaptive {
         tolerance,
         dt_initial: 1e-5,
         dt_min: 1e-14,
-    }
+    };
+    plan
 }
 
-fn run(plan: &Plan, chain: &Chain, members: usize) -> Vec<Vec<Snapshot>> {
+/// The snapshots of `members` copies of `chain` and the first member's accepted steps.
+fn run(plan: &Plan, chain: &Chain, members: usize) -> (Vec<Vec<Snapshot>>, u64) {
     let mut plan = plan.clone();
     plan.members = vec![plan.members[0]; members];
     let mut solver = CpuSolver::new(plan, vec![chain.clone(); members]);
@@ -46,7 +63,9 @@ fn run(plan: &Plan, chain: &Chain, members: usize) -> Vec<Vec<Snapshot>> {
     while let Some(s) = solver.next_output(&|_| {}).unwrap() {
         out.push(s);
     }
-    out
+    let report = &solver.reports()[0];
+    assert_eq!(report.status, MemberStatus::Ok);
+    (out, report.steps_accepted)
 }
 
 /// max over output times of max_i |ln d - ln d_ref| and max |u - u_ref| / max |u_ref|.
@@ -65,51 +84,37 @@ fn error(a: &[Vec<Snapshot>], reference: &[Vec<Snapshot>]) -> f64 {
     worst
 }
 
-fn settings() -> [(f64, Order, Stepping); 4] {
-    [
-        (1e-4, Order::Auto, adaptive(1e-4)),
-        (1e-6, Order::Auto, adaptive(1e-6)),
-        (1e-8, Order::Auto, adaptive(1e-9)),
-        (
-            1e-10,
-            Order::Fixed(6),
-            Stepping::Fixed {
-                dt: 1e-3,
-                dt_min: 1e-14,
-            },
-        ),
-    ]
-}
-
 fn work_precision(c: &mut Criterion) {
-    let (base, chain) = case1();
-    let mut reference_plan = base.clone();
-    reference_plan.order = Order::Auto;
-    reference_plan.stepping = adaptive(1e-11);
-    let reference = run(&reference_plan, &chain, 1);
-    for (target, order, stepping) in settings() {
-        let mut plan = base.clone();
-        plan.order = order;
-        plan.stepping = stepping;
-        let e = error(&run(&plan, &chain, 1), &reference);
+    let (base, chain) = random_chain();
+    let reference_at = |tolerance: f64| {
+        let mut plan = at_tolerance(&base, tolerance);
+        plan.order = Order::Auto;
+        plan.sequence = Sequence::FromOne;
+        run(&plan, &chain, 1).0
+    };
+    let reference = reference_at(1e-12);
+    eprintln!(
+        "reference (auto from_1, 1e-12) against 1e-11: {:.1e}",
+        error(&reference_at(1e-11), &reference)
+    );
+    for tolerance in TOLERANCES {
+        let (snaps, steps) = run(&at_tolerance(&base, tolerance), &chain, 1);
         eprintln!(
-            "target {target:e}: order {}, {stepping:?}: error {e:.2e}",
-            order.label()
+            "tolerance {tolerance:e}: error {:.2e}, {steps} steps",
+            error(&snaps, &reference)
         );
     }
-    let mut group = c.benchmark_group("case1_N400_256_members_cpu");
+    let mut group = c.benchmark_group("random_N200_64_members_cpu");
     group
         .sample_size(10)
-        .measurement_time(Duration::from_secs(10))
+        .measurement_time(Duration::from_secs(5))
         .warm_up_time(Duration::from_secs(1));
     // Elements are members: criterion's "elem/s" is members per second.
     group.throughput(Throughput::Elements(MEMBERS as u64));
-    for (target, order, stepping) in settings() {
-        let mut plan = base.clone();
-        plan.order = order;
-        plan.stepping = stepping;
+    for tolerance in TOLERANCES {
+        let plan = at_tolerance(&base, tolerance);
         group.bench_with_input(
-            BenchmarkId::from_parameter(format!("error_{target:e}")),
+            BenchmarkId::from_parameter(format!("auto_tolerance_{tolerance:e}")),
             &plan,
             |b, plan| b.iter(|| run(plan, &chain, MEMBERS)),
         );
