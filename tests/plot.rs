@@ -3,7 +3,8 @@
 use std::path::Path;
 
 use roughlub::plot::{
-    plot_band, plot_histogram, plot_profiles, plot_series, BandPlot, PlotError, ProfilePlot,
+    plot_band, plot_histogram, plot_profiles, plot_series, plot_work_precision, BandPlot,
+    PlotError, ProfilePlot,
 };
 
 const PNG_SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a];
@@ -650,4 +651,50 @@ fn xt_map_pixels_match_the_field() {
             );
         }
     }
+}
+
+/// The work–precision figure writes each run's observed order by its point (issue 22, item 6):
+/// the same line with and without orders differs by about as many pixels as two short numbers
+/// take, right of the points that have one, and nowhere else.
+#[test]
+fn work_precision_points_carry_their_observed_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let draw = |name: &str, orders: [Option<f64>; 3]| {
+        let path = dir.path().join(name);
+        let points = vec![
+            (1e-3, 1e-4, orders[0]),
+            (1e-2, 1e-6, orders[1]),
+            (1e-1, 1e-8, orders[2]),
+        ];
+        plot_work_precision(
+            &path,
+            "wp",
+            &[("order 4 fixed dt, cpu f64".to_string(), points)],
+            Some(1e-6),
+        )
+        .unwrap();
+        keep(&path, name);
+        png_pixels(&path)
+    };
+    let (plain, width) = draw("plain.png", [None, None, None]);
+    let (labelled, _) = draw("labelled.png", [None, Some(2.0), Some(2.0)]);
+    let differing: Vec<usize> = (0..plain.len() / 3)
+        .filter(|&i| plain[3 * i..3 * i + 3] != labelled[3 * i..3 * i + 3])
+        .collect();
+    // Two labels "2.0" at 13 px: tens to a few hundred pixels each.
+    assert!(
+        (40..=2000).contains(&differing.len()),
+        "{} pixels differ",
+        differing.len()
+    );
+    // Right of the middle point (at 41 % of the width, its label after it): none by the first
+    // point, which has no order, nor in the legend (from about 75 %).
+    let columns = differing.iter().map(|&i| i % width);
+    assert!(
+        columns
+            .clone()
+            .all(|x| x > 2 * width / 5 && x < 3 * width / 4),
+        "a label away from its point: columns {:?}",
+        (columns.clone().min(), columns.max())
+    );
 }

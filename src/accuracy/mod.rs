@@ -505,7 +505,7 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
     crate::plot::plot_work_precision(
         &dir.join("work_precision.png"),
         &format!(
-            "{}: error against wall time ({} member(s))",
+            "{}: error against wall time ({} member(s)); by each run its observed order",
             scene.name, member_count
         ),
         &lines,
@@ -572,14 +572,15 @@ fn check_options(options: &AccuracyOptions) -> Result<()> {
 
 /// The work-precision figure's lines: one per scheme, its measured (wall time, error) points in
 /// order of time (failed runs have no point).
-fn work_precision_lines(measurements: &[Measurement]) -> Vec<(String, Vec<(f64, f64)>)> {
-    let mut lines: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+fn work_precision_lines(measurements: &[Measurement]) -> Vec<crate::plot::WorkPrecisionLine> {
+    let mut lines: Vec<crate::plot::WorkPrecisionLine> = Vec::new();
     for m in measurements {
         let Some(e) = m.errors else { continue };
         let scheme = m.setting.scheme();
+        let point = (m.wall_seconds, e.worst(), m.observed_order);
         match lines.iter_mut().find(|(s, _)| *s == scheme) {
-            Some((_, points)) => points.push((m.wall_seconds, e.worst())),
-            None => lines.push((scheme, vec![(m.wall_seconds, e.worst())])),
+            Some((_, points)) => points.push(point),
+            None => lines.push((scheme, vec![point])),
         }
     }
     for (_, points) in &mut lines {

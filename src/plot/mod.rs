@@ -266,13 +266,17 @@ pub fn plot_heatmap(path: &Path, plot: &HeatmapPlot) -> Result<(), PlotError> {
     )
 }
 
-/// The work–precision figure: per scheme, its runs' (wall time, error) pairs joined by a line,
-/// on log–log axes, with the target error as a dashed line. Non-positive or non-finite values
-/// are skipped.
+/// One line of the work–precision figure: its label, and its runs as (wall time in seconds,
+/// error, observed order against the line's previous run).
+pub type WorkPrecisionLine = (String, Vec<(f64, f64, Option<f64>)>);
+
+/// The work–precision figure: per scheme, its runs' (wall time, error, observed order) joined
+/// by a line, on log–log axes, each run's observed order written beside its point, with the
+/// target error as a dashed line. Non-positive or non-finite values are skipped.
 pub fn plot_work_precision(
     path: &Path,
     title: &str,
-    lines: &[(String, Vec<(f64, f64)>)],
+    lines: &[WorkPrecisionLine],
     target: Option<f64>,
 ) -> Result<(), PlotError> {
     checked_draw(

@@ -1,20 +1,22 @@
 //! The work–precision figure of `roughlub accuracy`: error against wall time, both on log axes
-//! (drawn as log10 of the values, with the axis titles saying so), one line per scheme.
+//! (drawn as log10 of the values, with the axis titles saying so), one line per scheme, each
+//! run's observed order written beside its point.
 
 use std::path::Path;
 
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::chart::{build_chart, draw_line, draw_png, figure, msg};
 use super::legend::{draw_legend, legend_width, LegendEntry, LegendMark};
 use super::ranges::{finite_min_max, padded_range};
-use super::style::{series_color, shorten};
+use super::style::{series_color, shorten, FONT};
 
 /// Draws the figure of [`plot_work_precision`](super::plot_work_precision) on checked input.
 pub(super) fn draw(
     path: &Path,
     title: &str,
-    lines: &[(String, Vec<(f64, f64)>)],
+    lines: &[super::WorkPrecisionLine],
     target: Option<f64>,
 ) -> Result<(), String> {
     // One colour per scheme family (order, sequence, backend and precision), the fixed-step line
@@ -68,6 +70,23 @@ pub(super) fn draw(
                         .zip(y)
                         .filter(|(a, b)| a.is_finite() && b.is_finite())
                         .map(|(&a, &b)| Circle::new((a, b), 4, color(i).filled())),
+                )
+                .map_err(msg)?;
+            // The observed order, right of its point, in the line's colour.
+            let ink = color(i);
+            let style = TextStyle::from((FONT, 13).into_font())
+                .color(&ink)
+                .pos(Pos::new(HPos::Left, VPos::Center));
+            chart
+                .draw_series(
+                    x.iter()
+                        .zip(y)
+                        .zip(&lines[i].1)
+                        .filter(|((a, b), _)| a.is_finite() && b.is_finite())
+                        .filter_map(|((&a, &b), &(_, _, order))| {
+                            let text = format!("{:.1}", order?);
+                            Some(EmptyElement::at((a, b)) + Text::new(text, (6, 0), style.clone()))
+                        }),
                 )
                 .map_err(msg)?;
         }
