@@ -4,10 +4,17 @@
 use super::Scene;
 use crate::backend::Precision;
 use crate::model::chain::Chain;
+use crate::model::params::Sequence;
 use crate::model::plan::{Forcing, Plan};
 use crate::model::quadrature::GaussLegendre;
 
 impl Scene {
+    /// The tableau's sequence this scene's runs take in `precision` (`[solver] sequence`
+    /// resolved for its order and stepping): what its plans hold and a study's header records.
+    pub fn sequence_in(&self, precision: Precision) -> Sequence {
+        self.sequence.resolve(self.order, self.stepping, precision)
+    }
+
     /// The plan a solver runs for `chain` under this scene in `precision` (which decides the
     /// tableau's sequence where the scene leaves it to auto).
     pub fn plan(&self, chain: &Chain, precision: Precision) -> Plan {
@@ -33,9 +40,7 @@ impl Scene {
             grid: scene.grid,
             companion_estimate: scene.error_estimate,
             jacobian: scene.jacobian,
-            sequence: scene
-                .sequence
-                .resolve(scene.order, scene.stepping, precision),
+            sequence: scene.sequence_in(precision),
             peak_centre: false,
             overrides: scene.overrides.clone(),
         }

@@ -378,8 +378,7 @@ pub(super) fn header_for(
         backend: engine.backend,
         precision: engine.precision,
         sequence: scene
-            .sequence
-            .resolve(scene.order, scene.stepping, engine.precision)
+            .sequence_in(engine.precision)
             .record(scene.order)
             .to_string(),
         input_files: BTreeMap::new(),
