@@ -11,8 +11,12 @@ member) against roughlub at order auto, sequence from_1, tolerance 1e-12 (comput
 out/adaptive_errors/ref, or taken from --reference: build it with main when the binary under
 test is an experiment); the wall time per member (the manifest's, best of 3) and the accepted
 steps per member."""
-import argparse, json, os, subprocess
+import argparse, json, os, subprocess, sys
 import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..",
+                                "scipy_comparison"))
+import chain_model  # noqa: E402
 
 a = argparse.ArgumentParser()
 a.add_argument("roughlub")
@@ -26,15 +30,10 @@ os.makedirs("out/adaptive_errors", exist_ok=True)
 os.chdir("out/adaptive_errors")
 
 # compare.py's chain, the same numbers.
-N, RHO, MU, GAMMA, END, T = 200, 0.7, 0.01, 2.0, 0.3, 11
-EPS = RHO / (2 * N)
-x = np.linspace(0, 1, N + 1)
-r = 0.5 * (1 / N - 2 * EPS) * np.random.default_rng(1).uniform(0.7, 1.3, N + 1)
-u0 = 0.5 * np.sin(2 * np.pi * x)
-u0[0] = u0[-1] = 0.0
-with open("chain.csv", "w") as f:
-    f.write("x,u,r\n" + "".join("%r,%r,%r\n" % (float(p), float(q), float(s))
-                                for p, q, s in zip(x, u0, r)))
+N, MU, GAMMA, END, T = 200, 0.01, 2.0, 0.3, 11
+CHAIN = chain_model.chain(N, MU, GAMMA)
+EPS = CHAIN.eps
+chain_model.write_particles(CHAIN, "chain.csv")
 
 
 def run(out, tolerance, jacobian=None, sequence=None, batch=64):

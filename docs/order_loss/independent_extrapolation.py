@@ -6,11 +6,10 @@ property of the method on this ODE (stiff order reduction), not a defect of roug
 
     python3 docs/order_loss/independent_extrapolation.py [options]   (from the repository root)
 
-The model (`rhs`, `jac`, the chain, `d0`, `dstar`, `m`, `y0`) is copied from compare.py, which is
-not imported because it runs roughlub on import: N particles, rho = 0.7, eps = rho / (2N),
-u0 = 0.5 sin(2 pi x), state y = (gaps d_1..d_N, interior velocities u_1..u_{N-1}), roughness r
-uniform within +-30 % (numpy default_rng(seed 1)) or all r = gap / 2 (`--roughness uniform`: every
-d* equal to the gap). The gaps are advanced as d, or as ln d with `--log-gaps` (as roughlub
+The chain and its model (`rhs`, `jac`) are compare.py's (../scipy_comparison/chain_model.py):
+N particles, rho = 0.7, eps = rho / (2N), u0 = 0.5 sin(2 pi x), state y = (gaps d_1..d_N,
+interior velocities u_1..u_{N-1}), roughness r uniform within +-30 % (numpy default_rng(seed 1))
+or all r = gap / 2 (`--roughness uniform`: every d* equal to the gap). The gaps are advanced as d, or as ln d with `--log-gaps` (as roughlub
 keeps closing gaps; the order loss is stronger in that form).
 
 The method (Hairer & Wanner II, IV.9; Deuflhard's SEULEX without order or step control): one
@@ -35,11 +34,15 @@ Options: --N 200 --mu 0.01 --gamma 2 --end 0.3 --roughness both|random|uniform -
 chain, printed below each of this script's: exact matrix, its default sequence for fixed steps,
 from_1). The default prints
 the random and the uniform chains' orders 2, 3, 4, 6 (about 50 s on one core)."""
-import argparse, time
+import argparse, os, subprocess, sys, tempfile, time
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import solve_banded
 from scipy.sparse.linalg import expm_multiply
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..",
+                                "scipy_comparison"))
+import chain_model  # noqa: E402
 
 a = argparse.ArgumentParser()
 a.add_argument("--N", type=int, default=200)
@@ -58,56 +61,6 @@ a.add_argument("--roughlub", metavar="BIN",
 a.add_argument("--extrapolate-other", action="store_true",
                help="extrapolate the gaps in the other form than the one advanced (ln d or d)")
 args = a.parse_args()
-
-
-def chain(N, MU, GAMMA, roughness):
-    """compare.py's chain and model (lines 29-40, 87-123), with N, mu, gamma and r as options."""
-    RHO = 0.7
-    EPS = RHO / (2 * N)  # 2 eps over the spacing 1/N is rho
-    x = np.linspace(0, 1, N + 1)
-    gap = 1 / N - 2 * EPS
-    if roughness == "random":
-        r = 0.5 * gap * np.random.default_rng(1).uniform(0.7, 1.3, N + 1)
-    else:
-        r = 0.5 * gap * np.ones(N + 1)
-    u0 = 0.5 * np.sin(2 * np.pi * x)
-    u0[0] = u0[-1] = 0.0
-    d0 = np.diff(x) - 2 * EPS
-    dstar = r[:-1] + r[1:]
-    m = 2 * EPS
-
-    def rhs(t, y):
-        d, u = y[:N], np.concatenate(([0.0], y[N:], [0.0]))
-        rate = (u[1:] - u[:-1]) / d
-        g = ((dstar + 2 * EPS) / (d + 2 * EPS)) ** GAMMA
-        return np.concatenate((u[1:] - u[:-1], (MU * (rate[1:] - rate[:-1]) + g[:-1] - g[1:]) / m))
-
-    def jac(t, y):
-        d, u = y[:N], np.concatenate(([0.0], y[N:], [0.0]))
-        g = ((dstar + 2 * EPS) / (d + 2 * EPS)) ** GAMMA
-        gp = -GAMMA * g / (d + 2 * EPS)
-        rows, cols, vals = [], [], []
-        def add(i, j, v):
-            rows.append(i); cols.append(j); vals.append(v)
-        for i in range(1, N + 1):
-            if i <= N - 1:
-                add(i - 1, N + i - 1, 1.0)
-            if i >= 2:
-                add(i - 1, N + i - 2, -1.0)
-        for i in range(1, N):
-            k, dl, dr = N + i - 1, d[i - 1], d[i]
-            if i + 1 <= N - 1:
-                add(k, N + i, MU / (m * dr))
-            add(k, k, -MU / m * (1 / dr + 1 / dl))
-            if i - 1 >= 1:
-                add(k, N + i - 2, MU / (m * dl))
-            add(k, i, (-MU * (u[i + 1] - u[i]) / dr**2 - gp[i]) / m)
-            add(k, i - 1, (MU * (u[i] - u[i - 1]) / dl**2 + gp[i - 1]) / m)
-        return sp.csc_matrix((vals, (rows, cols)), shape=(2 * N - 1, 2 * N - 1))
-
-    y0 = np.concatenate((d0, u0[1:-1]))
-    chain.particles = (x, u0, r, EPS)  # for --roughlub
-    return rhs, jac, y0
 
 
 # Interleaved order (d_1, u_1, ..., u_{N-1}, d_N): P[q] is the natural index of interleaved q.
@@ -187,19 +140,16 @@ def difference(a, b, d_exact=None):
     return max(dd, np.abs(ua - ub).max() / np.abs(ub).max())
 
 
-def roughlub_end(binary, x, u0, r, eps, p, H):
+def roughlub_end(binary, c, p, H):
     """roughlub's state at t = end from the same numbers (a particle file), fixed steps H."""
-    import os, subprocess, tempfile
     with tempfile.TemporaryDirectory() as tmp:
-        with open(os.path.join(tmp, "chain.csv"), "w") as f:
-            f.write("x,u,r\n" + "".join("%r,%r,%r\n" % (float(a), float(b), float(c))
-                                        for a, b, c in zip(x, u0, r)))
+        chain_model.write_particles(c, os.path.join(tmp, "chain.csv"))
         with open(os.path.join(tmp, "scene.toml"), "w") as f:
             f.write(f"""name = "independent_extrapolation"
 [model]
 mu = {args.mu!r}
 gamma = {args.gamma!r}
-radius = {eps!r}
+radius = {c.eps!r}
 [initial]
 particles = "chain.csv"
 [time]
@@ -234,7 +184,8 @@ print(("ln d, " if args.log_gaps else "") + f"N = {N}, mu = {args.mu}, gamma = {
       f"Jacobian {'at every substep' if args.jacobian_each_substep else 'at the macro step start'}"
       f", H = T 2^-k, k = {args.k[0]}..{args.k[1] - 1}" + (", frozen linear problem" if args.linear else ""))
 for roughness in (["random", "uniform"] if args.roughness == "both" else [args.roughness]):
-    rhs, jac, y0 = chain(N, args.mu, args.gamma, roughness)
+    c = chain_model.chain(N, args.mu, args.gamma, roughness)
+    rhs, jac, y0 = c.rhs, c.jac, c.y0
     f = lambda y: rhs(0.0, y)
     jac_b = lambda y: banded(jac(0.0, y))
     exact = None
@@ -274,7 +225,7 @@ for roughness in (["random", "uniform"] if args.roughness == "both" else [args.r
             report(f"{roughness} d*, order {p}", [difference(x, y) for x, y in zip(ends, ends[1:])])
         print(f"    ({time.perf_counter() - t0:.1f} s)", flush=True)
         if args.roughlub and not args.linear:
-            ends = [roughlub_end(args.roughlub, *chain.particles, p, args.end / 2**k)
+            ends = [roughlub_end(args.roughlub, c, p, args.end / 2**k)
                     for k in range(*args.k)]
             report(f"roughlub, {roughness} d*, order {p}",
                    [difference(x, y) for x, y in zip(ends, ends[1:])])

@@ -1,8 +1,8 @@
 """roughlub against scipy's Radau on a realistic chain (issue 22, item 4), per member.
 
-The chain: N = 200, rho = 0.7, u0 = 0.5 sin(2 pi x), roughness r_i uniform within +-30 % (so
-d*_i = r_{i-1} + r_i within +-30 % of the gap), gamma = 2, mu = 0.01, to t = 0.3, 11 outputs, no
-forcing; written as a particle file so that both solvers start from the same numbers. The
+The chain (chain_model.py): N = 200, rho = 0.7, u0 = 0.5 sin(2 pi x), roughness r_i uniform
+within +-30 % (so d*_i = r_{i-1} + r_i within +-30 % of the gap), gamma = 2, mu = 0.01, to
+t = 0.3, 11 outputs, no forcing; written as a particle file so that both solvers start from the same numbers. The
 reference is roughlub at order auto, sequence from_1, tolerance 1e-12 (checked against 1e-11). Both solvers run
 on a half-decade tolerance grid; the error is max over outputs of |ln d - ln d_ref| and
 max |u - u_ref| / max |u_ref|, as `roughlub accuracy` measures it. roughlub's time is that of
@@ -20,25 +20,20 @@ in f64 takes rows of 2, 3, 4, ... substeps) and for `[solver] sequence = "from_1
 Writes out/scipy_comparison/ (the chain, the scenes, radau.json, roughlub.json)."""
 import json, os, subprocess, sys, time
 import numpy as np
-import scipy.sparse as sp
 from scipy.integrate import solve_ivp
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import chain_model  # noqa: E402
 
 BIN = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else "target/release/roughlub")
 OUT = os.path.abspath("out/scipy_comparison")
 os.makedirs(OUT, exist_ok=True)
 os.chdir(OUT)
 
-N, RHO, MU, GAMMA, END, T = 200, 0.7, 0.01, 2.0, 0.3, 11
-EPS = RHO / (2 * N)  # 2 eps over the spacing 1/N is rho
-x = np.linspace(0, 1, N + 1)
-gap = 1 / N - 2 * EPS
-r = 0.5 * gap * np.random.default_rng(1).uniform(0.7, 1.3, N + 1)
-u0 = 0.5 * np.sin(2 * np.pi * x)
-u0[0] = u0[-1] = 0.0
-with open("chain.csv", "w") as f:
-    f.write("x,u,r\n")
-    for row in zip(x, u0, r):
-        f.write("%r,%r,%r\n" % tuple(float(v) for v in row))
+N, MU, GAMMA, END, T = 200, 0.01, 2.0, 0.3, 11
+CHAIN = chain_model.chain(N, MU, GAMMA)
+EPS, d0, y0, rhs, jac = CHAIN.eps, CHAIN.d0, CHAIN.y0, CHAIN.rhs, CHAIN.jac
+chain_model.write_particles(CHAIN, "chain.csv")
 
 def scene(tolerance, batch=False, sequence=None):
     s = f"""name = "scipy_comparison"
@@ -84,41 +79,7 @@ def error(g, v):
 print("reference (auto, 1e-12) against 1e-11: %.1e" % error(
     np.load("ref11/gaps.npy").reshape(T, N), np.load("ref11/velocities.npy").reshape(T, N - 1)))
 
-d0 = np.diff(x) - 2 * EPS
-dstar = r[:-1] + r[1:]
-m = 2 * EPS
-
-def rhs(t, y):
-    d, u = y[:N], np.concatenate(([0.0], y[N:], [0.0]))
-    rate = (u[1:] - u[:-1]) / d
-    g = ((dstar + 2 * EPS) / (d + 2 * EPS)) ** GAMMA
-    return np.concatenate((u[1:] - u[:-1], (MU * (rate[1:] - rate[:-1]) + g[:-1] - g[1:]) / m))
-
-def jac(t, y):
-    d, u = y[:N], np.concatenate(([0.0], y[N:], [0.0]))
-    g = ((dstar + 2 * EPS) / (d + 2 * EPS)) ** GAMMA
-    gp = -GAMMA * g / (d + 2 * EPS)
-    rows, cols, vals = [], [], []
-    def add(i, j, v):
-        rows.append(i); cols.append(j); vals.append(v)
-    for i in range(1, N + 1):
-        if i <= N - 1:
-            add(i - 1, N + i - 1, 1.0)
-        if i >= 2:
-            add(i - 1, N + i - 2, -1.0)
-    for i in range(1, N):
-        k, dl, dr = N + i - 1, d[i - 1], d[i]
-        if i + 1 <= N - 1:
-            add(k, N + i, MU / (m * dr))
-        add(k, k, -MU / m * (1 / dr + 1 / dl))
-        if i - 1 >= 1:
-            add(k, N + i - 2, MU / (m * dl))
-        add(k, i, (-MU * (u[i + 1] - u[i]) / dr**2 - gp[i]) / m)
-        add(k, i - 1, (MU * (u[i] - u[i - 1]) / dl**2 + gp[i - 1]) / m)
-    return sp.csc_matrix((vals, (rows, cols)), shape=(2 * N - 1, 2 * N - 1))
-
 assert np.allclose(ref_g[0], d0, rtol=1e-12), "roughlub's initial gaps differ from the file's"
-y0 = np.concatenate((d0, u0[1:-1]))
 times = np.linspace(0, END, T)
 grid = [10 ** -e for e in np.arange(3, 10.51, 0.5)]
 radau, rl, rl2 = [], [], []
