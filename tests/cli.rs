@@ -6,6 +6,8 @@
 //! by one textual replacement each, so every case differs from an accepted scene in exactly one
 //! place.
 
+mod common;
+
 use std::f64::consts::PI;
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -1102,11 +1104,7 @@ fn a_new_run_leaves_nothing_of_the_earlier_one() {
     );
     assert_eq!(read_npy(&out_dir.join("gaps.npy")).shape, vec![2, 1, 12]);
     // No staging directory is left beside it.
-    let leftovers: Vec<_> = std::fs::read_dir(tmp.path())
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|n| n.starts_with(".out."))
-        .collect();
+    let leftovers = common::names_starting_with(tmp.path(), ".out.");
     assert!(leftovers.is_empty(), "{leftovers:?}");
 }
 
@@ -1274,10 +1272,7 @@ fn out_dot_is_refused() {
             stderr.contains("--out must name a directory of its own"),
             "{target}: {stderr}"
         );
-        let mut names: Vec<String> = std::fs::read_dir(tmp.path())
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
+        let mut names = common::names_starting_with(tmp.path(), "");
         names.sort();
         assert_eq!(
             names,

@@ -2,6 +2,8 @@
 //! `--allow-partial`, which then names the missing members) and an `--out` that is one of its
 //! inputs.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -286,12 +288,7 @@ fn merge_output_is_replaced_whole_and_foreign_files_need_force() {
         serde_json::from_str(&std::fs::read_to_string(merged.join("manifest.json")).unwrap())
             .unwrap();
     assert_eq!(m["members_covered"], 64, "{m}");
-    let leftovers: Vec<_> = std::fs::read_dir(tmp.path())
-        .unwrap()
-        .flatten()
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| n.starts_with('.'))
-        .collect();
+    let leftovers = common::names_starting_with(tmp.path(), ".");
     assert!(
         leftovers.is_empty(),
         "staging directories left: {leftovers:?}"

@@ -13,6 +13,8 @@
 //! Scenes live in `tests/data/study_*.toml`; variants are made here by one textual replacement
 //! and written to a temporary directory. Every CLI run uses `--backend cpu`.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -1273,10 +1275,6 @@ fn resume_repairs_a_commit_killed_between_its_renames() {
     let stderr = String::from_utf8_lossy(&resumed.stderr);
     assert!(stderr.contains("the finished run"), "{stderr}");
     assert_eq!(manifest(&dir)["members_total"], 2000);
-    let beside: Vec<String> = std::fs::read_dir(tmp.path())
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|name| name.starts_with(".o."))
-        .collect();
+    let beside = common::names_starting_with(tmp.path(), ".o.");
     assert!(beside.is_empty(), "left beside --out: {beside:?}");
 }

@@ -13,6 +13,16 @@ use roughlub::model::params::{MemberParams, OutputFields, Stepping};
 use roughlub::model::plan::{Forcing, Plan};
 use roughlub::model::quadrature::GaussLegendre;
 
+/// The names in `dir` that start with `prefix`: the staging directories a run into
+/// `dir/NAME` leaves beside it start with ".NAME.", every hidden one with ".".
+pub fn names_starting_with(dir: &std::path::Path, prefix: &str) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name.starts_with(prefix))
+        .collect()
+}
+
 pub fn all_fields() -> OutputFields {
     OutputFields::all()
 }
