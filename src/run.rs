@@ -169,7 +169,9 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     if !options.allow_large {
         check_output_size(&plan)?;
     }
+    let solver_started = Instant::now();
     let mut solver = engine.solver(plan.clone(), vec![chain; members])?;
+    let mut solve_seconds = solver_started.elapsed().as_secs_f64();
 
     // Written into a staging directory beside `out_dir` and swapped in whole at the end: `out_dir`
     // is always a complete earlier run or the complete new one, never a mixture.
@@ -192,7 +194,12 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         crate::plot::thinned_indices(plan.output_times.len(), crate::plot::MAX_XT_CELLS.0);
     let mut time_index = 0;
     let progress = ProgressReporter::new(b * t_count, "member-intervals", options.quiet);
-    while let Some(snaps) = solver.next_output(&|n| progress.inc(n))? {
+    loop {
+        let solving = Instant::now();
+        let Some(snaps) = solver.next_output(&|n| progress.inc(n))? else {
+            break;
+        };
+        solve_seconds += solving.elapsed().as_secs_f64();
         let drawn = drawn_times.binary_search(&time_index).is_ok();
         let mapped = map_times.binary_search(&time_index).is_ok();
         time_index += 1;
@@ -246,6 +253,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         &engine.record,
         solver.gpu_stats(),
         wall,
+        solve_seconds,
         reports,
         largest_error_estimate,
         input_files,
@@ -342,6 +350,7 @@ fn run_manifest<'a>(
     record: &BackendRecord,
     gpu_stats: Option<GpuStats>,
     wall: f64,
+    solve_seconds: f64,
     reports: Vec<MemberReport>,
     largest_error_estimate: Option<f64>,
     input_files: BTreeMap<String, String>,
@@ -358,6 +367,7 @@ fn run_manifest<'a>(
         backend: record.clone(),
         gpu_stats,
         wall_seconds: wall,
+        solve_seconds,
         particles: plan.particles,
         eps: plan.eps,
         order: plan.order,

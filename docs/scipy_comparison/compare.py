@@ -6,18 +6,21 @@ t = 0.3, 11 outputs, no forcing; written as a particle file so that both solvers
 reference is roughlub at order auto, sequence from_1, tolerance 1e-12 (checked against 1e-11). Both solvers run
 on a half-decade tolerance grid; the error is max over outputs of |ln d - ln d_ref| and
 max |u - u_ref| / max |u_ref|, as `roughlub accuracy` measures it. roughlub's time is that of
-`roughlub run` on a batch of 64 copies of the member (best of 3) divided by 64, in process as
-the work-precision bench measures it (the manifest's wall_seconds: reading the scene and the
-particle file, the solve, writing the outputs), and as the process's wall time (adding the
-program's start, ~7 ms); Radau's is one solve_ivp call with the model's exact sparse Jacobian
-(best of 3 as well, each call alternating with one of roughlub's). Both ratios are printed, for
+`roughlub run` on a batch of 64 copies of the member (best of 3) divided by 64, three ways: the
+solve as the work-precision bench (benches/work_precision.rs) times it (the manifest's
+solve_seconds: building the solver and advancing it through the output times), in process (the
+manifest's wall_seconds, adding reading the scene and the particle file and writing the
+outputs) and as the process's wall time (adding the program's start, ~7 ms); Radau's is one
+solve_ivp call with the model's exact sparse Jacobian (best of 3 as well, each call alternating
+with one of roughlub's). The three ratios are printed, for
 roughlub's default (`[solver] sequence` left out: auto, which for order auto with adaptive steps
 in f64 takes rows of 2, 3, 4, ... substeps) and for `[solver] sequence = "from_1"` (rows of 1,
 2, 3, ..., the default before 2026-11-30).
 
     python3 docs/scipy_comparison/compare.py [path/to/roughlub]   (from the repository root)
 
-Writes out/scipy_comparison/ (the chain, the scenes, radau.json, roughlub.json)."""
+Writes out/scipy_comparison/ (the chain, the scenes, radau.json, roughlub.json: per sequence,
+[tolerance, error, solve, in process, process] per member)."""
 import json, os, subprocess, sys, time
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -60,12 +63,14 @@ fields = ["gaps", "velocities"]
     return s
 
 def run(tolerance, out, batch=False, sequence=None):
-    """(wall time in process from the manifest, wall time of the process)."""
+    """(the solve's time and the wall time in process, both from the manifest, and the wall time
+    of the process)."""
     open("scene.toml", "w").write(scene(tolerance, batch, sequence))
     t0 = time.perf_counter()
     subprocess.run([BIN, "run", "scene.toml", "--out", out, "--quiet"], check=True)
     process = time.perf_counter() - t0
-    return json.load(open(os.path.join(out, "manifest.json")))["wall_seconds"], process
+    manifest = json.load(open(os.path.join(out, "manifest.json")))
+    return manifest["solve_seconds"], manifest["wall_seconds"], process
 
 run(1e-12, "ref", sequence="from_1")
 run(1e-11, "ref11", sequence="from_1")
@@ -92,14 +97,14 @@ def radau_solve(tol):
 # this shared machine slows both rather than one side of the ratio.
 for tol in grid:
     wall_radau = float("inf")
-    walls = {seq: [float("inf"), float("inf")] for seq in ("default", "from_1")}
+    walls = {seq: [float("inf")] * 3 for seq in ("default", "from_1")}
     for _ in range(3):
         s, w = radau_solve(tol)
         wall_radau = min(wall_radau, w)
         for seq, best in walls.items():
-            in_process, process = run(tol, "batch64_" + seq, batch=True,
-                                      sequence=None if seq == "default" else seq)
-            best[0], best[1] = min(best[0], in_process / 64), min(best[1], process / 64)
+            taken = run(tol, "batch64_" + seq, batch=True,
+                        sequence=None if seq == "default" else seq)
+            best[:] = [min(b, t / 64) for b, t in zip(best, taken)]
     if s.success:
         radau.append((tol, error(s.y[:N].T, s.y[N:].T), wall_radau))
         print("Radau    rtol %.1e  error %.2e  %.4f s" % radau[-1], flush=True)
@@ -107,9 +112,9 @@ for tol in grid:
         g = np.load("batch64_%s/gaps.npy" % seq).reshape(T, 64, N)
         v = np.load("batch64_%s/velocities.npy" % seq).reshape(T, 64, N - 1)
         err = max(error(g[:, b], v[:, b]) for b in range(64))
-        points.append((tol, err, walls[seq][0], walls[seq][1]))
-        print("roughlub tol  %.1e  error %.2e  %.5f s per member (%.5f s with the start)"
-              % points[-1], seq, flush=True)
+        points.append((tol, err, *walls[seq]))
+        print("roughlub tol  %.1e  error %.2e  %.5f s per member solving (%.5f s in process, "
+              "%.5f s with the start)" % points[-1], seq, flush=True)
 json.dump(radau, open("radau.json", "w"))
 json.dump({"default": rl, "from_1": rl2}, open("roughlub.json", "w"))
 
@@ -123,10 +128,12 @@ def show(value, form):
 
 for seq, points in (("default sequence (auto: from_2 here)", rl), ('sequence = "from_1"', rl2)):
     print("\nroughlub auto, %s" % seq)
-    print("error at most | Radau (s) | roughlub, per member of 64 (s) | ratio"
-          " | with roughlub's start (s) | ratio")
+    print("error at most | Radau (s) | roughlub solving, per member of 64 (s) | ratio"
+          " | in process (s) | ratio | with roughlub's start (s) | ratio")
     for target in (1e-4, 1e-6, 3e-8, 1e-8, 1e-9, 1e-10):
-        a, b, c = cost_at(radau, target), cost_at(points, target), cost_at(points, target, 3)
-        print("%.0e | %s | %s | %s | %s | %s" % (
-            target, show(a, "%.4f"), show(b, "%.5f"), show(a and b and a / b, "%.0fx"),
-            show(c, "%.5f"), show(a and c and a / c, "%.0fx")))
+        a = cost_at(radau, target)
+        row = ["%.0e" % target, show(a, "%.4f")]
+        for column in (2, 3, 4):
+            b = cost_at(points, target, column)
+            row += [show(b, "%.5f"), show(a and b and a / b, "%.0fx")]
+        print(" | ".join(row))

@@ -125,6 +125,10 @@ pub struct RunManifest {
     pub backend: BackendRecord,
     pub gpu_stats: Option<GpuStats>,
     pub wall_seconds: f64,
+    /// The part of `wall_seconds` spent building the solver and advancing it through every
+    /// output time (what the work-precision bench times): the wall time less reading the inputs
+    /// and writing the outputs.
+    pub solve_seconds: f64,
     pub particles: usize,
     pub eps: f64,
     pub order: crate::model::params::Order,
