@@ -218,8 +218,8 @@ fn estimate_text(largest: Option<f64>, available: bool) -> String {
 
 /// The warnings at the end of a run or study, printed even with --quiet: a largest error
 /// estimate that says it is not converged, and failed members (`where_listed` says where).
-fn warn_at_end(largest: Option<f64>, failed: u64, where_listed: &str) {
-    if let Some(w) = roughlub::output::manifest::large_error_warning(largest) {
+fn warn_at_end(estimate_warning: Option<&str>, failed: u64, where_listed: &str) {
+    if let Some(w) = estimate_warning {
         eprintln!("warning: {w}");
     }
     if failed > 0 {
@@ -244,7 +244,7 @@ fn report_study(summary: &StudySummary, quiet: bool) {
         );
     }
     warn_at_end(
-        summary.largest_error_estimate,
+        summary.error_estimate_warning.as_deref(),
         summary.failed,
         "they are counted and listed (\"failed_members\" in the manifest, status in members.csv), never averaged in",
     );
@@ -300,7 +300,7 @@ fn report_scene(summary: &RunSummary, quiet: bool) {
     }
     // The run itself succeeded; failed members are data, listed in the manifest.
     warn_at_end(
-        summary.largest_error_estimate,
+        summary.error_estimate_warning.as_deref(),
         summary.failed as u64,
         "see \"failed_members\" in the manifest",
     );

@@ -68,6 +68,8 @@ pub struct RunSummary {
     pub largest_error_estimate: Option<f64>,
     /// Whether the scheme estimates its error at all (order 1 with fixed steps does not).
     pub error_estimate_available: bool,
+    /// The manifest's warning about the largest estimate, if any.
+    pub error_estimate_warning: Option<String>,
 }
 
 /// The .npy streams of the per-member arrays, [T, B, ...], opened only for requested fields.
@@ -278,6 +280,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
             plan.companion_estimate,
         )
         .is_some(),
+        error_estimate_warning: manifest.error_estimate.warning.clone(),
     })
 }
 

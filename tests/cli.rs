@@ -229,7 +229,10 @@ fn small_scene_end_to_end() {
         m["solve_seconds"].as_f64().expect("solve_seconds"),
         m["wall_seconds"].as_f64().expect("wall_seconds"),
     );
-    assert!(solve > 0.0 && solve < wall, "solve {solve} s, wall {wall} s");
+    assert!(
+        solve > 0.0 && solve < wall,
+        "solve {solve} s, wall {wall} s"
+    );
     let eps = 0.7 / (2.0 * N as f64);
     // eps = M0/(2N), M0 = ∫ 0.7 summed over 4096 quadrature panels: rounding only, but a plain
     // sum of 4096 terms (src/initial.rs) loses ~4e-14 relative, hence 1e-13.

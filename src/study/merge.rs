@@ -198,12 +198,11 @@ pub fn merge_studies(
         .as_deref()
         .is_some_and(|m| m != ERROR_ESTIMATE_UNAVAILABLE);
     let largest_error_estimate = largest_error_estimate.filter(|_| available);
+    let method = estimate_method.unwrap_or_else(|| UNRECORDED_ESTIMATE_METHOD.into());
     let error_estimate = ErrorEstimateRecord {
-        method: estimate_method
-            .unwrap_or_else(|| UNRECORDED_ESTIMATE_METHOD.into())
-            .into(),
+        warning: large_error_warning(largest_error_estimate, &method),
+        method: method.into(),
         largest: largest_error_estimate,
-        warning: large_error_warning(largest_error_estimate),
     };
     write_json_atomic(
         &out.join(MANIFEST),
@@ -237,7 +236,7 @@ pub fn merge_studies(
     staged.commit()?;
     Ok(
         StudySummary::of(target, &state, 0, started.elapsed().as_secs_f64(), 0.0)
-            .with_error_estimate(largest_error_estimate, available),
+            .with_error_estimate(largest_error_estimate, available, &error_estimate),
     )
 }
 

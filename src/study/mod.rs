@@ -126,6 +126,8 @@ pub struct StudySummary {
     pub largest_error_estimate: Option<f64>,
     /// Whether the scheme estimates its error at all (order 1 with fixed steps does not).
     pub error_estimate_available: bool,
+    /// The manifest's warning about the largest estimate, if any.
+    pub error_estimate_warning: Option<String>,
 }
 
 impl StudySummary {
@@ -139,12 +141,19 @@ impl StudySummary {
             statistics_seconds: stats,
             largest_error_estimate: None,
             error_estimate_available: false,
+            error_estimate_warning: None,
         }
     }
 
-    fn with_error_estimate(mut self, largest: Option<f64>, available: bool) -> Self {
+    fn with_error_estimate(
+        mut self,
+        largest: Option<f64>,
+        available: bool,
+        record: &ErrorEstimateRecord,
+    ) -> Self {
         self.largest_error_estimate = largest;
         self.error_estimate_available = available;
+        self.error_estimate_warning = record.warning.clone();
         self
     }
 }
@@ -234,11 +243,14 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         let largest = read_json::<serde_json::Value>(&dir.join(MANIFEST))
             .ok()
             .and_then(|m| m["error_estimate"]["largest"].as_f64());
+        let record =
+            ErrorEstimateRecord::new(scene.order, scene.stepping, scene.error_estimate, largest);
         return Ok(StudySummary::of(&options.out_dir, &complete, 0, wall, 0.0)
             .with_error_estimate(
                 largest,
                 run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate)
                     .is_some(),
+                &record,
             ));
     }
     let chunks_dir = dir.join("chunks");
@@ -286,6 +298,12 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     }
     costs.statistics_seconds += t0.elapsed().as_secs_f64();
     let wall = started.elapsed().as_secs_f64();
+    let error_estimate = ErrorEstimateRecord::new(
+        scene.order,
+        scene.stepping,
+        scene.error_estimate,
+        largest_error_estimate,
+    );
     write_json_atomic(
         &dir.join(MANIFEST),
         &StudyManifest {
@@ -303,12 +321,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             members_total: header.members_total,
             members_completed: state.completed,
             failed_members: state.failed.clone(),
-            error_estimate: ErrorEstimateRecord::new(
-                scene.order,
-                scene.stepping,
-                scene.error_estimate,
-                largest_error_estimate,
-            ),
+            error_estimate: error_estimate.clone(),
             input_files: header.input_files.clone(),
             jacobian: scene.jacobian.record(scene.order, scene.stepping),
             sequence: header.sequence.clone(),
@@ -340,6 +353,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     .with_error_estimate(
         largest_error_estimate,
         run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate).is_some(),
+        &error_estimate,
     ))
 }
 
