@@ -88,6 +88,7 @@ fn plan_and_chains(
         jacobian: Default::default(),
         sequence: Default::default(),
         peak_centre: false,
+        energy_sums: true,
         // The bench is the top: `ROUGHLUB_CPU_PARTITION=off` and `ROUGHLUB_CPU_SIMD` apply.
         overrides: roughlub::backend::overrides::Overrides::from_env(),
     };

@@ -173,6 +173,7 @@ fn plan(case: &Case, eps: f64) -> Plan {
         jacobian: Default::default(),
         sequence: Default::default(),
         peak_centre: false,
+        energy_sums: true,
         overrides: roughlub::backend::overrides::Overrides::from_env(),
     }
 }

@@ -40,6 +40,7 @@ fn plan(chain: &Chain, members: Vec<MemberParams>, order: Order, stepping: Stepp
         jacobian: Default::default(),
         sequence: Default::default(),
         peak_centre: false,
+        energy_sums: true,
         overrides: Default::default(),
     }
 }

@@ -1187,7 +1187,8 @@ fn fields_on_the_grid_are_the_cell_values_at_each_point() {
 /// `observe`'s energy and dissipation are the sums of `energy` and `dissipation` (one term a
 /// gap, in the chain's order), bit for bit: chains across the packed terms' chunk of 64 gaps,
 /// gamma 1, integer gammas up to 1000 and a real one, with every gap stored as d (the packed
-/// path) and with one stored as ln d (the gap-by-gap path).
+/// path) and with one stored as ln d (the gap-by-gap path). Without the sums
+/// (`Plan::energy_sums`) the minima are the same.
 #[test]
 fn observed_energy_and_dissipation_are_the_plain_sums_bit_for_bit() {
     let mut rng = Rng(29);
@@ -1229,6 +1230,27 @@ fn observed_energy_and_dissipation_are_the_plain_sums_bit_for_bit() {
                 let q = dissipation(mu, &d, &chain.velocities, None);
                 assert_eq!(s.dissipation.to_bits(), q.to_bits(), "dissipation, {what}");
                 assert!(e.is_finite() && q.is_finite(), "{what}");
+                // Without the sums (the order-1 companion's snapshots, only compared) the
+                // minima and the density they give are the same bits; no energy is made up.
+                let mut plain = plan.clone();
+                plain.energy_sums = false;
+                let t = observe(
+                    &plain,
+                    &plan.members[0],
+                    &stored,
+                    &chain.velocities,
+                    dstar,
+                    None,
+                    &grid_points(11),
+                );
+                for (a, b, name) in [
+                    (t.min_gap, s.min_gap, "min_gap"),
+                    (t.log_min_gap, s.log_min_gap, "log_min_gap"),
+                    (t.max_density, s.max_density, "max_density"),
+                ] {
+                    assert_eq!(a.to_bits(), b.to_bits(), "{name}, {what}");
+                }
+                assert!(t.energy.is_nan() && t.dissipation.is_nan(), "{what}");
             }
         }
     }

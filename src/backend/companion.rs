@@ -83,6 +83,7 @@ pub fn companion_plan(plan: &Plan) -> Plan {
     companion.fields.rho_star = false;
     // Its snapshots are only compared, never summarised.
     companion.peak_centre = false;
+    companion.energy_sums = false;
     companion
 }
 

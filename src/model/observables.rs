@@ -300,7 +300,11 @@ pub fn observe(
     let mut kinetic = 0.0;
     let mut potential = 0.0;
     let mut dissipation = 0.0;
-    if bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0) {
+    if !plan.energy_sums && bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0) {
+        // The companion's snapshots (only compared): the minima alone.
+        min_stored_d = stored_gaps.iter().fold(f64::INFINITY, |m, &v| m.min(v));
+        min_gap = min_stored_d;
+    } else if bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0) {
         // Every gap free and stored as d (nearly always): the same terms, computed a chunk at a
         // time in loops the compiler packs, then summed in the chain's order, so the same bits
         // as the loop below, whose divisions one after another took a quarter of `observe`'s
@@ -347,7 +351,12 @@ pub fn observe(
     // 2eps/(d + 2eps) falls with d, and so does its rounded value: the largest density is the
     // smallest gap's, bit for bit (a bonded gap has density 1).
     let max_density = (2.0 * eps / (min_gap + 2.0 * eps)).max(if any_bonded { 1.0 } else { 0.0 });
-    let energy = if dstar.is_some() {
+    let energy = if !plan.energy_sums {
+        // Neither path's sums stand for anything without them (the gap-by-gap one adds them
+        // anyway).
+        dissipation = f64::NAN;
+        f64::NAN
+    } else if dstar.is_some() {
         eps * kinetic + potential
     } else {
         eps * kinetic

@@ -60,6 +60,10 @@ pub struct Plan {
     /// Compute each snapshot's [`peak_centre`](crate::model::observables::peak_centre) (a
     /// study's detailed points: there the rho row is still in cache).
     pub peak_centre: bool,
+    /// Compute each snapshot's energy and dissipation (false only for the companion that
+    /// estimates order 1's error, whose snapshots are only compared: their sums were a quarter
+    /// of what the companion added besides its steps, docs/performance.md).
+    pub energy_sums: bool,
     /// What the environment overrides (read once by the command line, passed down from the
     /// scene): the CPU step's instruction set and partition choice, the GPU's adapter,
     /// partition and attempts per dispatch. The default overrides nothing.

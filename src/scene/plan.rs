@@ -42,6 +42,7 @@ impl Scene {
             jacobian: scene.jacobian,
             sequence: scene.sequence_in(precision),
             peak_centre: false,
+            energy_sums: true,
             overrides: scene.overrides.clone(),
         }
     }

@@ -58,6 +58,7 @@ pub fn plan_for(
         jacobian: Default::default(),
         sequence: Default::default(),
         peak_centre: false,
+        energy_sums: true,
         overrides: Default::default(),
     }
 }

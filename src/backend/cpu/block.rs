@@ -606,7 +606,9 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
             }
             lane_values_into::<T, L>(&self.gaps, l, &mut gaps);
             lane_values_into::<T, L>(&self.vel, l, &mut vel);
-            if let Some(d) = &self.model.dstar {
+            // d* enters the energy and the rho* field only (not the companion's comparison).
+            let dstar_read = plan.energy_sums || plan.fields.rho_star;
+            if let (Some(d), true) = (&self.model.dstar, dstar_read) {
                 lane_values_into::<T, L>(d, l, &mut dstar);
             }
             let bonded = self
@@ -621,7 +623,11 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                     &params[member],
                     &gaps,
                     &vel,
-                    self.model.dstar.as_ref().map(|_| dstar.as_slice()),
+                    self.model
+                        .dstar
+                        .as_ref()
+                        .filter(|_| dstar_read)
+                        .map(|_| dstar.as_slice()),
                     bonded.as_deref(),
                     grid_x,
                 ),
