@@ -61,8 +61,8 @@ pub struct Plan {
     /// study's detailed points: there the rho row is still in cache).
     pub peak_centre: bool,
     /// Compute each snapshot's energy and dissipation (false only for the companion that
-    /// estimates order 1's error, whose snapshots are only compared: their sums were a quarter
-    /// of what the companion added besides its steps, docs/performance.md).
+    /// estimates order 1's error, whose snapshots are only compared: with the copy of d* they
+    /// cost 1-4 % of a run of many short members with the estimate, docs/performance.md).
     pub energy_sums: bool,
     /// What the environment overrides (read once by the command line, passed down from the
     /// scene): the CPU step's instruction set and partition choice, the GPU's adapter,
