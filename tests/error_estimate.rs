@@ -417,3 +417,54 @@ fn an_estimate_that_a_damped_transient_inflates_warns_as_an_upper_bound() {
         assert!(!text.contains("these results are not converged"), "{text}");
     }
 }
+
+/// A study warns as a run does, and `--resume` of the complete study prints the warning its
+/// manifest recorded (until 2026-11-30 it rebuilt it from the recorded estimate, which it read
+/// only where finite): the near-contact scene as an ensemble of 4 members with rough radii.
+#[test]
+fn a_resumed_complete_study_repeats_its_recorded_warning() {
+    let text = format!(
+        "{}\n[ensemble]\nmembers = 4\nseed = 3\nchunk = 2\nroughness = {{ kind = \"lognormal\", spread = 0.1 }}\n",
+        near_contact("")
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("near_contact_study.toml");
+    std::fs::write(&path, &text).unwrap();
+    let study = |extra: &[&str]| {
+        let out = Command::new(BIN)
+            .arg("run")
+            .arg(&path)
+            .arg("--out")
+            .arg(tmp.path().join("study"))
+            .arg("--quiet")
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let first = study(&[]);
+    let manifest: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(tmp.path().join("study/manifest.json")).unwrap(),
+    )
+    .unwrap();
+    let recorded = manifest["error_estimate"]["warning"]
+        .as_str()
+        .expect("a recorded warning")
+        .to_string();
+    assert!(
+        recorded.contains("these results are not converged"),
+        "{recorded}"
+    );
+    let resumed = study(&["--resume"]);
+    for stderr in [&first, &resumed] {
+        assert!(
+            stderr.contains(&format!("warning: {recorded}")),
+            "stderr: {stderr}"
+        );
+    }
+}

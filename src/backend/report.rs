@@ -44,6 +44,20 @@ impl MemberReport {
     }
 }
 
+/// How adaptive runs estimate their error (the manifest's `error_estimate.method`).
+pub const ADAPTIVE_ESTIMATE_METHOD: &str =
+    "sum over accepted steps of the controller's local estimate |T_kk - T_k,k-1| of the \
+     extrapolation tableau (order 1: one step against two half steps), as a max-norm: relative \
+     on gaps (the error of ln d), |du|/(1 + |u|) on velocities; local errors added without \
+     their propagation";
+
+/// How the extrapolated orders with fixed steps estimate their error.
+pub const FIXED_STEP_ESTIMATE_METHOD: &str =
+    "sum over steps of |T_pp - T_p,p-1|, the difference from the next lower order of the \
+     extrapolation tableau (an estimate of that lower order's local error, so an overestimate \
+     of order p's), as a max-norm: relative on gaps (the error of ln d), |du|/(1 + |u|) on \
+     velocities; local errors added without their propagation";
+
 /// How the error estimates of a run with this plan are made, or `None` when it has none.
 pub fn error_estimate_method(
     order: crate::model::params::Order,
@@ -52,18 +66,8 @@ pub fn error_estimate_method(
     use crate::model::params::{Order, Stepping};
     match (order, stepping) {
         (Order::Fixed(1), Stepping::Fixed { .. }) => None,
-        (_, Stepping::Adaptive { .. }) => Some(
-            "sum over accepted steps of the controller's local estimate |T_kk - T_k,k-1| of the \
-             extrapolation tableau (order 1: one step against two half steps), as a max-norm: \
-             relative on gaps (the error of ln d), |du|/(1 + |u|) on velocities; local errors \
-             added without their propagation",
-        ),
-        (_, Stepping::Fixed { .. }) => Some(
-            "sum over steps of |T_pp - T_p,p-1|, the difference from the next lower order of the \
-             extrapolation tableau (an estimate of that lower order's local error, so an \
-             overestimate of order p's), as a max-norm: relative on gaps (the error of ln d), \
-             |du|/(1 + |u|) on velocities; local errors added without their propagation",
-        ),
+        (_, Stepping::Adaptive { .. }) => Some(ADAPTIVE_ESTIMATE_METHOD),
+        (_, Stepping::Fixed { .. }) => Some(FIXED_STEP_ESTIMATE_METHOD),
     }
 }
 
@@ -84,8 +88,9 @@ pub fn run_error_estimate_method(
     }
 }
 
-/// Above this error estimate a run warns that its results are not converged (on stderr and in
-/// the manifest): a tenth of the relative size of the state.
+/// Above this error estimate a run warns that its results are not or may not be converged (on
+/// stderr and in the manifest, as [`large_error_warning`](crate::output::manifest::large_error_warning)
+/// words it for the estimate's method): a tenth of the relative size of the state.
 pub const LARGE_ERROR_ESTIMATE: f64 = 0.1;
 
 /// Where and why a member failed, as the solvers record it.

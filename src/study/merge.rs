@@ -236,7 +236,7 @@ pub fn merge_studies(
     staged.commit()?;
     Ok(
         StudySummary::of(target, &state, 0, started.elapsed().as_secs_f64(), 0.0)
-            .with_error_estimate(largest_error_estimate, available, &error_estimate),
+            .with_error_estimate(largest_error_estimate, available, error_estimate.warning),
     )
 }
 

@@ -149,11 +149,11 @@ impl StudySummary {
         mut self,
         largest: Option<f64>,
         available: bool,
-        record: &ErrorEstimateRecord,
+        warning: Option<String>,
     ) -> Self {
         self.largest_error_estimate = largest;
         self.error_estimate_available = available;
-        self.error_estimate_warning = record.warning.clone();
+        self.error_estimate_warning = warning;
         self
     }
 }
@@ -239,18 +239,24 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let dir = &dir;
     if let Some(complete) = complete_study(dir, staged.is_none(), &header, options)? {
         let wall = started.elapsed().as_secs_f64();
-        // The estimate the complete study's manifest recorded.
-        let largest = read_json::<serde_json::Value>(&dir.join(MANIFEST))
+        // The estimate and its warning as the complete study's manifest recorded them (an
+        // infinite or NaN estimate is written as the string "inf" or "NaN").
+        let recorded = read_json::<serde_json::Value>(&dir.join(MANIFEST))
             .ok()
-            .and_then(|m| m["error_estimate"]["largest"].as_f64());
-        let record =
-            ErrorEstimateRecord::new(scene.order, scene.stepping, scene.error_estimate, largest);
+            .map(|m| m["error_estimate"].clone())
+            .unwrap_or_default();
+        let largest = recorded["largest"].as_f64().or_else(|| {
+            recorded["largest"]
+                .as_str()
+                .and_then(|s| s.parse::<f64>().ok())
+        });
+        let warning = recorded["warning"].as_str().map(String::from);
         return Ok(StudySummary::of(&options.out_dir, &complete, 0, wall, 0.0)
             .with_error_estimate(
                 largest,
                 run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate)
                     .is_some(),
-                &record,
+                warning,
             ));
     }
     let chunks_dir = dir.join("chunks");
@@ -353,7 +359,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     .with_error_estimate(
         largest_error_estimate,
         run_error_estimate_method(scene.order, scene.stepping, scene.error_estimate).is_some(),
-        &error_estimate,
+        error_estimate.warning,
     ))
 }
 
