@@ -6,13 +6,14 @@
 //! estimate's norm (ln d on gaps, |du| / (1 + |u|) on velocities), on a smooth scene and on a
 //! near-contact one, where dt = 1e-3 is far from converged and the run must say so.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use roughlub::backend::{select, Backend, Precision};
 use roughlub::model::params::Stepping;
 use roughlub::model::plan::Plan;
 use roughlub::scene::Scene;
+use serde_json::Value;
 
 const BIN: &str = env!("CARGO_BIN_EXE_roughlub");
 
@@ -110,6 +111,29 @@ fn estimate_and_error(text: &str) -> (f64, f64) {
     (estimate, error)
 }
 
+/// `roughlub run` of the scene `text` (written to `dir/name.toml`) into `dir/name`, quiet, with
+/// `extra` arguments; asserts success. (its output directory, stderr, manifest).
+fn run_cli(dir: &Path, name: &str, text: &str, extra: &[&str]) -> (PathBuf, String, Value) {
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, text).unwrap();
+    let out_dir = dir.join(name);
+    let out = Command::new(BIN)
+        .arg("run")
+        .arg(&path)
+        .arg("--out")
+        .arg(&out_dir)
+        .arg("--quiet")
+        .args(extra)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{stderr}");
+    let manifest =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("manifest.json")).unwrap())
+            .unwrap();
+    (out_dir, stderr, manifest)
+}
+
 /// The estimate of the smooth scene at `dt`, held within a factor 2 of its measured error.
 fn smooth_estimate_within_twice_its_error(dt: f64) -> f64 {
     let (estimate, error) = estimate_and_error(&smooth(dt));
@@ -164,26 +188,11 @@ fn a_far_from_converged_fixed_step_run_reports_a_large_estimate_and_warns() {
     );
 
     let tmp = tempfile::tempdir().unwrap();
-    let path = tmp.path().join("near_contact.toml");
-    std::fs::write(&path, &text).unwrap();
-    let out = Command::new(BIN)
-        .arg("run")
-        .arg(&path)
-        .arg("--out")
-        .arg(tmp.path().join("out"))
-        .arg("--quiet")
-        .output()
-        .unwrap();
-    assert!(out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (_, stderr, manifest) = run_cli(tmp.path(), "near_contact", &text, &[]);
     assert!(
         stderr.contains("warning: the largest error estimate"),
         "stderr: {stderr}"
     );
-    let manifest: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(tmp.path().join("out/manifest.json")).unwrap(),
-    )
-    .unwrap();
     let record = &manifest["error_estimate"];
     let largest = record["largest"].as_f64().unwrap();
     assert!(
@@ -201,26 +210,14 @@ fn a_far_from_converged_fixed_step_run_reports_a_large_estimate_and_warns() {
 #[test]
 fn the_companion_can_be_turned_off_and_does_not_change_the_run() {
     let tmp = tempfile::tempdir().unwrap();
-    let run = |name: &str, extra: &str| {
-        let path = tmp.path().join(format!("{name}.toml"));
-        std::fs::write(&path, near_contact(extra)).unwrap();
-        let dir = tmp.path().join(name);
-        let out = Command::new(BIN)
-            .arg("run")
-            .arg(&path)
-            .arg("--out")
-            .arg(&dir)
-            .arg("--quiet")
-            .output()
-            .unwrap();
-        assert!(out.status.success());
-        (dir, String::from_utf8_lossy(&out.stderr).into_owned())
-    };
-    let (on, _) = run("on", "");
-    let (off, stderr_off) = run("off", "error_estimate = false");
+    let (on, _, _) = run_cli(tmp.path(), "on", &near_contact(""), &[]);
+    let (off, stderr_off, manifest) = run_cli(
+        tmp.path(),
+        "off",
+        &near_contact("error_estimate = false"),
+        &[],
+    );
     assert!(!stderr_off.contains("error estimate"), "{stderr_off}");
-    let manifest: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(off.join("manifest.json")).unwrap()).unwrap();
     assert!(manifest["error_estimate"]["largest"].is_null());
     assert!(manifest["error_estimate"]["method"]
         .as_str()
@@ -392,22 +389,7 @@ fn an_estimate_that_a_damped_transient_inflates_warns_as_an_upper_bound() {
     assert!(error < 1e-6, "not converged: error {error:e}");
 
     let tmp = tempfile::tempdir().unwrap();
-    let path = tmp.path().join("transient.toml");
-    std::fs::write(&path, &text).unwrap();
-    let out = Command::new(BIN)
-        .arg("run")
-        .arg(&path)
-        .arg("--out")
-        .arg(tmp.path().join("out"))
-        .arg("--quiet")
-        .output()
-        .unwrap();
-    assert!(out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    let manifest: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(tmp.path().join("out/manifest.json")).unwrap(),
-    )
-    .unwrap();
+    let (_, stderr, manifest) = run_cli(tmp.path(), "transient", &text, &[]);
     let warning = manifest["error_estimate"]["warning"].as_str().unwrap_or("");
     for text in [warning, &stderr] {
         assert!(
@@ -428,30 +410,7 @@ fn a_resumed_complete_study_repeats_its_recorded_warning() {
         near_contact("")
     );
     let tmp = tempfile::tempdir().unwrap();
-    let path = tmp.path().join("near_contact_study.toml");
-    std::fs::write(&path, &text).unwrap();
-    let study = |extra: &[&str]| {
-        let out = Command::new(BIN)
-            .arg("run")
-            .arg(&path)
-            .arg("--out")
-            .arg(tmp.path().join("study"))
-            .arg("--quiet")
-            .args(extra)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        String::from_utf8_lossy(&out.stderr).into_owned()
-    };
-    let first = study(&[]);
-    let manifest: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(tmp.path().join("study/manifest.json")).unwrap(),
-    )
-    .unwrap();
+    let (_, first, manifest) = run_cli(tmp.path(), "study", &text, &[]);
     let recorded = manifest["error_estimate"]["warning"]
         .as_str()
         .expect("a recorded warning")
@@ -460,7 +419,7 @@ fn a_resumed_complete_study_repeats_its_recorded_warning() {
         recorded.contains("these results are not converged"),
         "{recorded}"
     );
-    let resumed = study(&["--resume"]);
+    let (_, resumed, _) = run_cli(tmp.path(), "study", &text, &["--resume"]);
     for stderr in [&first, &resumed] {
         assert!(
             stderr.contains(&format!("warning: {recorded}")),
