@@ -1215,15 +1215,21 @@ fn observed_energy_and_dissipation_are_the_plain_sums_bit_for_bit() {
                     None,
                 );
                 let dstar = chain.dstar.as_deref();
-                let s = observe(
-                    &plan,
-                    &plan.members[0],
-                    &stored,
-                    &chain.velocities,
-                    dstar,
-                    None,
-                    &grid_points(11),
-                );
+                let grid = grid_points(11);
+                let observed = |energy_sums: bool| {
+                    let mut plan = plan.clone();
+                    plan.energy_sums = energy_sums;
+                    observe(
+                        &plan,
+                        &plan.members[0],
+                        &stored,
+                        &chain.velocities,
+                        dstar,
+                        None,
+                        &grid,
+                    )
+                };
+                let s = observed(true);
                 let what = format!("N = {n}, gamma {gamma}, squeezed {squeezed}");
                 let e = energy(eps, gamma, &d, &chain.velocities, dstar, None);
                 assert_eq!(s.energy.to_bits(), e.to_bits(), "energy, {what}");
@@ -1232,17 +1238,7 @@ fn observed_energy_and_dissipation_are_the_plain_sums_bit_for_bit() {
                 assert!(e.is_finite() && q.is_finite(), "{what}");
                 // Without the sums (the order-1 companion's snapshots, only compared) the
                 // minima and the density they give are the same bits; no energy is made up.
-                let mut plain = plan.clone();
-                plain.energy_sums = false;
-                let t = observe(
-                    &plain,
-                    &plan.members[0],
-                    &stored,
-                    &chain.velocities,
-                    dstar,
-                    None,
-                    &grid_points(11),
-                );
+                let t = observed(false);
                 for (a, b, name) in [
                     (t.min_gap, s.min_gap, "min_gap"),
                     (t.log_min_gap, s.log_min_gap, "log_min_gap"),

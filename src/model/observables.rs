@@ -300,30 +300,29 @@ pub fn observe(
     let mut kinetic = 0.0;
     let mut potential = 0.0;
     let mut dissipation = 0.0;
-    if !plan.energy_sums && bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0) {
-        // The companion's snapshots (only compared): the minima alone.
-        min_stored_d = stored_gaps.iter().fold(f64::INFINITY, |m, &v| m.min(v));
-        min_gap = min_stored_d;
-    } else if bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0) {
+    if bonded.is_none() && stored_gaps.iter().all(|&v| v > 0.0) {
         // Every gap free and stored as d (nearly always): the same terms, computed a chunk at a
         // time in loops the compiler packs, then summed in the chain's order, so the same bits
         // as the loop below, whose divisions one after another took a quarter of `observe`'s
-        // time in a 4096-member batch (12.9 % of its samples before, 9.6 % after).
-        kinetic = velocities[..n.saturating_sub(1)]
-            .iter()
-            .fold(0.0, |k, &u| k + u * u);
+        // time in a 4096-member batch (12.9 % of its samples before, 9.6 % after). Without
+        // `energy_sums` (the companion's snapshots, only compared) the minima alone.
         min_stored_d = stored_gaps.iter().fold(f64::INFINITY, |m, &v| m.min(v));
         min_gap = min_stored_d;
-        let mut terms = [0.0f64; TERM_CHUNK];
-        for start in (0..n).step_by(TERM_CHUNK) {
-            let d = &stored_gaps[start..(start + TERM_CHUNK).min(n)];
-            let terms = &mut terms[..d.len()];
-            if let Some(ds) = dstar {
-                potential_terms(eps, params.gamma, power, d, &ds[start..], terms);
-                potential = terms.iter().fold(potential, |p, &t| p + t);
+        if plan.energy_sums {
+            kinetic = velocities[..n.saturating_sub(1)]
+                .iter()
+                .fold(0.0, |k, &u| k + u * u);
+            let mut terms = [0.0f64; TERM_CHUNK];
+            for start in (0..n).step_by(TERM_CHUNK) {
+                let d = &stored_gaps[start..(start + TERM_CHUNK).min(n)];
+                let terms = &mut terms[..d.len()];
+                if let Some(ds) = dstar {
+                    potential_terms(eps, params.gamma, power, d, &ds[start..], terms);
+                    potential = terms.iter().fold(potential, |p, &t| p + t);
+                }
+                dissipation_terms(velocities, n, start, d, terms);
+                dissipation = terms.iter().fold(dissipation, |q, &t| q + t);
             }
-            dissipation_terms(velocities, n, start, d, terms);
-            dissipation = terms.iter().fold(dissipation, |q, &t| q + t);
         }
     } else {
         for (i, &v) in stored_gaps.iter().enumerate() {

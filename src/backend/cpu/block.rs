@@ -598,6 +598,12 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
     ) -> Vec<(usize, Snapshot)> {
         let mut out = Vec::with_capacity(self.lanes.len());
         let (mut gaps, mut vel, mut dstar) = (Vec::new(), Vec::new(), Vec::new());
+        // d* enters the energy and the rho* field only (not the companion's comparison).
+        let dstar_read = self
+            .model
+            .dstar
+            .as_ref()
+            .filter(|_| plan.energy_sums || plan.fields.rho_star);
         for (l, lane) in self.lanes.iter().enumerate() {
             let Some(member) = lane.member else { continue };
             if lane.control.failure != Failure::None {
@@ -606,9 +612,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
             }
             lane_values_into::<T, L>(&self.gaps, l, &mut gaps);
             lane_values_into::<T, L>(&self.vel, l, &mut vel);
-            // d* enters the energy and the rho* field only (not the companion's comparison).
-            let dstar_read = plan.energy_sums || plan.fields.rho_star;
-            if let (Some(d), true) = (&self.model.dstar, dstar_read) {
+            if let Some(d) = dstar_read {
                 lane_values_into::<T, L>(d, l, &mut dstar);
             }
             let bonded = self
@@ -623,11 +627,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                     &params[member],
                     &gaps,
                     &vel,
-                    self.model
-                        .dstar
-                        .as_ref()
-                        .filter(|_| dstar_read)
-                        .map(|_| dstar.as_slice()),
+                    dstar_read.map(|_| dstar.as_slice()),
                     bonded.as_deref(),
                     grid_x,
                 ),
