@@ -1142,6 +1142,43 @@ fn a_foreign_directory_is_replaced_only_with_force() {
     assert!(!out_dir.join("thesis.tex").exists());
 }
 
+/// A `manifest.json` or `study.json` that roughlub did not write (no `roughlub_version`) does not
+/// make a directory a run; nor does a `.NAME.partial-PID` name without the staging marker make
+/// a directory a leftover to remove.
+#[test]
+fn files_named_like_roughlubs_do_not_make_a_directory_replaceable() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("scene.toml");
+    std::fs::write(&scene, BASE).unwrap();
+    for (record, text) in [("manifest.json", r#"{"name": "webapp"}"#), ("study.json", "not json")] {
+        let out_dir = tmp.path().join(format!("site_{record}"));
+        std::fs::create_dir(&out_dir).unwrap();
+        std::fs::write(out_dir.join(record), text).unwrap();
+        std::fs::write(out_dir.join("index.html"), "precious").unwrap();
+        let out = run(&scene, &out_dir, &["--quiet"]);
+        let stderr = stderr_of(&out);
+        assert_eq!(out.status.code(), Some(2), "{record}: {stderr}");
+        assert!(stderr.contains("holds files but no roughlub run"), "{stderr}");
+        assert_eq!(
+            std::fs::read_to_string(out_dir.join("index.html")).unwrap(),
+            "precious"
+        );
+    }
+    // A user's directory named like a killed run's staging directory (PID 1 is never ours and
+    // always alive, 4194305 above Linux's PID limit: dead), with a study.json of its own.
+    for pid in [1u32, 4194305] {
+        let lookalike = tmp.path().join(format!(".out.partial-{pid}"));
+        std::fs::create_dir(&lookalike).unwrap();
+        std::fs::write(lookalike.join("study.json"), "{}").unwrap();
+        std::fs::write(lookalike.join("x.txt"), "precious").unwrap();
+    }
+    assert_success(&run(&scene, &tmp.path().join("out"), &["--quiet"]));
+    for pid in [1u32, 4194305] {
+        let kept = tmp.path().join(format!(".out.partial-{pid}")).join("x.txt");
+        assert_eq!(std::fs::read_to_string(&kept).unwrap(), "precious", "{kept:?}");
+    }
+}
+
 /// Every file under `dir` (relative path, bytes), sorted.
 fn files_of(dir: &Path) -> Vec<(String, Vec<u8>)> {
     let mut out = Vec::new();

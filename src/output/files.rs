@@ -96,12 +96,28 @@ pub fn fnv1a(bytes: &[u8]) -> String {
     format!("{h:016x}")
 }
 
-/// Whether a directory holds a roughlub run or staging directory (so it may be removed as a
-/// leftover).
-fn is_roughlub_dir(dir: &Path) -> bool {
-    [STAGING_MARKER, MANIFEST, "study.json"]
-        .iter()
-        .any(|f| dir.join(f).exists())
+/// Whether `dir` holds a record that roughlub wrote: a `manifest.json` or `study.json` with its
+/// `roughlub_version` (a file of that name alone may be anyone's: a web app's manifest).
+pub fn holds_roughlub_record(dir: &Path) -> bool {
+    #[derive(Deserialize)]
+    struct Signature {
+        #[allow(dead_code)]
+        roughlub_version: String,
+    }
+    [MANIFEST, "study.json"].iter().any(|name| {
+        std::fs::read(dir.join(name))
+            .is_ok_and(|bytes| serde_json::from_slice::<Signature>(&bytes).is_ok())
+    })
+}
+
+/// Whether a leftover beside a target is roughlub's, so that it may be removed: a staging
+/// directory by its marker (written when it is made), a swapped-out earlier run by its record.
+fn is_roughlub_leftover(dir: &Path, is_staging: bool) -> bool {
+    if is_staging {
+        dir.join(STAGING_MARKER).exists()
+    } else {
+        holds_roughlub_record(dir)
+    }
 }
 
 /// (parent, name) of a target directory; the staging directories live in `parent`.
@@ -156,7 +172,7 @@ fn leftovers(target: &Path) -> Result<Vec<(PathBuf, bool)>> {
         let dead = pid == std::process::id()
             || process_alive(pid) == Some(false)
             || (is_staging && marker_unlocked(&entry.path()));
-        if dead && entry.path().is_dir() && is_roughlub_dir(&entry.path()) {
+        if dead && entry.path().is_dir() && is_roughlub_leftover(&entry.path(), is_staging) {
             found.push((entry.path(), is_staging));
         }
     }
@@ -208,7 +224,7 @@ impl StagedDir {
                     message: "is a file, not a directory; give another --out".into(),
                 });
             }
-            let ours = target.join(MANIFEST).exists() || target.join("study.json").exists();
+            let ours = holds_roughlub_record(target);
             let empty = std::fs::read_dir(target)
                 .map_err(|e| Error::io(target, e))?
                 .next()
@@ -216,7 +232,7 @@ impl StagedDir {
             if !ours && !empty && !force {
                 return Err(Error::Output {
                     path: target.to_path_buf(),
-                    message: "holds files but no roughlub run (no manifest.json or study.json), and a run replaces its directory whole; give another --out, or --force to replace it".into(),
+                    message: "holds files but no roughlub run (no manifest.json or study.json that roughlub wrote), and a run replaces its directory whole; give another --out, or --force to replace it".into(),
                 });
             }
         }
