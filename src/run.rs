@@ -242,7 +242,10 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
         )?);
     }
 
-    let reports = solver.reports();
+    let mut reports = solver.reports();
+    for report in &mut reports {
+        report.clear_estimates_after_failure(&plan.output_times);
+    }
     let wall = started.elapsed().as_secs_f64();
     let largest_error_estimate = reports
         .iter()

@@ -1150,7 +1150,10 @@ fn files_named_like_roughlubs_do_not_make_a_directory_replaceable() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = tmp.path().join("scene.toml");
     std::fs::write(&scene, BASE).unwrap();
-    for (record, text) in [("manifest.json", r#"{"name": "webapp"}"#), ("study.json", "not json")] {
+    for (record, text) in [
+        ("manifest.json", r#"{"name": "webapp"}"#),
+        ("study.json", "not json"),
+    ] {
         let out_dir = tmp.path().join(format!("site_{record}"));
         std::fs::create_dir(&out_dir).unwrap();
         std::fs::write(out_dir.join(record), text).unwrap();
@@ -1158,7 +1161,10 @@ fn files_named_like_roughlubs_do_not_make_a_directory_replaceable() {
         let out = run(&scene, &out_dir, &["--quiet"]);
         let stderr = stderr_of(&out);
         assert_eq!(out.status.code(), Some(2), "{record}: {stderr}");
-        assert!(stderr.contains("holds files but no roughlub run"), "{stderr}");
+        assert!(
+            stderr.contains("holds files but no roughlub run"),
+            "{stderr}"
+        );
         assert_eq!(
             std::fs::read_to_string(out_dir.join("index.html")).unwrap(),
             "precious"
@@ -1175,7 +1181,11 @@ fn files_named_like_roughlubs_do_not_make_a_directory_replaceable() {
     assert_success(&run(&scene, &tmp.path().join("out"), &["--quiet"]));
     for pid in [1u32, 4194305] {
         let kept = tmp.path().join(format!(".out.partial-{pid}")).join("x.txt");
-        assert_eq!(std::fs::read_to_string(&kept).unwrap(), "precious", "{kept:?}");
+        assert_eq!(
+            std::fs::read_to_string(&kept).unwrap(),
+            "precious",
+            "{kept:?}"
+        );
     }
 }
 

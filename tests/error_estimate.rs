@@ -427,3 +427,42 @@ fn a_resumed_complete_study_repeats_its_recorded_warning() {
         );
     }
 }
+
+/// A member that fails has no state after its failure, so no error estimate there: the
+/// manifest's estimates at later output times are "NaN", as its rows of gaps.npy are.
+#[test]
+fn a_failed_members_estimates_after_its_failure_are_nan() {
+    let dir = tempfile::tempdir().unwrap();
+    // Velocities of 1e6 close a gap below 1e-250 within 1e-7 of the start.
+    let scene = r#"
+name = "fails"
+[model]
+particles = 20
+mu = 0.01
+[initial]
+rho = "0.7"
+velocity = "1e6*sin(2*pi*x)"
+rho_star = "0.7"
+[time]
+end = 0.05
+outputs = 3
+tolerance = 1e-4
+[solver]
+backend = "cpu"
+[output]
+plots = false
+"#;
+    let (_, _, manifest) = run_cli(dir.path(), "fails", scene, &[]);
+    let member = &manifest["members"][0];
+    assert_eq!(member["status"], "failed", "{member}");
+    let failed_at = member["time"].as_f64().unwrap();
+    assert!(failed_at < 0.025, "failed at {failed_at}");
+    let estimates: Vec<String> = member["error_estimate"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.to_string())
+        .collect();
+    assert_eq!(estimates[0], "0.0", "{estimates:?}");
+    assert_eq!(&estimates[1..], ["\"NaN\"", "\"NaN\""], "{estimates:?}");
+}

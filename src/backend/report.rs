@@ -42,6 +42,21 @@ impl MemberReport {
             .copied()
             .reduce(f64::max)
     }
+
+    /// Makes NaN the estimates at output times after the member failed: it has no state there
+    /// (its rows of the outputs are NaN too), so no error to estimate.
+    pub fn clear_estimates_after_failure(&mut self, output_times: &[f64]) {
+        let (MemberStatus::Failed { time, .. }, Some(estimates)) =
+            (&self.status, self.error_estimate.as_mut())
+        else {
+            return;
+        };
+        for (estimate, &t) in estimates.iter_mut().zip(output_times) {
+            if t > *time {
+                *estimate = f64::NAN;
+            }
+        }
+    }
 }
 
 /// How adaptive runs estimate their error (the manifest's `error_estimate.method`).
