@@ -328,14 +328,18 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let (head, rows) = csv_rows(&reference.join("members.csv"));
         assert_eq!(rows.len(), 15);
+        // No two columns share a name: the swept mu is `point_mu`, beside the member's `mu`.
+        let unique: std::collections::BTreeSet<&String> = head.iter().collect();
+        assert_eq!(unique.len(), head.len(), "{head:?}");
         let c_mu = head.iter().position(|h| h == "mu").unwrap();
-        let c_param_mu = head.iter().position(|h| h == "mu").unwrap();
-        assert!(c_param_mu <= c_mu);
+        let c_point_mu = head.iter().position(|h| h == "point_mu").unwrap();
+        assert!(c_point_mu < c_mu);
         // Every member records its point's values; they lie in the box.
         let c_a = head.iter().position(|h| h == "A").unwrap();
         for r in &rows {
             let a: f64 = r[c_a].parse().unwrap();
             let mu: f64 = r[c_mu].parse().unwrap();
+            assert_eq!(r[c_point_mu], r[c_mu], "{r:?}");
             assert!(
                 (0.2..0.8).contains(&a) && (0.005..0.05).contains(&mu),
                 "{r:?}"
@@ -371,16 +375,26 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
 #[test]
 fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [(&str, String, &[&str]); 11] = [
+    let cases: [(&str, String, &[&str]); 13] = [
         (
             "a repeated grid value",
             format!("{BASE}\n[sweep]\nA = [0.3, 0.5, 0.3]\n"),
             &["sweep.A[2]", "same value as sweep.A[0]"],
         ),
         (
+            "a listed N that is not whole",
+            format!("{BASE}\n[sweep]\nparticles = [10.5, 20]\n"),
+            &["sweep.particles[0]", "10.5", "a whole number"],
+        ),
+        (
             "a parameter named like a members.csv column",
             BASE.replace("A = 0.5", "A = 0.5\nmember = 1.0"),
             &["parameters.member", "members.csv"],
+        ),
+        (
+            "a parameter named like a swept key's members.csv column",
+            BASE.replace("A = 0.5", "A = 0.5\npoint_mu = 1.0"),
+            &["parameters.point_mu", "members.csv"],
         ),
         (
             "unknown name in an expression",

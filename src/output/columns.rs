@@ -24,6 +24,17 @@ pub const MEMBER_COLUMNS: [&str; 18] = [
     "steps_rejected",
     "error_estimate",
 ];
+/// A swept key's column in members.csv: its name, or `point_<name>` where the key has a member
+/// column of its own (mu, gamma, particles: the member's value, the same) so that no two columns
+/// share a name.
+pub fn swept_member_column(name: &str) -> String {
+    if MEMBER_COLUMNS.contains(&name) {
+        format!("point_{name}")
+    } else {
+        name.to_string()
+    }
+}
+
 /// points.csv: this column, the swept keys', then [`POINT_COUNT_COLUMNS`].
 pub const POINT_INDEX_COLUMN: &str = "point";
 pub const POINT_COUNT_COLUMNS: [&str; 2] = ["completed", "failed"];

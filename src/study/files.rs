@@ -161,7 +161,8 @@ pub(super) struct CsvOut {
 }
 
 pub use crate::output::columns::{
-    MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS, POINT_INDEX_COLUMN,
+    swept_member_column, MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS,
+    POINT_INDEX_COLUMN,
 };
 
 /// A number as members.csv writes it: the shortest text that reads back to the same f64; NaN
@@ -217,9 +218,9 @@ impl CsvOut {
             partial,
             writer,
         };
-        let mut header: Vec<&str> = MEMBER_KEY_COLUMNS.to_vec();
-        header.extend(sweep_names.iter().map(String::as_str));
-        header.extend(MEMBER_COLUMNS);
+        let mut header: Vec<String> = MEMBER_KEY_COLUMNS.map(String::from).to_vec();
+        header.extend(sweep_names.iter().map(|name| swept_member_column(name)));
+        header.extend(MEMBER_COLUMNS.map(String::from));
         out.write(&header)?;
         Ok(out)
     }

@@ -394,7 +394,7 @@ fn write_response_plots<'a>(
             }
         };
         for (d, name) in names.iter().enumerate() {
-            let x = column(name);
+            let x = column(&crate::output::columns::swept_member_column(name));
             for (stem, label, col, _) in RESPONSES {
                 let y = column(col);
                 crate::plot::plot_scatter(

@@ -37,10 +37,16 @@ pub(super) fn axis(field: &str, value: &toml::Value, target: &SweepTarget) -> Re
             let mut values: Vec<f64> = Vec::with_capacity(list.len());
             for (j, v) in list.iter().enumerate() {
                 let f = format!("{field}[{j}]");
-                let mut x = number(&f, v)?;
+                let x = number(&f, v)?;
                 check_value(&f, target, x)?;
-                if *target == SweepTarget::Particles {
-                    x = x.round();
+                // A listed N is taken as written (a range's draws are rounded: parameter-studies).
+                if *target == SweepTarget::Particles && x.fract() != 0.0 {
+                    return Err(Error::invalid(
+                        &f,
+                        x,
+                        "the number N of particle intervals",
+                        "a whole number",
+                    ));
                 }
                 // A repeated value would be two points with one meaning (and one cell of a
                 // response map for two points).

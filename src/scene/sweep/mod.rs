@@ -86,7 +86,8 @@ impl SweepTarget {
 /// parameter gets a column of its own name).
 fn is_table_column(name: &str) -> bool {
     use crate::output::columns::{
-        MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS, POINT_INDEX_COLUMN,
+        swept_member_column, MEMBER_COLUMNS, MEMBER_KEY_COLUMNS, POINT_COUNT_COLUMNS,
+        POINT_INDEX_COLUMN,
     };
     MEMBER_KEY_COLUMNS
         .iter()
@@ -94,6 +95,9 @@ fn is_table_column(name: &str) -> bool {
         .chain(&POINT_COUNT_COLUMNS)
         .any(|c| *c == name)
         || name == POINT_INDEX_COLUMN
+        || MEMBER_COLUMNS
+            .iter()
+            .any(|c| swept_member_column(c) == name)
 }
 
 /// The validated `[sweep]`: the design and what each of its axes sets.
