@@ -75,7 +75,7 @@ enum Command {
         /// adapter is found.
         #[arg(long, default_value = "available")]
         backends: String,
-        /// No progress lines.
+        /// No progress lines (the recommendation is still printed, on stdout).
         #[arg(long)]
         quiet: bool,
         #[command(flatten)]

@@ -98,12 +98,22 @@ fn accuracy_measures_the_trade_and_its_recommendation_holds() {
             "--target",
             &TARGET.to_string(),
         ])
-        .args(["--out", out.to_str().unwrap(), "--backends", "cpu"])
+        .args([
+            "--out",
+            out.to_str().unwrap(),
+            "--backends",
+            "cpu",
+            "--quiet",
+        ])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stderr}");
-    assert!(stderr.contains("cheapest setting that meets"), "{stderr}");
+    // The recommendation is the result, on stdout even with --quiet (no progress on stderr).
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("cheapest setting that meets"), "{stdout}");
+    assert!(stdout.contains("in the scene:"), "{stdout}");
+    assert!(!stderr.contains("error "), "{stderr}");
     assert_eq!(png_size(&out.join("work_precision.png")), (1000, 800));
 
     let mut reader = csv::Reader::from_path(out.join("work_precision.csv")).unwrap();

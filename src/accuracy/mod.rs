@@ -532,12 +532,12 @@ pub fn run_accuracy(scene: &Scene, options: &AccuracyOptions) -> Result<Accuracy
         }),
     )?;
     staged.commit()?;
-    if !options.quiet {
-        eprintln!(
-            "{}",
-            recommendation(&measurements, recommended, options.target, member_count)
-        );
-    }
+    // The command's result: on stdout (to keep or pipe), even with --quiet, which silences
+    // the progress lines on stderr.
+    println!(
+        "{}",
+        recommendation(&measurements, recommended, options.target, member_count)
+    );
     Ok(AccuracySummary {
         out_dir: options.out_dir.clone(),
         measurements,
