@@ -309,8 +309,9 @@ fn output_fields_decide_which_bands_are_kept() {
     );
 }
 
-/// 3. The state files are binary (magic line, format 2); a study directory of roughlub 0.1
-///    (partial.json) is refused by `merge` and `--resume` with the version named.
+/// 3. The state files are binary (magic line, format 3, a CRC-32 at the end); a damaged one is
+///    refused naming it, one of format 2 (no checksum) is still read, and a study directory of
+///    roughlub 0.1 (partial.json) is refused by `merge` and `--resume` with the version named.
 #[test]
 fn state_files_are_binary_and_old_directories_are_refused_by_name() {
     let tmp = tempfile::tempdir().unwrap();
@@ -323,7 +324,54 @@ fn state_files_are_binary_and_old_directories_are_refused_by_name() {
     assert_success(&run_study(&scene, &dir, &[]), "study");
     let bytes = std::fs::read(dir.join("partial.state")).unwrap();
     assert_eq!(&bytes[..8], b"RLSTATE\n");
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 2);
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 3);
+    let merge_into = |name: &str| {
+        let out = tmp.path().join(name);
+        let o = roughlub(&[
+            "merge",
+            dir.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        (o, out)
+    };
+    let (o, whole) = merge_into("whole");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    // One bit flipped anywhere after the header (a statistic, a count, the checksum itself).
+    for at in [
+        12,
+        bytes.len() / 3,
+        bytes.len() / 2,
+        bytes.len() - 5,
+        bytes.len() - 1,
+    ] {
+        let mut damaged = bytes.clone();
+        damaged[at] ^= 0x10;
+        std::fs::write(dir.join("partial.state"), &damaged).unwrap();
+        let (o, out) = merge_into(&format!("damaged_{at}"));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "byte {at}: {err}");
+        assert!(
+            err.contains("partial.state") && err.contains("damaged"),
+            "{err}"
+        );
+        assert!(!out.exists(), "byte {at}");
+    }
+    // Format 2: the same bytes without the checksum.
+    let mut unchecked = bytes[..bytes.len() - 4].to_vec();
+    unchecked[8..12].copy_from_slice(&2u32.to_le_bytes());
+    std::fs::write(dir.join("partial.state"), &unchecked).unwrap();
+    let (o, from_format_2) = merge_into("from_format_2");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for file in ["stats/rho_mean.npy", "stats/peak_density.npy"] {
+        assert_eq!(
+            std::fs::read(whole.join(file)).unwrap(),
+            std::fs::read(from_format_2.join(file)).unwrap(),
+            "{file}"
+        );
+    }
+    std::fs::write(dir.join("partial.state"), &bytes).unwrap();
 
     // An old directory: partial.json instead of partial.state.
     std::fs::rename(dir.join("partial.state"), dir.join("partial.json")).unwrap();
