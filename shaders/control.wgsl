@@ -10,6 +10,11 @@ const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
+// STALL_WINDOW and STALL_PACE of kernels/src/shared/control.rs: a member whose last
+// STALL_WINDOW attempts advanced it less than STALL_PACE of the time left an attempt fails.
+const STALL_WINDOW: u32 = 100000u;
+const STALL_PACE: real = 1e-12;
+
 // WORK_SLACK of kernels/src/shared/control.rs.
 const WORK_SLACK: real = 0.1;
 
@@ -152,6 +157,18 @@ fn trial_step(c: Control) -> real {
 // StepControl::conclude_attempt. Returns whether the step is accepted. On failure the caller
 // fills in the smallest gap.
 fn conclude_attempt(c: ptr<function, Control>, h: real, r_in: Attempt) -> bool {
+    (*c).window_attempts += 1u;
+    if (*c).window_attempts >= STALL_WINDOW {
+        let advanced = ((*c).t - (*c).window_t) + (*c).t_low;
+        if advanced < real(STALL_WINDOW) * STALL_PACE * remaining_time(*c) {
+            // Failure::Stalled = 6.
+            (*c).failure = 6u;
+            (*c).failure_time = (*c).t;
+            return false;
+        }
+        (*c).window_t = (*c).t;
+        (*c).window_attempts = 0u;
+    }
     let accepted = r_in.admissible && r_in.energy_ok && r_in.err <= 1.0;
     // The step accepted right after a rejection raises neither the step nor the column.
     var r = r_in;

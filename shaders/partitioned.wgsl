@@ -1010,6 +1010,8 @@ fn p_begin_interval(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     c.regular_steps = 0u;
     c.regular = 1u;
+    c.window_t = c.t;
+    c.window_attempts = 0u;
     if config.fixed_h > 0.0 {
         c.dt = config.fixed_h;
     }

@@ -93,6 +93,9 @@ struct Control {
     err_previous: real,
     // What the rounding of t left out (`StepControl::t_low`): the time is t + t_low.
     t_low: real,
+    // The time at the start of the current window of STALL_WINDOW attempts
+    // (`StepControl::window_t`).
+    window_t: real,
     accepted: u32,
     rejected: u32,
     regular_steps: u32,
@@ -104,8 +107,8 @@ struct Control {
     order: u32,
     // 1: the last attempt was rejected (`StepControl::after_rejection`).
     after_rejection: u32,
-    // Keeps the struct's size a multiple of 8 without implicit padding (f64).
-    padding: u32,
+    // The attempts in the current window (`StepControl::window_attempts`).
+    window_attempts: u32,
 }
 
 // (a, G, effective d) of one gap (`gap_terms`).
@@ -877,6 +880,8 @@ fn begin_interval(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     c.regular_steps = 0u;
     c.regular = 1u;
+    c.window_t = c.t;
+    c.window_attempts = 0u;
     if config.fixed_h > 0.0 {
         c.dt = config.fixed_h;
     }

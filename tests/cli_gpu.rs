@@ -482,3 +482,67 @@ fn a_headless_gpu_run_prints_no_error_lines() {
         "a successful GPU run printed error-like lines: {noisy:?}"
     );
 }
+
+/// A member whose steps no longer advance it fails as stalled, on both backends at the same
+/// attempt: a forcing that oscillates with period 0.06 holds order 2's steps near 1e-3, which
+/// would take ~1e14 steps to reach t = 1e11; after 100000 attempts (`STALL_WINDOW`) that
+/// advanced it less than 1e-12 of the time left an attempt it fails, where it ran for ever.
+#[test]
+fn a_member_whose_steps_no_longer_advance_it_fails_as_stalled() {
+    use roughlub::backend::shared::control::STALL_WINDOW;
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("stall.toml");
+    std::fs::write(
+        &scene,
+        r#"
+name = "stall"
+[model]
+particles = 4
+mu = 0.1
+forcing = "0.5*sin(2*pi*x)*cos(100*t)"
+[initial]
+rho = "0.7"
+rho_star = "0.7"
+[time]
+end = 1e11
+outputs = 2
+tolerance = 1e-6
+[solver]
+order = 2
+[output]
+plots = false
+"#,
+    )
+    .unwrap();
+    let stalled = |backend: &str| {
+        let out_dir = tmp.path().join(backend);
+        let out = run(&scene, &out_dir, &["--quiet", "--backend", backend]);
+        assert_success(&out);
+        let member = read_manifest(&out_dir)["members"][0].clone();
+        assert_eq!(member["status"], "failed", "{backend}: {member}");
+        let reason = member["reason"].as_str().unwrap().to_string();
+        assert!(
+            reason.contains(&format!("its last {STALL_WINDOW} attempts")),
+            "{backend}: {reason}"
+        );
+        let attempts =
+            member["steps_accepted"].as_u64().unwrap() + member["steps_rejected"].as_u64().unwrap();
+        let time = member["time"].as_f64().unwrap();
+        // It failed in its first window of attempts, long before the end.
+        assert_eq!(attempts, u64::from(STALL_WINDOW) - 1, "{backend}: {member}");
+        assert!(time > 1.0 && time < 1e3, "{backend}: {time}");
+        (attempts, time)
+    };
+    let (cpu_attempts, cpu_time) = stalled("cpu");
+    if have_gpu(
+        true,
+        "a_member_whose_steps_no_longer_advance_it_fails_as_stalled",
+    ) {
+        let (gpu_attempts, gpu_time) = stalled("gpu");
+        assert_eq!(gpu_attempts, cpu_attempts);
+        assert!(
+            (gpu_time - cpu_time).abs() <= 1e-12 * cpu_time,
+            "{gpu_time} {cpu_time}"
+        );
+    }
+}

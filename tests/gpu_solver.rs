@@ -252,8 +252,8 @@ fn many_steps_per_dispatch_and_readback_only_at_outputs() {
     assert_eq!(st.submits, 2 + 3, "{st:?}");
     // Read-backs: per output the controls, gaps and velocities, plus 4 bytes per advance submit.
     let n = 200u64;
-    // The control is 112 bytes in f64 (`ControlF64`).
-    let state_bytes = 112 + 8 * n + 8 * (n - 1);
+    // The control is 120 bytes in f64 (`ControlF64`).
+    let state_bytes = 120 + 8 * n + 8 * (n - 1);
     assert_eq!(
         st.bytes_read,
         3 * state_bytes + 4 * (st.submits - 3),

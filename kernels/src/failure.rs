@@ -16,6 +16,9 @@ pub enum Failure {
     Forcing = 4,
     /// The repulsion (rho/rho*)^gamma overflows at a gap (detail: the density ratio).
     Repulsion = 5,
+    /// The last `STALL_WINDOW` attempts advanced the member too little to reach the next output
+    /// time within 1e12 attempts (`control::STALL_PACE`), every step above the step floor.
+    Stalled = 6,
 }
 
 impl Failure {
@@ -26,7 +29,8 @@ impl Failure {
             2 => Failure::ErrorTooLarge,
             3 => Failure::EnergyRose,
             4 => Failure::Forcing,
-            _ => Failure::Repulsion,
+            5 => Failure::Repulsion,
+            _ => Failure::Stalled,
         }
     }
 }

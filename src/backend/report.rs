@@ -1,6 +1,6 @@
 //! What every backend reports about its members: status, failure reason, step counts.
 
-use crate::backend::shared::control::step_floor;
+use crate::backend::shared::control::{step_floor, STALL_PACE, STALL_WINDOW};
 pub use roughlub_kernels::failure::Failure;
 
 /// Why a member stopped.
@@ -133,9 +133,9 @@ impl FailureRecord {
         } else {
             format!("dt_min = {dt_min:e} at t = {t}")
         };
-        let collapse = |why: &str| {
+        let smallest_gap = || {
             format!(
-                "step size collapsed below {below}: {why} (smallest gap: d_{} = e^{} = {:e})",
+                "smallest gap: d_{} = e^{} = {:e}",
                 self.index,
                 // ln d with four decimals, in exponent form where that would print hundreds of
                 // digits (ln d = -8e240 with mu = 1e-300).
@@ -145,6 +145,12 @@ impl FailureRecord {
                     format!("{:.4e}", self.detail)
                 },
                 self.detail.exp()
+            )
+        };
+        let collapse = |why: &str| {
+            format!(
+                "step size collapsed below {below}: {why} ({})",
+                smallest_gap()
             )
         };
         match self.failure {
@@ -159,6 +165,10 @@ impl FailureRecord {
             Failure::Forcing => format!(
                 "the forcing is not finite at t = {t}, x = {} (particle {} of member {member})",
                 self.detail, self.index
+            ),
+            Failure::Stalled => format!(
+                "step size collapsed at t = {t}: its last {STALL_WINDOW} attempts (accepted or rejected) advanced it by less than {STALL_PACE:e} of the time left to the next output time each, a pace at which it would take more than 1e12 steps to get there, though every step stayed above the step floor ({floor:e}) ({})",
+                smallest_gap()
             ),
             Failure::Repulsion => format!(
                 "the repulsion (rho/rho*)^gamma overflows at t = {t}: gamma = {gamma}, rho/rho* = {} at gap {} of member {member}",

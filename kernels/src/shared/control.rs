@@ -77,6 +77,16 @@ pub fn step_floor(dt_min: f64, time_resolution: f64, t: f64) -> f64 {
     dt_min.max(time_resolution * t.abs())
 }
 
+/// Attempts after which a member checks that its steps still advance it ([`StepControl::window_t`]).
+pub const STALL_WINDOW: u32 = 100_000;
+/// The slowest pace a member may keep over [`STALL_WINDOW`] attempts, as a fraction of the time
+/// left to the next output time an attempt: 1e-12, the fixed step's floor (end/1e12). Slower,
+/// the member would take more than 1e12 attempts to get there and is failed: a forcing singular
+/// at a quadrature point (tan(pi x) at x = 1/2) held every step near 1e-28 at t = 1e-14, each
+/// above the step floor, and the run never ended. Collisions resolved with steps of 1e-18 t
+/// take thousands of attempts at that pace, not 1e5 (docs/accuracy-measurements.md).
+pub const STALL_PACE: f64 = 1e-12;
+
 pub const REJECT_SHRINK: f64 = 0.25;
 pub const SAFETY: f64 = 0.9;
 pub const MAX_GROWTH: f64 = 5.0;
@@ -116,6 +126,10 @@ pub struct StepControl {
     /// The last attempt was rejected: the step accepted next raises neither the step nor the
     /// column (see `conclude_attempt`).
     pub after_rejection: bool,
+    /// The time at the start of the current window of [`STALL_WINDOW`] attempts, and the
+    /// attempts in it so far (both reset at each output interval).
+    pub window_t: f64,
+    pub window_attempts: u32,
 }
 
 /// Why a trial step was not accepted (or that it was).
@@ -156,6 +170,8 @@ impl StepControl {
             failure_detail: 0.0,
             failure_index: 0,
             energy: 0.0,
+            window_t: 0.0,
+            window_attempts: 0,
         }
     }
 
@@ -165,6 +181,8 @@ impl StepControl {
         }
         self.regular_steps = 0;
         self.regular = true;
+        self.window_t = self.t;
+        self.window_attempts = 0;
         if let Some(h) = rules.fixed_h {
             self.dt = h;
         }
@@ -198,8 +216,21 @@ impl StepControl {
 
     /// Records the outcome of a trial step h. Returns whether the step is accepted. When the
     /// step falls below the step floor (dt_min or the time resolution) the member fails with the reason of the last rejection (the
-    /// caller fills in the smallest gap it names).
+    /// caller fills in the smallest gap it names); when its last [`STALL_WINDOW`] attempts
+    /// advanced it less than [`STALL_PACE`] of the time left an attempt, it fails as stalled
+    /// (this attempt not taken).
     pub fn conclude_attempt(&mut self, rules: &Rules, h: f64, outcome: Outcome) -> bool {
+        self.window_attempts += 1;
+        if self.window_attempts >= STALL_WINDOW {
+            let advanced = (self.t - self.window_t) + self.t_low;
+            if advanced < STALL_WINDOW as f64 * STALL_PACE * self.remaining(rules) {
+                self.failure = Failure::Stalled;
+                self.failure_time = self.t;
+                return false;
+            }
+            self.window_t = self.t;
+            self.window_attempts = 0;
+        }
         let Outcome {
             admissible,
             energy_ok,

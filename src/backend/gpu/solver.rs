@@ -253,6 +253,7 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         h_previous: 0.0,
         err_previous: 0.0,
         t_low: 0.0,
+        window_t: 0.0,
         accepted: 0,
         rejected: 0,
         regular_steps: 0,
@@ -262,7 +263,7 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         failure_index: 0,
         order: u32::from(plan.order.initial(&plan.stepping)),
         after_rejection: 0,
-        padding: 0,
+        window_attempts: 0,
     }
 }
 

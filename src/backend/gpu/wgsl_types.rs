@@ -66,6 +66,8 @@ macro_rules! mirror_structs {
             pub err_previous: $real,
             /// `StepControl::t_low`.
             pub t_low: $real,
+            /// `StepControl::window_t`.
+            pub window_t: $real,
             pub accepted: u32,
             pub rejected: u32,
             pub regular_steps: u32,
@@ -81,8 +83,8 @@ macro_rules! mirror_structs {
             pub order: u32,
             /// `StepControl::after_rejection` (1: the last attempt was rejected).
             pub after_rejection: u32,
-            /// Keeps the size a multiple of 8 (WGSL field `padding`).
-            pub padding: u32,
+            /// `StepControl::window_attempts`.
+            pub window_attempts: u32,
         }
     };
 }
@@ -101,12 +103,12 @@ const _: () = {
     assert!(offset_of!(ConfigF32, tail) == 40);
     assert!(size_of::<ConfigF32>() == CONFIG_BUFFER_SIZE as usize);
     assert!(size_of::<ConfigF64>() == CONFIG_BUFFER_SIZE as usize);
-    assert!(size_of::<ControlF64>() == 112);
-    assert!(offset_of!(ControlF64, accepted) == 72);
-    assert!(offset_of!(ControlF64, parity) == 92);
-    assert!(size_of::<ControlF32>() == 76);
-    assert!(offset_of!(ControlF32, accepted) == 36);
-    assert!(offset_of!(ControlF32, parity) == 56);
+    assert!(size_of::<ControlF64>() == 120);
+    assert!(offset_of!(ControlF64, accepted) == 80);
+    assert!(offset_of!(ControlF64, parity) == 100);
+    assert!(size_of::<ControlF32>() == 80);
+    assert!(offset_of!(ControlF32, accepted) == 40);
+    assert!(offset_of!(ControlF32, parity) == 60);
 };
 
 impl ConfigF64 {
@@ -143,6 +145,7 @@ impl ControlF64 {
             h_previous: self.h_previous as f32,
             err_previous: self.err_previous as f32,
             t_low: self.t_low as f32,
+            window_t: self.window_t as f32,
             accepted: self.accepted,
             rejected: self.rejected,
             regular_steps: self.regular_steps,
@@ -152,7 +155,7 @@ impl ControlF64 {
             failure_index: self.failure_index,
             order: self.order,
             after_rejection: self.after_rejection,
-            padding: 0,
+            window_attempts: self.window_attempts,
         }
     }
 }
@@ -169,6 +172,7 @@ impl From<ControlF32> for ControlF64 {
             h_previous: c.h_previous.into(),
             err_previous: c.err_previous.into(),
             t_low: c.t_low.into(),
+            window_t: c.window_t.into(),
             accepted: c.accepted,
             rejected: c.rejected,
             regular_steps: c.regular_steps,
@@ -178,7 +182,7 @@ impl From<ControlF32> for ControlF64 {
             failure_index: c.failure_index,
             order: c.order,
             after_rejection: c.after_rejection,
-            padding: 0,
+            window_attempts: c.window_attempts,
         }
     }
 }
