@@ -80,6 +80,25 @@ pub(super) fn validate_ensemble(
     let drawn = roughness
         .as_ref()
         .is_some_and(|r| !matches!(r.kind, RoughnessKind::File(_)));
+    // A mean radius that nothing draws around would be silently ignored.
+    if let Some(r) = e.mean_radius {
+        if has_rho_star {
+            return Err(Error::invalid(
+                "ensemble.mean_radius",
+                r,
+                "the mean roughness radius, where the mean profile is already given (initial.rho_star or the particle file's radii)",
+                "absent with initial.rho_star or a particle file; give one of the two",
+            ));
+        }
+        if !drawn {
+            return Err(Error::invalid(
+                "ensemble.mean_radius",
+                r,
+                "the mean roughness radius, which only random roughness (ensemble.roughness of a kind other than a file) is drawn around",
+                "absent without a random ensemble.roughness",
+            ));
+        }
+    }
     if drawn && !has_rho_star && e.mean_radius.is_none() {
         return Err(Error::missing(
             "ensemble.mean_radius",
