@@ -190,7 +190,9 @@ fn resume_with_another_tableau_sequence_is_refused() {
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
         err.contains("tableau sequence")
-            && err.contains("with sequence from_1, this run would take from_2"),
+            && err.contains("in f64 with sequence from_1; this run: ")
+            && err.contains("in f64 with sequence from_2)")
+            && !err.contains("Cpu"),
         "{err}"
     );
     assert!(!dir.join("manifest.json").exists());

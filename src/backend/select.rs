@@ -22,6 +22,16 @@ pub enum RunsOn {
     Gpu,
 }
 
+impl RunsOn {
+    /// As the manifest writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            RunsOn::Cpu => "cpu",
+            RunsOn::Gpu => "gpu",
+        }
+    }
+}
+
 /// What runs the batch, described the same way for the GPU (its adapter) and the CPU.
 #[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct AdapterRecord {

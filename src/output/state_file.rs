@@ -99,7 +99,19 @@ pub fn read_state<T: DeserializeOwned>(path: &Path) -> Result<T> {
             )))
         }
     };
-    ciborium::from_reader(body).map_err(|e| bad(format!("unreadable: {e}")))
+    ciborium::from_reader(body).map_err(|e| bad(format!("unreadable: {}", cbor_error_text(&e))))
+}
+
+/// A CBOR reading error in words (ciborium's Display prints its Debug form).
+fn cbor_error_text(e: &ciborium::de::Error<std::io::Error>) -> String {
+    use ciborium::de::Error as E;
+    match e {
+        E::Io(io) => format!("it ends early or cannot be read ({io})"),
+        E::Syntax(at) => format!("not valid CBOR at byte {}", at + 12),
+        E::Semantic(Some(at), what) => format!("{what} (at byte {})", at + 12),
+        E::Semantic(None, what) => what.clone(),
+        E::RecursionLimitExceeded => "nested too deeply".into(),
+    }
 }
 
 /// The error for a study directory that holds the JSON state of roughlub 0.1 (format 1)

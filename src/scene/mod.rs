@@ -284,7 +284,7 @@ fn validate_model(m: &ModelSection, parameters: &[(String, f64)]) -> Result<Mode
                 "model.particles",
                 n,
                 Range::of("particles").ge(2).le(MAX_PARTICLES),
-                "N counts the particles 0..N, so at least one particle moves",
+                "N, the particles 0..N (the two at the ends fixed, so at least 2 for one to move)",
             )
         })
         .transpose()?;
@@ -429,7 +429,7 @@ fn check_velocity(velocity: &Expr) -> Result<()> {
             expression: velocity.source().to_string(),
             value: v,
             x,
-            allowed: "finite values".to_string(),
+            allowed: "of finite values".to_string(),
         });
     }
     match too_large {

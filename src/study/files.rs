@@ -517,11 +517,13 @@ pub(super) fn check_resume(old: &StudyHeader, new: &StudyHeader, path: &Path) ->
         return Err(Error::Output {
             path: path.to_path_buf(),
             message: format!(
-                "--resume: this directory holds a different study ({} differ: it ran on {:?} in {:?} with sequence {}, this run would take {}); run without --resume into a new directory, or resume with the same settings",
+                "--resume: this directory holds a different study ({} differ; it ran on {} in {} with sequence {}; this run: {} in {} with sequence {}); run without --resume into a new directory, or resume with the same settings",
                 what.join(", "),
-                old.backend,
-                old.precision,
+                old.backend.name(),
+                old.precision.name(),
                 old.sequence,
+                new.backend.name(),
+                new.precision.name(),
                 new.sequence
             ),
         });
