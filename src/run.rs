@@ -41,13 +41,57 @@ pub const MAX_PLOTTED_TIMES: usize = 41;
 /// Bytes of the .npy arrays a run writes: per output time and member, N gaps, N-1 velocities,
 /// G values of each grid field and the scalars.
 pub fn output_bytes(plan: &Plan) -> u64 {
-    let f = &plan.fields;
-    let (n, g) = (plan.particles as u64, plan.grid as u64);
-    let per_member = u64::from(f.gaps) * n
-        + u64::from(f.velocities) * (n - 1)
-        + (u64::from(f.rho) + u64::from(f.u) + u64::from(f.rho_star)) * g
-        + 5;
-    8 * plan.output_times.len() as u64 * plan.members.len() as u64 * per_member
+    OutputShape::of_plan(plan).bytes()
+}
+
+/// What the size of a run's outputs depends on.
+struct OutputShape {
+    particles: usize,
+    members: usize,
+    times: usize,
+    grid: usize,
+    fields: crate::model::params::OutputFields,
+}
+
+impl OutputShape {
+    fn of_plan(plan: &Plan) -> OutputShape {
+        OutputShape {
+            particles: plan.particles,
+            members: plan.members.len(),
+            times: plan.output_times.len(),
+            grid: plan.grid,
+            fields: plan.fields,
+        }
+    }
+
+    /// From the scene alone, where it gives N and whether there is roughness (profiles; a
+    /// particle file says only once read).
+    fn of_scene(scene: &Scene) -> Option<OutputShape> {
+        let (Some(particles), crate::scene::InitialSpec::Profiles { rho_star, .. }) =
+            (scene.particles, &scene.initial)
+        else {
+            return None;
+        };
+        let mut fields = scene.fields;
+        fields.rho_star &= rho_star.is_some();
+        Some(OutputShape {
+            particles,
+            members: scene.member_parameters().len(),
+            times: scene.output_times.len(),
+            grid: scene.grid,
+            fields,
+        })
+    }
+
+    fn bytes(&self) -> u64 {
+        let f = &self.fields;
+        let (n, g) = (self.particles as u64, self.grid as u64);
+        let per_member = u64::from(f.gaps) * n
+            + u64::from(f.velocities) * (n - 1)
+            + (u64::from(f.rho) + u64::from(f.u) + u64::from(f.rho_star)) * g
+            + 5;
+        8 * self.times as u64 * self.members as u64 * per_member
+    }
 }
 
 /// The output indices whose profiles are plotted: all, or MAX_PLOTTED_TIMES evenly spaced.
@@ -159,6 +203,11 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     let requested = options.backend.unwrap_or(scene.backend);
     let precision = options.precision.unwrap_or(scene.precision);
 
+    // Refused from the scene where it can be, before the initial data of a huge N is built
+    // (16 s and 335 MB at N = 1e7, minutes at 1e8, only to be refused).
+    if let (false, Some(shape)) = (options.allow_large, OutputShape::of_scene(scene)) {
+        check_output_size(&shape)?;
+    }
     // Everything a user supplies is validated before the directory is touched.
     let chain = scene.initial_chain_in(precision)?;
     let input_files = crate::output::input_file_hashes(&scene.files_read())?;
@@ -169,7 +218,7 @@ pub fn run_scene(scene: &Scene, options: &RunOptions) -> Result<RunSummary> {
     }
     let members = plan.members.len();
     if !options.allow_large {
-        check_output_size(&plan)?;
+        check_output_size(&OutputShape::of_plan(&plan))?;
     }
     let solver_started = Instant::now();
     let mut solver = engine.solver(plan.clone(), vec![chain; members])?;
@@ -408,17 +457,17 @@ fn run_manifest<'a>(
 
 /// Refuses a run whose outputs would exceed [`OUTPUT_SIZE_LIMIT`], naming what drives their
 /// size (`--allow-large` skips this).
-fn check_output_size(plan: &Plan) -> Result<()> {
-    let bytes = output_bytes(plan);
+fn check_output_size(plan: &OutputShape) -> Result<()> {
+    let bytes = plan.bytes();
     if bytes > OUTPUT_SIZE_LIMIT {
         return Err(Error::invalid(
             "time.outputs",
-            plan.output_times.len(),
+            plan.times,
             format!(
                 "the outputs would take {:.1} GB ({} output times x {} members x N = {}, grid = {}, fields {}) before anything else is written",
                 bytes as f64 / 1e9,
-                plan.output_times.len(),
-                plan.members.len(),
+                plan.times,
+                plan.members,
                 plan.particles,
                 plan.grid,
                 {

@@ -1280,6 +1280,19 @@ fn outputs_beyond_the_size_limit_are_refused_before_writing() {
     );
     assert!(stderr.contains("--allow-large"), "{stderr}");
     assert!(!out_dir.exists(), "a refused run created its directory");
+
+    // With N = 1e8 the refusal comes from the scene, before the initial data (1.6 GB of gaps
+    // and velocities, minutes to build) exists; this test would take that long otherwise.
+    std::fs::write(
+        &scene,
+        edit(&text, "particles = 10", "particles = 100000000"),
+    )
+    .unwrap();
+    let out = run(&scene, &out_dir, &["--quiet"]);
+    let stderr = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("N = 100000000"), "{stderr}");
+    assert!(!out_dir.exists(), "a refused run created its directory");
 }
 
 /// With many output times the profile plots are thinned (see `run::tests`), the .npy outputs keep
