@@ -184,6 +184,23 @@ impl Scene {
             .as_ref()
             .map(|e| ensemble::validate_ensemble(e, &initial, path))
             .transpose()?;
+        // A field asked for by name that the scene cannot have would be silently left out.
+        let no_roughness = matches!(initial, InitialSpec::Profiles { rho_star: None, .. })
+            && ensemble.as_ref().is_none_or(|e| e.roughness.is_none());
+        if let (true, Some(j)) = (
+            no_roughness,
+            file.output
+                .fields
+                .as_ref()
+                .and_then(|list| list.iter().position(|f| f == "rho_star")),
+        ) {
+            return Err(Error::invalid(
+                format!("output.fields[{j}]"),
+                "\"rho_star\"",
+                "the scene has no roughness (no initial.rho_star, no ensemble.roughness), so no rho* to write",
+                "one of the scene's fields; give initial.rho_star, or leave rho_star out",
+            ));
+        }
         let sweep = sweep::validate_sweep(
             file.sweep.as_ref(),
             file.batch.as_ref(),
