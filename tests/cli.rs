@@ -685,7 +685,7 @@ fn rejects_values_certain_to_fail() {
     expect_rejected(
         &s,
         &[],
-        &["initial.velocity", "x = 0.00005", "|u0| <= 1e12"],
+        &["initial.velocity", "u0 = 1e308 at x = 1", "|u0| <= 1e12"],
     );
     let csv = "x,u,r\n0.0,0.0,0.0\n0.25,0.1,1e300\n0.5,-0.1,0.0\n0.75,0.2,0.0\n1.0,0.0,0.0\n";
     expect_rejected(
