@@ -227,11 +227,29 @@ fn a_sampled_design_of_thousands_of_points_runs_in_bounded_memory() {
         !out.join("chunks").exists(),
         "a complete study keeps no chunk files"
     );
-    // The estimate made before the run bounds what the run used (both include the chunk).
+    // The estimates made before the run: memory within a factor 2 of the peak (which includes
+    // the binary and its libraries; at 4 KiB a summary whatever the members, it was 11 times
+    // the peak on such designs), disk within 2 times what it wrote.
     let estimate = m["memory_estimate_bytes"].as_u64().unwrap();
+    let disk_estimate = m["disk_estimate_bytes"].as_u64().unwrap();
+    eprintln!(
+        "estimates: memory {:.1} MB, disk {:.2} MB",
+        estimate as f64 / 1e6,
+        disk_estimate as f64 / 1e6
+    );
     assert!(
         estimate < m["memory_limit_bytes"].as_u64().unwrap(),
         "estimate {estimate}"
+    );
+    let ratio = estimate as f64 / peak as f64;
+    assert!(
+        (0.5..=2.0).contains(&ratio),
+        "memory estimate / peak = {ratio:.2}"
+    );
+    let ratio = disk_estimate as f64 / disk as f64;
+    assert!(
+        (0.5..=2.0).contains(&ratio),
+        "disk estimate / written = {ratio:.2}"
     );
 }
 
@@ -429,6 +447,39 @@ fn a_study_too_large_for_memory_is_refused_with_its_drivers() {
     }
     assert!(!out.exists(), "a refused study wrote {out:?}");
     assert!(peak < 500_000_000, "the refusal itself used {peak} B");
+}
+
+/// 4b. A study whose outputs would exceed the run's size limit (21.5 GB) is refused before it
+///     starts, naming what drives them; nothing is written. 1000 members keeping their arrays
+///     (store_members) of N = 10000 at 1000 output times: (2 x 10000 + 200) x 8 B x 1000 each,
+///     162 GB in all, which a study used to start writing without a word.
+#[test]
+fn a_study_too_large_for_disk_is_refused_with_its_drivers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = scene_text("members = 1000\nchunk = 8\nstore_members = true", "")
+        .replace("particles = 30", "particles = 10000")
+        .replace("outputs = 3", "outputs = 1000")
+        .replace("end = 0.02", "end = 1.0");
+    let scene = write(tmp.path(), "disk.toml", &text);
+    let out = tmp.path().join("disk");
+    let o = run_study(&scene, &out, &[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    let gb = 1000.0 * (2.0 * 10000.0 + 200.0) * 8.0 * 1000.0 / 1e9;
+    let estimated: f64 = err
+        .split("ensemble (disk) = ")
+        .nth(1)
+        .and_then(|rest| rest.split(" GB").next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no size in: {err}"));
+    assert!(
+        (gb..gb * 1.05).contains(&estimated),
+        "{estimated} GB against the arrays' {gb} GB"
+    );
+    for needle in ["store_members", "--allow-large", "21.5 GB"] {
+        assert!(err.contains(needle), "`{needle}` missing from: {err}");
+    }
+    assert!(!out.exists(), "a refused study wrote {out:?}");
 }
 
 /// 5. Per-time statistics for every point of a sampled design (400 points of one member, each

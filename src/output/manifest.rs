@@ -212,6 +212,9 @@ pub struct StudyManifest {
     /// to (half the machine's memory; `--allow-large` lifts it).
     pub memory_estimate_bytes: u64,
     pub memory_limit_bytes: u64,
+    /// The bytes it was estimated to write (members' arrays, members.csv, statistics), held to
+    /// the run's output limit unless `--allow-large`.
+    pub disk_estimate_bytes: u64,
     /// Points 0..detailed_points keep per-time statistics; the fields whose bands they keep.
     pub detailed_points: u64,
     pub band_fields: Vec<String>,

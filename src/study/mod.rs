@@ -218,17 +218,22 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     };
     let memory = memory::estimate(&header, spec, members.first.chain.particles(), solvers);
     let memory_limit = memory::memory_limit();
+    let disk = memory::disk_bytes(&header, spec, members.first.chain.particles(), &memory);
     if !options.allow_large {
         memory::check(&memory, &header, spec, memory_limit)?;
+        memory::check_disk(disk, &header, spec)?;
     }
     if !options.quiet {
         eprintln!(
-            "ensemble {}: members {}..{} of {} (shard {k}/{n}); {}",
+            "ensemble {}: members {}..{} of {} (shard {k}/{n}); {}; estimated memory {:.3} GB (limit {:.1} GB), disk {:.3} GB",
             scene.name,
             header.member_range.0,
             header.member_range.1,
             header.members_total,
-            engine.record.line()
+            engine.record.line(),
+            memory.bytes as f64 / 1e9,
+            memory_limit as f64 / 1e9,
+            disk as f64 / 1e9,
         );
     }
 
@@ -338,6 +343,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
             statistics_seconds: costs.statistics_seconds,
             statistics_share: costs.statistics_seconds / wall.max(1e-12),
             memory_estimate_bytes: memory.bytes,
+            disk_estimate_bytes: disk,
             memory_limit_bytes: memory_limit,
             detailed_points: header.detailed_count(),
             band_fields: header.band_fields.clone(),
