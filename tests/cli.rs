@@ -939,6 +939,30 @@ fn settings_order_one_ignores_are_said() {
     assert_eq!(manifest["plan"]["jacobian"], "frozen");
 }
 
+/// `output.fields` listing rho_star in a scene without roughness: the run goes on without it
+/// and says so (a script may list the same fields for every scene).
+#[test]
+fn a_listed_rho_star_without_roughness_is_said() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("scene.toml");
+    let scene = edit(
+        &edit(BASE, "rho_star = \"0.7\"\n", ""),
+        "grid = 20",
+        "grid = 20\nfields = [\"rho\", \"rho_star\"]",
+    );
+    std::fs::write(&path, scene).unwrap();
+    let out_dir = tmp.path().join("out");
+    let out = run(&path, &out_dir, &[]);
+    assert_success(&out);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("warning: output.fields lists \"rho_star\""),
+        "{stderr}"
+    );
+    assert!(out_dir.join("rho.npy").exists());
+    assert!(!out_dir.join("rho_star.npy").exists());
+}
+
 #[test]
 fn rejects_unknown_backend() {
     let s = edit(BASE, "backend = \"cpu\"", "backend = \"tpu\"");

@@ -167,7 +167,7 @@ impl FailureRecord {
                 self.detail, self.index
             ),
             Failure::Stalled => format!(
-                "step size collapsed at t = {t}: its last {STALL_WINDOW} attempts (accepted or rejected) advanced it by less than {STALL_PACE:e} of the time left to the next output time each, a pace at which it would take more than 1e12 steps to get there, though every step stayed above the step floor ({floor:e}) ({})",
+                "stalled at t = {t}: its last {STALL_WINDOW} attempts (accepted or rejected) advanced it by less than {STALL_PACE:e} of the time left to the next output time each, a pace at which it would take more than 1e12 steps to get there, though every step stayed above the step floor ({floor:e}) ({})",
                 smallest_gap()
             ),
             Failure::Repulsion => format!(

@@ -111,13 +111,10 @@ pub fn holds_roughlub_record(dir: &Path) -> bool {
 }
 
 /// Whether a leftover beside a target is roughlub's, so that it may be removed: a staging
-/// directory by its marker (written when it is made), a swapped-out earlier run by its record.
+/// directory by its marker (written when it is made) or, killed within its commit after the
+/// marker was removed, by its finished run's record; a swapped-out earlier run by its record.
 fn is_roughlub_leftover(dir: &Path, is_staging: bool) -> bool {
-    if is_staging {
-        dir.join(STAGING_MARKER).exists()
-    } else {
-        holds_roughlub_record(dir)
-    }
+    (is_staging && dir.join(STAGING_MARKER).exists()) || holds_roughlub_record(dir)
 }
 
 /// (parent, name) of a target directory; the staging directories live in `parent`.
@@ -439,5 +436,25 @@ mod tests {
         );
         drop(held);
         assert_eq!(leftovers(&target).unwrap(), vec![(staging, true)]);
+    }
+
+    /// A run killed within its commit, after the marker's removal and before the rename, leaves
+    /// a finished staging directory without a marker: its manifest makes it roughlub's (a
+    /// leftover to remove), where a directory of that name with a foreign manifest is not.
+    #[test]
+    fn a_finished_staging_directory_without_its_marker_is_a_leftover() {
+        let tmp = tempfile::tempdir().unwrap();
+        let target = tmp.path().join("s");
+        // Above Linux's PID limit: no process has it.
+        let finished = tmp.path().join(format!(".s{STAGING_TAG}4194305"));
+        std::fs::create_dir(&finished).unwrap();
+        std::fs::write(finished.join("manifest.json"), r#"{"name": "app"}"#).unwrap();
+        assert!(leftovers(&target).unwrap().is_empty(), "a foreign manifest");
+        std::fs::write(
+            finished.join("manifest.json"),
+            r#"{"roughlub_version": "0.3.0", "scene": "name = \"s\""}"#,
+        )
+        .unwrap();
+        assert_eq!(leftovers(&target).unwrap(), vec![(finished, true)]);
     }
 }

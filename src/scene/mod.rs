@@ -84,6 +84,9 @@ pub struct Scene {
     pub sequence: SequenceChoice,
     pub grid: usize,
     pub fields: OutputFields,
+    /// `output.fields` lists rho_star where there is no roughness (said by
+    /// [`Scene::ignored_settings`]).
+    pub rho_star_listed_without_roughness: bool,
     pub plots: bool,
     pub plot_members: usize,
     pub ensemble: Option<EnsembleSpec>,
@@ -128,7 +131,7 @@ impl Scene {
         paths
     }
 
-    /// Settings the scene asks for that its order ignores, each as a sentence: order 1's rows
+    /// Settings the scene asks for that have no effect, each as a sentence: order 1's rows
     /// are one Euler step and its two halves with the frozen matrix, whatever `sequence` and
     /// `jacobian` say (the manifest records what ran, so the value asked for would be lost
     /// without a word).
@@ -149,6 +152,13 @@ impl Scene {
                         .to_string(),
                 );
             }
+        }
+        if self.rho_star_listed_without_roughness {
+            notes.push(
+                "output.fields lists \"rho_star\", which a scene without roughness (no \
+                 initial.rho_star, no ensemble.roughness) does not have; no rho_star is written"
+                    .to_string(),
+            );
         }
         notes
     }
@@ -184,23 +194,16 @@ impl Scene {
             .as_ref()
             .map(|e| ensemble::validate_ensemble(e, &initial, path))
             .transpose()?;
-        // A field asked for by name that the scene cannot have would be silently left out.
-        let no_roughness = matches!(initial, InitialSpec::Profiles { rho_star: None, .. })
-            && ensemble.as_ref().is_none_or(|e| e.roughness.is_none());
-        if let (true, Some(j)) = (
-            no_roughness,
-            file.output
-                .fields
-                .as_ref()
-                .and_then(|list| list.iter().position(|f| f == "rho_star")),
-        ) {
-            return Err(Error::invalid(
-                format!("output.fields[{j}]"),
-                "\"rho_star\"",
-                "the scene has no roughness (no initial.rho_star, no ensemble.roughness), so no rho* to write",
-                "one of the scene's fields; give initial.rho_star, or leave rho_star out",
-            ));
-        }
+        // A field listed by name that the scene cannot have is left out, and said (a warning,
+        // not an error: a script may list the same fields for scenes with and without roughness).
+        let rho_star_listed_without_roughness =
+            matches!(initial, InitialSpec::Profiles { rho_star: None, .. })
+                && ensemble.as_ref().is_none_or(|e| e.roughness.is_none())
+                && file
+                    .output
+                    .fields
+                    .as_ref()
+                    .is_some_and(|list| list.iter().any(|f| f == "rho_star"));
         let sweep = sweep::validate_sweep(
             file.sweep.as_ref(),
             file.batch.as_ref(),
@@ -242,6 +245,7 @@ impl Scene {
             )?,
             grid: output.grid,
             fields: output.fields,
+            rho_star_listed_without_roughness,
             plots: output.plots,
             plot_members: output.plot_members,
             ensemble,

@@ -216,9 +216,24 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     } else {
         1
     };
-    let memory = memory::estimate(&header, spec, members.first.chain.particles(), solvers);
+    // The largest chain of the study: where particles is swept, the largest point's.
+    let particles = header
+        .sweep_names
+        .iter()
+        .position(|name| name == "particles")
+        .and_then(|k| {
+            header
+                .points
+                .iter()
+                .map(|point| point[k].round() as usize)
+                .max()
+        })
+        .map_or(members.first.chain.particles(), |largest| {
+            largest.max(members.first.chain.particles())
+        });
+    let memory = memory::estimate(&header, spec, particles, solvers);
     let memory_limit = memory::memory_limit();
-    let disk = memory::disk_bytes(&header, spec, members.first.chain.particles(), &memory);
+    let disk = memory::disk_bytes(&header, spec, particles, &memory);
     if !options.allow_large {
         memory::check(&memory, &header, spec, memory_limit)?;
         memory::check_disk(disk, &header, spec)?;

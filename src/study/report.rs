@@ -394,7 +394,10 @@ fn write_response_plots<'a>(
             }
         };
         for (d, name) in names.iter().enumerate() {
-            let x = column(&crate::output::columns::swept_member_column(name));
+            // A members.csv resumed from before `point_<key>` names the swept key bare.
+            let x = Some(column(&crate::output::columns::swept_member_column(name)))
+                .filter(|x| !x.is_empty())
+                .unwrap_or_else(|| column(name));
             for (stem, label, col, _) in RESPONSES {
                 let y = column(col);
                 crate::plot::plot_scatter(
