@@ -38,12 +38,6 @@ pub const OUTPUT_SIZE_LIMIT: u64 = 20 << 30;
 /// more curves are unreadable and cost minutes of drawing.
 pub const MAX_PLOTTED_TIMES: usize = 41;
 
-/// Bytes of the .npy arrays a run writes: per output time and member, N gaps, N-1 velocities,
-/// G values of each grid field and the scalars.
-pub fn output_bytes(plan: &Plan) -> u64 {
-    OutputShape::of_plan(plan).bytes()
-}
-
 /// What the size of a run's outputs depends on.
 struct OutputShape {
     particles: usize,
@@ -83,6 +77,8 @@ impl OutputShape {
         })
     }
 
+    /// Bytes of the .npy arrays a run writes: per output time and member, N gaps, N-1
+    /// velocities, G values of each grid field and the scalars.
     fn bytes(&self) -> u64 {
         let f = &self.fields;
         let (n, g) = (self.particles as u64, self.grid as u64);

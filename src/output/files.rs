@@ -98,16 +98,15 @@ pub fn fnv1a(bytes: &[u8]) -> String {
 
 /// Whether `dir` holds a record that roughlub wrote: a `manifest.json` or `study.json` with its
 /// `roughlub_version` (a file of that name alone may be anyone's: a web app's manifest).
-pub fn holds_roughlub_record(dir: &Path) -> bool {
+fn holds_roughlub_record(dir: &Path) -> bool {
     #[derive(Deserialize)]
     struct Signature {
         #[allow(dead_code)]
         roughlub_version: String,
     }
-    [MANIFEST, "study.json"].iter().any(|name| {
-        std::fs::read(dir.join(name))
-            .is_ok_and(|bytes| serde_json::from_slice::<Signature>(&bytes).is_ok())
-    })
+    [MANIFEST, "study.json"]
+        .iter()
+        .any(|name| read_json::<Signature>(&dir.join(name)).is_ok())
 }
 
 /// Whether a leftover beside a target is roughlub's, so that it may be removed: a staging

@@ -214,14 +214,7 @@ pub(super) fn check_range<T: Number>(
     range: Range<T>,
     message: &str,
 ) -> Result<T> {
-    if !value.is_finite() {
-        return Err(Error::invalid(
-            field,
-            value,
-            "not a finite number",
-            range.to_string(),
-        ));
-    }
+    check_finite(field, value, range.to_string())?;
     check_within(field, value, range, message)
 }
 
@@ -244,16 +237,12 @@ pub(super) fn check_within<T: Number>(
     }
 }
 
-pub(super) fn check_finite<T: Number>(field: &str, v: T) -> Result<()> {
+/// `v` finite, else an error naming `field` and its `allowed` values.
+pub(super) fn check_finite<T: Number>(field: &str, v: T, allowed: String) -> Result<()> {
     if v.is_finite() {
         Ok(())
     } else {
-        Err(Error::invalid(
-            field,
-            v,
-            "not a finite number",
-            "a finite number",
-        ))
+        Err(Error::invalid(field, v, "not a finite number", allowed))
     }
 }
 
@@ -281,14 +270,7 @@ pub(super) fn check_mu(field: &str, mu: f64) -> Result<f64> {
             .le(MAX_MU)
             .upper_text(format!("{MAX_MU:e}"))
     };
-    if !mu.is_finite() {
-        return Err(Error::invalid(
-            field,
-            mu,
-            "not a finite number",
-            range().to_string(),
-        ));
-    }
+    check_finite(field, mu, range().to_string())?;
     if mu > MAX_MU {
         return Err(Error::invalid(
             field,

@@ -160,7 +160,7 @@ fn output_times(outputs: &OutputsSpec, end: f64) -> Result<Vec<f64>> {
             )?;
             for (j, &v) in list.iter().enumerate() {
                 let field = format!("time.outputs[{j}]");
-                check_finite(&field, v)?;
+                check_finite(&field, v, "a finite number".into())?;
                 if !(0.0..=end).contains(&v) || (j > 0 && v <= list[j - 1]) {
                     return Err(Error::invalid(
                         field,
