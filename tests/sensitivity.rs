@@ -388,4 +388,37 @@ jitter = { min = 0.0, max = 0.3 }
         .map(|r| r[c_failed].parse::<usize>().unwrap())
         .sum();
     assert_eq!(mu_failed, failed_members);
+    // The quarters are those of the declared range (log scale for mu), not of the points drawn.
+    let c_from = head.iter().position(|h| h == "from").unwrap();
+    let c_to = head.iter().position(|h| h == "to").unwrap();
+    let edges = |key: &str| -> Vec<(f64, f64)> {
+        rows.iter()
+            .filter(|r| r[0] == key)
+            .map(|r| (r[c_from].parse().unwrap(), r[c_to].parse().unwrap()))
+            .collect()
+    };
+    let mu = edges("mu");
+    let a = edges("A");
+    let mu_want = [
+        1e-7,
+        1e-7 * 1e5f64.powf(0.25),
+        1e-7 * 1e5f64.powf(0.5),
+        1e-7 * 1e5f64.powf(0.75),
+        1e-2,
+    ];
+    let a_want = [0.2, 0.9, 1.6, 2.3, 3.0];
+    for b in 0..4 {
+        for (got, want) in [(mu[b].0, mu_want[b]), (mu[b].1, mu_want[b + 1])] {
+            assert!(
+                (got / want - 1.0).abs() < 1e-12,
+                "mu quarter {b}: {got} against {want}"
+            );
+        }
+        for (got, want) in [(a[b].0, a_want[b]), (a[b].1, a_want[b + 1])] {
+            assert!(
+                (got - want).abs() < 1e-12,
+                "A quarter {b}: {got} against {want}"
+            );
+        }
+    }
 }

@@ -39,6 +39,10 @@ pub struct StudyHeader {
     /// Per swept key, whether its values are spread on a log scale (a range with scale = "log",
     /// or a list of positive values spanning more than a decade).
     pub sweep_log_scale: Vec<bool>,
+    /// Per swept key, its declared range (min, max), or the least and greatest listed value; a
+    /// header written before has none, and readers fall back to the points' least and greatest.
+    #[serde(default)]
+    pub sweep_bounds: Vec<(f64, f64)>,
     pub field_ranges: BTreeMap<String, (f64, f64)>,
     pub bins: usize,
     /// The fields whose pointwise bands are accumulated: those of `[output] fields` among
@@ -347,6 +351,11 @@ pub(super) fn header_for(
             .as_ref()
             .map(|s| s.design.axes().iter().map(log_scaled).collect())
             .unwrap_or_default(),
+        sweep_bounds: scene
+            .sweep
+            .as_ref()
+            .map(|s| s.design.axes().iter().map(declared_bounds).collect())
+            .unwrap_or_default(),
         field_ranges,
         bins: spec.bins,
         band_fields: super::FIELDS
@@ -406,6 +415,16 @@ fn log_scaled(axis: &crate::ensemble::Axis) -> bool {
             let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             lo > 0.0 && hi / lo > 10.0
         }
+    }
+}
+
+fn declared_bounds(axis: &crate::ensemble::Axis) -> (f64, f64) {
+    match axis {
+        crate::ensemble::Axis::Range { min, max, .. } => (*min, *max),
+        crate::ensemble::Axis::Values(v) => (
+            v.iter().copied().fold(f64::INFINITY, f64::min),
+            v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        ),
     }
 }
 

@@ -181,8 +181,8 @@ pub(super) fn write_sensitivity(
     Ok(())
 }
 
-/// `sensitivity_failures.csv`: per key and per quarter of its range (in the design's unit
-/// coordinates), the members there and how many failed.
+/// `sensitivity_failures.csv`: per key and per quarter of its declared range (in the design's
+/// unit coordinates), the members there and how many failed.
 fn write_failures(dir: &Path, header: &StudyHeader, state: &StudyState) -> Result<()> {
     let path = dir.join("sensitivity_failures.csv");
     let err = |e: csv::Error| Error::Output {
@@ -194,8 +194,13 @@ fn write_failures(dir: &Path, header: &StudyHeader, state: &StudyState) -> Resul
         .map_err(err)?;
     for (k, key) in header.sweep_names.iter().enumerate() {
         let values: Vec<f64> = header.points.iter().map(|v| v[k]).collect();
-        let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        // The declared range, so that the quarters are the same in every study of one scene.
+        let (lo, hi) = header.sweep_bounds.get(k).copied().unwrap_or_else(|| {
+            (
+                values.iter().copied().fold(f64::INFINITY, f64::min),
+                values.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            )
+        });
         let log = header.sweep_log_scale.get(k).copied().unwrap_or(false) && lo > 0.0;
         let unit = |v: f64| {
             if hi <= lo {
@@ -209,7 +214,7 @@ fn write_failures(dir: &Path, header: &StudyHeader, state: &StudyState) -> Resul
         let mut members = [0u64; FAILURE_BINS];
         let mut failed = [0u64; FAILURE_BINS];
         for (p, &v) in values.iter().enumerate() {
-            let bin = ((unit(v) * FAILURE_BINS as f64) as usize).min(FAILURE_BINS - 1);
+            let bin = ((unit(v).max(0.0) * FAILURE_BINS as f64) as usize).min(FAILURE_BINS - 1);
             if let Some(s) = state.points.get(&(p as u64)) {
                 members[bin] += s.completed + s.failed;
                 failed[bin] += s.failed;
