@@ -375,7 +375,19 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
 #[test]
 fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [(&str, String, &[&str]); 13] = [
+    let cases: [(&str, String, &[&str]); 15] = [
+        (
+            "a parameter out of its profile's range at the last point only",
+            format!("{BASE}\n[sweep]\nlevel = [0.5, 0.6, 1.5]\n"),
+            &["sweep point 2", "level = 1.5", "initial.rho", "(0, 1)"],
+        ),
+        (
+            "a gamma sweep without roughness",
+            format!("{BASE}\n[sweep]\ngamma = [1.0, 2.0]\n")
+                .replace("rho_star = \"0.7\"\n", "")
+                .replace("roughness = { kind = \"lognormal\", spread = 0.2 }\n", ""),
+            &["sweep.gamma", "without roughness"],
+        ),
         (
             "a repeated grid value",
             format!("{BASE}\n[sweep]\nA = [0.3, 0.5, 0.3]\n"),
@@ -466,6 +478,12 @@ fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
             !out_dir.exists(),
             "{what}: a refused scene wrote {out_dir:?}"
         );
+        let leftovers: Vec<_> = std::fs::read_dir(tmp.path())
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().starts_with(".bad_out"))
+            .collect();
+        assert!(leftovers.is_empty(), "{what}: left {leftovers:?}");
     }
     // A design beyond the stated limit needs --allow-large.
     let big = format!(

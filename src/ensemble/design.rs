@@ -118,8 +118,9 @@ pub struct Design {
     axes: Vec<Axis>,
     points: u64,
     seed: u64,
-    /// Latin hypercube: pi_d for each dimension d (empty for other kinds).
-    permutations: Vec<Vec<u32>>,
+    /// Latin hypercube: pi_d for each dimension d (empty for other kinds). Shared: every sweep
+    /// point's scene clones the design, and a copy per point made a large design quadratic.
+    permutations: std::sync::Arc<Vec<Vec<u32>>>,
     /// Sobol: the scramble seed passed to `sobol_burley::sample`.
     sobol_seed: u32,
 }
@@ -315,7 +316,7 @@ impl Design {
             axes,
             points: p,
             seed,
-            permutations,
+            permutations: std::sync::Arc::new(permutations),
             sobol_seed: (k ^ (k >> 32)) as u32,
         })
     }

@@ -165,6 +165,36 @@ pub struct MemberInputs {
     pub setup: Arc<PointSetup>,
 }
 
+/// Without roughness there is no repulsion, so every gamma of a sweep gives the same member:
+/// refused, as in `[batch]` (see `Scene::initial_chain_in`).
+fn refuse_gamma_swept_without_roughness(
+    scene: &Scene,
+    spec: &EnsembleSpec,
+    first_chain: &Chain,
+) -> Result<()> {
+    let Some(sweep) = &scene.sweep else {
+        return Ok(());
+    };
+    let Some(k) = sweep.targets.iter().position(|t| *t == SweepTarget::Gamma) else {
+        return Ok(());
+    };
+    if first_chain.dstar.is_some() || spec.roughness.is_some() {
+        return Ok(());
+    }
+    let axis = &sweep.design.axes()[k];
+    let value = match axis {
+        crate::ensemble::Axis::Values(v) if v.iter().all(|&g| g == v[0]) => return Ok(()),
+        crate::ensemble::Axis::Values(v) => format!("{v:?}"),
+        crate::ensemble::Axis::Range { min, max, .. } => format!("{{ min = {min}, max = {max} }}"),
+    };
+    Err(Error::invalid(
+        "sweep.gamma",
+        value,
+        "a gamma sweep without roughness: gamma only enters through the repulsion (rho/rho*)^gamma, and without rho* there is none, so every gamma gives the same member",
+        "give initial.rho_star (or an r column in the particle file, or [ensemble] roughness), or drop the gamma sweep",
+    ))
+}
+
 impl EnsembleMembers {
     /// The members of the ensemble of `scene` (its `[ensemble]` is `spec`).
     pub fn new(scene: &Scene, spec: &EnsembleSpec) -> Result<EnsembleMembers> {
@@ -178,10 +208,16 @@ impl EnsembleMembers {
         base_scene.ensemble = Some(spec.clone());
         let first = Arc::new(PointSetup::new(0, base_scene.at_point(0)?)?);
         if shared {
-            // The chain checks of the unswept scene cover every point's (e.g. a gamma sweep
-            // without roughness is refused there).
             base_scene.initial_chain()?;
+        } else {
+            // Every point's settings and profiles are checked before any member is solved: a
+            // value that is out of range at point 3 of 4 is an error now, not after the first
+            // three points' work. (mu and gamma alone are checked with the sweep's lists.)
+            for p in 1..points {
+                base_scene.at_point(p)?;
+            }
         }
+        refuse_gamma_swept_without_roughness(scene, spec, &first.chain)?;
         let symbolic_forcing = match (&scene.forcing, &scene.sweep) {
             (Some(forcing), Some(sweep)) => {
                 let names: Vec<String> = sweep
