@@ -326,6 +326,26 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
             &[],
         );
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        // More shards than members (a Slurm array larger than the design): 16 shards of 15
+        // members, one of them empty, each with its plots, merge to the same.
+        let many: Vec<PathBuf> = (0..16)
+            .map(|k| {
+                let dir = tmp.path().join(format!("{design}_m{k}"));
+                run(&scene, &dir, &["--shard", &format!("{k}/16")], &[]);
+                dir
+            })
+            .collect();
+        let empty = many
+            .iter()
+            .filter(|d| csv_rows(&d.join("members.csv")).1.is_empty())
+            .count();
+        assert_eq!(empty, 1, "{design}: shards without members");
+        let merged_many = tmp.path().join(format!("{design}_merged16"));
+        let mut args = vec!["merge"];
+        args.extend(many.iter().map(|d| d.to_str().unwrap()));
+        args.extend(["--out", merged_many.to_str().unwrap(), "--no-plots"]);
+        let o = roughlub(&args, &[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let (head, rows) = csv_rows(&reference.join("members.csv"));
         assert_eq!(rows.len(), 15);
         // No two columns share a name: the swept mu is `point_mu`, beside the member's `mu`.
@@ -345,7 +365,7 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
                 "{r:?}"
             );
         }
-        for other in [&chunked, &merged] {
+        for other in [&chunked, &merged, &merged_many] {
             for file in ["members.csv", "points.csv"] {
                 assert_eq!(
                     std::fs::read_to_string(reference.join(file)).unwrap(),

@@ -384,6 +384,10 @@ fn write_response_plots<'a>(
         })?;
         let head = reader.headers().cloned().unwrap_or_default();
         let rows: Vec<csv::StringRecord> = reader.records().filter_map(|r| r.ok()).collect();
+        if rows.is_empty() {
+            // A shard with no members (more shards than members): nothing to plot.
+            return Ok(());
+        }
         let column = |name: &str| -> Vec<f64> {
             match head.iter().position(|h| h == name) {
                 Some(c) => rows
