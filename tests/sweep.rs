@@ -609,3 +609,29 @@ fn a_swept_forcing_parameter_is_read_per_member_in_one_batch() {
         "the sweep split its batch"
     );
 }
+
+/// A sampled N is run rounded, and points.csv and members.csv record the N that ran (a
+/// surrogate fitted on points.csv must see the inputs of the runs).
+#[test]
+fn a_sampled_particle_count_is_recorded_as_it_ran() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = format!(
+        "{}\n[sweep]\ndesign = \"random\"\npoints = 6\nparticles = {{ min = 10, max = 40 }}\n",
+        BASE.replace("members = 6", "members = 1")
+    );
+    let scene = write(tmp.path(), "n.toml", &text);
+    let out = tmp.path().join("n");
+    run(&scene, &out, &[], &[]);
+    let (head, points) = csv_rows(&out.join("points.csv"));
+    let c = head.iter().position(|h| h == "particles").unwrap();
+    let listed: Vec<f64> = points.iter().map(|r| r[c].parse().unwrap()).collect();
+    assert_eq!(listed.len(), 6);
+    let (head, members) = csv_rows(&out.join("members.csv"));
+    let c_point = head.iter().position(|h| h == "point_particles").unwrap();
+    let c_ran = head.iter().position(|h| h == "particles").unwrap();
+    for (r, &n) in members.iter().zip(&listed) {
+        assert!(n.fract() == 0.0 && (10.0..=40.0).contains(&n), "{n}");
+        assert_eq!(r[c_point].parse::<f64>().unwrap(), n, "{r:?}");
+        assert_eq!(r[c_ran].parse::<f64>().unwrap(), n, "{r:?}");
+    }
+}

@@ -500,12 +500,18 @@ impl Scene {
     pub fn point_values(&self, p: u64) -> Vec<(String, f64)> {
         match &self.sweep {
             None => Vec::new(),
+            // N is a whole number: a sampled design's value is rounded as the point runs it.
             Some(s) => s
                 .design
                 .names()
                 .iter()
                 .cloned()
                 .zip(s.design.values(p))
+                .zip(&s.targets)
+                .map(|((name, v), target)| match target {
+                    SweepTarget::Particles => (name, v.round()),
+                    _ => (name, v),
+                })
                 .collect(),
         }
     }
