@@ -422,3 +422,39 @@ jitter = { min = 0.0, max = 0.3 }
         }
     }
 }
+
+/// A response that does not vary (a swept key that nothing reads) has no indices, also where its
+/// values differ by rounding alone: a std made of the mean's rounding gave NaN indices and no
+/// reason (found by an independent check).
+#[test]
+fn a_response_that_does_not_vary_has_no_indices() {
+    for wobble in [0.0, f64::EPSILON] {
+        let groups: Vec<PickFreezeGroup> = (0..128)
+            .map(|j| {
+                let y = 0.1 + 0.2 + if j % 3 == 0 { wobble } else { 0.0 };
+                PickFreezeGroup {
+                    a: y,
+                    ab: vec![y, 0.3],
+                    b: 0.3,
+                }
+            })
+            .collect();
+        assert!(
+            sobol_indices(&groups, Bootstrap::default()).is_none(),
+            "wobble {wobble:e}"
+        );
+    }
+    // A response that varies by 1e-6 of its size has indices.
+    let groups: Vec<PickFreezeGroup> = (0..128)
+        .map(|j| {
+            let y = 0.3 * (1.0 + 1e-6 * (j as f64 / 128.0));
+            PickFreezeGroup {
+                a: y,
+                ab: vec![y, 0.3],
+                b: 0.3,
+            }
+        })
+        .collect();
+    let ix = sobol_indices(&groups, Bootstrap::default()).expect("indices");
+    assert!(ix.first.iter().all(|i| i.value.is_finite()));
+}

@@ -114,6 +114,13 @@ pub fn sobol_indices(groups: &[PickFreezeGroup], bootstrap: Bootstrap) -> Option
                 .chain([g.b])
         })
     };
+    // A response equal at every point but for rounding (a key that nothing reads) has no
+    // variance to apportion: its mean's rounding alone made a tiny std and NaN indices.
+    let lo = values().fold(f64::INFINITY, f64::min);
+    let hi = values().fold(f64::NEG_INFINITY, f64::max);
+    if !(hi - lo > 1e-12 * lo.abs().max(hi.abs())) {
+        return None;
+    }
     let count = values().count() as f64;
     let mean = values().sum::<f64>() / count;
     let std = (values().map(|y| (y - mean) * (y - mean)).sum::<f64>() / count).sqrt();
