@@ -395,7 +395,12 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
 #[test]
 fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [(&str, String, &[&str]); 15] = [
+    let cases: [(&str, String, &[&str]); 16] = [
+        (
+            "a Saltelli design beyond the points' limit",
+            format!("{BASE}\n[sweep]\ndesign = \"saltelli\"\npoints = 40000\nA = {{ min = 0.2, max = 0.8 }}\nlevel = {{ min = 0.5, max = 0.7 }}\n"),
+            &["sweep.points = 40000", "(2 keys + 2) make 160000 points", "at most 25000 base points", "--allow-large"],
+        ),
         (
             "a parameter out of its profile's range at the last point only",
             format!("{BASE}\n[sweep]\nlevel = [0.5, 0.6, 1.5]\n"),

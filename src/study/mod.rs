@@ -601,15 +601,28 @@ fn check_options(scene: &Scene, options: &StudyOptions) -> Result<()> {
     }
     let points = scene.sweep_points();
     if points > crate::scene::MAX_SWEEP_POINTS && !options.allow_large {
-        return Err(Error::invalid(
-            "sweep.points",
-            points,
-            "every sweep point keeps its own responses (in memory, partial.state, stats/ and points.csv)",
-            format!(
-                "at most {} points, or --allow-large",
-                crate::scene::MAX_SWEEP_POINTS
+        // A Saltelli design runs its base points x (keys + 2): name both.
+        let max = crate::scene::MAX_SWEEP_POINTS;
+        let (written, what, allowed) = match &scene.sweep {
+            Some(s) if s.design.kind() == crate::ensemble::design::DesignKind::Saltelli => {
+                let runs = s.design.names().len() as u64 + 2;
+                (
+                    points / runs,
+                    format!(
+                        "{} base points x ({} keys + 2) make {points} points to run, and every sweep point keeps its own responses (in memory, partial.state, stats/ and points.csv)",
+                        points / runs,
+                        runs - 2
+                    ),
+                    format!("at most {} base points with {} keys ({max} points to run), or --allow-large", max / runs, runs - 2),
+                )
+            }
+            _ => (
+                points,
+                "every sweep point keeps its own responses (in memory, partial.state, stats/ and points.csv)".to_string(),
+                format!("at most {max} points, or --allow-large"),
             ),
-        ));
+        };
+        return Err(Error::invalid("sweep.points", written, what, allowed));
     }
     Ok(())
 }
