@@ -177,11 +177,9 @@ impl Scene {
         distinct.sort_by(f64::total_cmp);
         distinct.dedup();
         if self.gamma_swept && distinct.len() > 1 && chain.dstar.is_none() && !roughness_drawn {
-            return Err(Error::invalid(
+            return Err(gamma_swept_without_roughness(
                 "batch.gamma",
                 format!("{:?}", self.gamma),
-                "a gamma sweep without roughness: gamma only enters through the repulsion (rho/rho*)^gamma, and without rho* there is none, so every gamma gives the same member",
-                "give initial.rho_star (or an r column in the particle file, or [ensemble] roughness), or drop the gamma sweep",
             ));
         }
         // An ensemble's members draw their own roughness or jitter their gaps: their repulsion at
@@ -256,6 +254,16 @@ pub fn check_forcing_at_start(
         }
     }
     Ok(())
+}
+
+/// The error for a gamma swept (`field`: in `[batch]` or `[sweep]`) where there is no roughness.
+pub(crate) fn gamma_swept_without_roughness(field: &str, value: String) -> Error {
+    Error::invalid(
+        field,
+        value,
+        "a gamma sweep without roughness: gamma only enters through the repulsion (rho/rho*)^gamma, and without rho* there is none, so every gamma gives the same member",
+        "give initial.rho_star (or an r column in the particle file, or [ensemble] roughness), or drop the gamma sweep",
+    )
 }
 
 /// Refuses a gamma whose repulsion G_i = (rho_i/rho*_i)^gamma = ((d*_i + 2 eps)/(d_i + 2 eps))^gamma

@@ -166,7 +166,7 @@ pub struct MemberInputs {
 }
 
 /// Without roughness there is no repulsion, so every gamma of a sweep gives the same member:
-/// refused, as in `[batch]` (see `Scene::initial_chain_in`).
+/// refused, as in `[batch]` (`Scene::initial_chain_in`), with the same error.
 fn refuse_gamma_swept_without_roughness(
     scene: &Scene,
     spec: &EnsembleSpec,
@@ -187,11 +187,9 @@ fn refuse_gamma_swept_without_roughness(
         crate::ensemble::Axis::Values(v) => format!("{v:?}"),
         crate::ensemble::Axis::Range { min, max, .. } => format!("{{ min = {min}, max = {max} }}"),
     };
-    Err(Error::invalid(
+    Err(crate::scene::initial::gamma_swept_without_roughness(
         "sweep.gamma",
         value,
-        "a gamma sweep without roughness: gamma only enters through the repulsion (rho/rho*)^gamma, and without rho* there is none, so every gamma gives the same member",
-        "give initial.rho_star (or an r column in the particle file, or [ensemble] roughness), or drop the gamma sweep",
     ))
 }
 

@@ -410,9 +410,8 @@ pub(super) fn band_u_range(spec: &EnsembleSpec, chain: &crate::model::chain::Cha
 fn log_scaled(axis: &crate::ensemble::Axis) -> bool {
     match axis {
         crate::ensemble::Axis::Range { scale, .. } => *scale == crate::ensemble::Scale::Log,
-        crate::ensemble::Axis::Values(v) => {
-            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
-            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        crate::ensemble::Axis::Values(_) => {
+            let (lo, hi) = declared_bounds(axis);
             lo > 0.0 && hi / lo > 10.0
         }
     }

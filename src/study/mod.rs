@@ -216,18 +216,13 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     } else {
         1
     };
-    // The largest chain of the study: where particles is swept, the largest point's.
+    // The largest chain of the study: where particles is swept, the largest point's (the
+    // points hold N as it runs, rounded).
     let particles = header
         .sweep_names
         .iter()
         .position(|name| name == "particles")
-        .and_then(|k| {
-            header
-                .points
-                .iter()
-                .map(|point| point[k].round() as usize)
-                .max()
-        })
+        .and_then(|k| header.points.iter().map(|point| point[k] as usize).max())
         .map_or(members.first.chain.particles(), |largest| {
             largest.max(members.first.chain.particles())
         });
