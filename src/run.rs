@@ -429,6 +429,7 @@ fn run_manifest<'a>(
         error_estimate: ErrorEstimateRecord::new(
             plan.order,
             plan.stepping,
+            record.precision,
             plan.companion_estimate,
             largest_error_estimate,
         ),

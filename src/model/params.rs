@@ -31,6 +31,14 @@ impl Stepping {
             Stepping::Fixed { dt_min, .. } | Stepping::Adaptive { dt_min, .. } => dt_min,
         }
     }
+
+    /// The tolerance of adaptive steps; `None` for fixed steps.
+    pub fn tolerance(&self) -> Option<f64> {
+        match *self {
+            Stepping::Fixed { .. } => None,
+            Stepping::Adaptive { tolerance, .. } => Some(tolerance),
+        }
+    }
 }
 
 pub use roughlub_kernels::shared::control::MAX_ORDER;

@@ -82,6 +82,7 @@ impl ErrorEstimateRecord {
     pub fn new(
         order: crate::model::params::Order,
         stepping: crate::model::params::Stepping,
+        precision: crate::backend::Precision,
         companion: bool,
         largest: Option<f64>,
     ) -> Self {
@@ -89,7 +90,7 @@ impl ErrorEstimateRecord {
             Some(method) => ErrorEstimateRecord {
                 method: method.into(),
                 largest,
-                warning: large_error_warning(largest, method),
+                warning: large_error_warning(largest, method, stepping.tolerance(), precision),
             },
             None => ErrorEstimateRecord {
                 method: ERROR_ESTIMATE_UNAVAILABLE.into(),
@@ -114,10 +115,18 @@ impl ErrorEstimateRecord {
 /// scenes/extremes/rho0.9999_u2.toml, mu = gamma = 1: 5.0e-3 at dt = 1e-3, where the error
 /// against a converged run is 2e-11, and 0.15 at 1e-5; docs/outputs.md). So their warning says
 /// the results may not be converged. A method recorded by no version of this one (a merge of old
-/// studies) warns as the fixed-step orders do.
-pub fn large_error_warning(largest: Option<f64>, method: &str) -> Option<String> {
+/// studies) warns as the fixed-step orders do. Below its limit, an adaptive run (`tolerance`)
+/// whose estimate is more than [`TOLERANCE_NOT_MET_FACTOR`](crate::backend::report::TOLERANCE_NOT_MET_FACTOR)
+/// times its tolerance warns that the tolerance was not met, and in f32 that rounding is why.
+pub fn large_error_warning(
+    largest: Option<f64>,
+    method: &str,
+    tolerance: Option<f64>,
+    precision: crate::backend::Precision,
+) -> Option<String> {
     use crate::backend::report::{
         ADAPTIVE_ESTIMATE_METHOD, LARGE_ERROR_ESTIMATE, LARGE_FIXED_STEP_ERROR_ESTIMATE,
+        TOLERANCE_NOT_MET_FACTOR,
     };
     let adaptive = method == ADAPTIVE_ESTIMATE_METHOD;
     let limit = if adaptive {
@@ -125,6 +134,18 @@ pub fn large_error_warning(largest: Option<f64>, method: &str) -> Option<String>
     } else {
         LARGE_FIXED_STEP_ERROR_ESTIMATE
     };
+    if let (true, Some(e), Some(tolerance)) = (adaptive, largest, tolerance) {
+        if e <= limit && e > TOLERANCE_NOT_MET_FACTOR * tolerance {
+            let times = e / tolerance;
+            let why = match precision {
+                crate::backend::Precision::F32 => "in f32 the rounding of the extrapolated rows adds up over the steps (measured on four chains: 2 to 20 times the tolerance at 1e-4, 13 to 5500 times at 1e-6, docs/backends-and-precision.md): use precision = \"f64\" below a tolerance of about 1e-3",
+                crate::backend::Precision::F64 => "the estimate adds the local errors that the steps held below the tolerance, without what later steps do to them, so it is mostly above the error; near contact they add up (docs/accuracy.md, Near contact)",
+            };
+            return Some(format!(
+                "the largest error estimate {e:.2e} is {times:.0} times the tolerance {tolerance:.0e}: these results may be accurate only to about the estimate, not to the tolerance; {why}"
+            ));
+        }
+    }
     let e = largest.filter(|e| !(*e <= limit))?;
     let head = format!("the largest error estimate {e:.2e} is above {limit}");
     Some(if method == crate::backend::companion::COMPANION_METHOD {
@@ -285,7 +306,7 @@ pub struct QuantileMethod {
 #[cfg(test)]
 mod tests {
     use super::ErrorEstimateRecord;
-    use crate::backend::MemberReport;
+    use crate::backend::{MemberReport, Precision};
     use crate::model::params::{Order, Stepping};
 
     /// An infinite estimate (a companion that failed where the run did not) is "inf", not the
@@ -296,11 +317,18 @@ mod tests {
             dt: 1e-3,
             dt_min: 1e-12,
         };
-        let record = ErrorEstimateRecord::new(Order::Fixed(1), stepping, true, Some(f64::INFINITY));
+        let record = ErrorEstimateRecord::new(
+            Order::Fixed(1),
+            stepping,
+            Precision::F64,
+            true,
+            Some(f64::INFINITY),
+        );
         let json = serde_json::to_value(&record).unwrap();
         assert_eq!(json["largest"], "inf");
         assert!(json["warning"].as_str().unwrap().contains("inf"));
-        let unavailable = ErrorEstimateRecord::new(Order::Fixed(1), stepping, false, None);
+        let unavailable =
+            ErrorEstimateRecord::new(Order::Fixed(1), stepping, Precision::F64, false, None);
         assert!(serde_json::to_value(&unavailable).unwrap()["largest"].is_null());
         let report = MemberReport {
             index: 0,

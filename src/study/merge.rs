@@ -200,7 +200,12 @@ pub fn merge_studies(
     let largest_error_estimate = largest_error_estimate.filter(|_| available);
     let method = estimate_method.unwrap_or_else(|| UNRECORDED_ESTIMATE_METHOD.into());
     let error_estimate = ErrorEstimateRecord {
-        warning: large_error_warning(largest_error_estimate, &method),
+        warning: large_error_warning(
+            largest_error_estimate,
+            &method,
+            scene_tolerance(&merged_header.scene_text),
+            merged_header.precision,
+        ),
         method: method.into(),
         largest: largest_error_estimate,
     };
@@ -288,4 +293,14 @@ fn missing_members(partials: &[(PathBuf, PartialFile)]) -> Result<Vec<(u64, u64)
 fn describe_ranges(ranges: &[(u64, u64)]) -> String {
     let parts: Vec<String> = ranges.iter().map(|(a, b)| format!("{a}..{b}")).collect();
     parts.join(", ")
+}
+
+/// `[time] tolerance` of a scene's text (the shards' scene, which resume and merge check is the
+/// same for all), `None` where it has none (fixed steps) or is not a number.
+fn scene_tolerance(scene_text: &str) -> Option<f64> {
+    let scene: toml::Table = scene_text.parse().ok()?;
+    let tolerance = scene.get("time")?.get("tolerance")?;
+    tolerance
+        .as_float()
+        .or_else(|| tolerance.as_integer().map(|t| t as f64))
 }

@@ -322,6 +322,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
     let error_estimate = ErrorEstimateRecord::new(
         scene.order,
         scene.stepping,
+        header.precision,
         scene.error_estimate,
         largest_error_estimate,
     );
