@@ -88,12 +88,33 @@ pub fn input_file_hashes(paths: &[&Path]) -> Result<std::collections::BTreeMap<S
 
 /// FNV-1a (64 bits) of `bytes`, as 16 hex digits.
 pub fn fnv1a(bytes: &[u8]) -> String {
-    let mut h: u64 = 0xcbf29ce484222325;
-    for b in bytes {
-        h ^= *b as u64;
-        h = h.wrapping_mul(0x100000001b3);
+    let mut h = Fnv1a::default();
+    h.update(bytes);
+    h.hex()
+}
+
+/// FNV-1a (64 bits) of bytes given piece by piece: the same as [`fnv1a`] of their concatenation.
+#[derive(Debug, Clone, Copy)]
+pub struct Fnv1a(u64);
+
+impl Default for Fnv1a {
+    fn default() -> Self {
+        Fnv1a(0xcbf29ce484222325)
     }
-    format!("{h:016x}")
+}
+
+impl Fnv1a {
+    pub fn update(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.0 ^= *b as u64;
+            self.0 = self.0.wrapping_mul(0x100000001b3);
+        }
+    }
+
+    /// As 16 hex digits.
+    pub fn hex(&self) -> String {
+        format!("{:016x}", self.0)
+    }
 }
 
 /// Whether `dir` holds a record that roughlub wrote: a `manifest.json` or `study.json` with its

@@ -12,7 +12,7 @@ pub mod serde_f64;
 pub mod state_file;
 
 pub use files::{
-    fnv1a, input_file_hashes, prepare_dir, read_json, write_json_atomic, StagedDir, MANIFEST,
+    fnv1a, input_file_hashes, prepare_dir, read_json, write_json_atomic, Fnv1a, StagedDir, MANIFEST,
 };
 pub use npy::{write_npy, NpyStream};
 pub use progress::ProgressReporter;

@@ -132,13 +132,16 @@ pub struct MemberRow {
 }
 
 /// `checkpoint.state`: the statistics of the chunks a running study has finished so far (their
-/// member ranges are `state.ranges`), how many bytes of `members.csv.partial` hold their rows,
-/// and their largest error estimate. Written atomically every `--checkpoint-every` seconds;
-/// `--resume` continues from it, and a complete study removes it.
+/// member ranges are `state.ranges`), how many bytes of `members.csv.partial` hold their rows
+/// and the FNV-1a of those bytes, and their largest error estimate. Written atomically every
+/// `--checkpoint-every` seconds; `--resume` continues from it, and a complete study removes it.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub(super) struct CheckpointFile {
     pub state: StudyState,
     pub csv_bytes: u64,
+    /// None in a checkpoint written before 2026-11-30 (its rows are then taken unchecked).
+    #[serde(default)]
+    pub csv_hash: Option<String>,
     pub largest_error_estimate: Option<f64>,
 }
 
@@ -147,6 +150,7 @@ pub(super) struct CheckpointFile {
 pub(super) struct CheckpointFileRef<'a> {
     pub state: &'a StudyState,
     pub csv_bytes: u64,
+    pub csv_hash: Option<String>,
     pub largest_error_estimate: Option<f64>,
 }
 
@@ -161,7 +165,27 @@ fn scene_hash(text: &str) -> String {
 pub(super) struct CsvOut {
     path: PathBuf,
     partial: PathBuf,
-    writer: csv::Writer<std::fs::File>,
+    writer: csv::Writer<HashedFile>,
+}
+
+/// The file of `members.csv.partial` and the FNV-1a of every byte it holds, kept as the rows are
+/// written (a checkpoint records it and a resume checks the rows it keeps against it: a
+/// partial damaged without a change of length was taken as it was).
+struct HashedFile {
+    file: std::fs::File,
+    hash: crate::output::Fnv1a,
+}
+
+impl std::io::Write for HashedFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = std::io::Write::write(&mut self.file, buf)?;
+        self.hash.update(&buf[..n]);
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        std::io::Write::flush(&mut self.file)
+    }
 }
 
 pub use crate::output::columns::{
@@ -213,10 +237,11 @@ impl CsvOut {
     /// Starts members.csv with its header; `sweep_names` are the swept keys' columns.
     pub fn create(path: PathBuf, sweep_names: &[String]) -> Result<CsvOut> {
         let partial = path.with_extension("csv.partial");
-        let writer = csv::Writer::from_path(&partial).map_err(|e| Error::Output {
-            path: partial.clone(),
-            message: e.to_string(),
-        })?;
+        let file = std::fs::File::create(&partial).map_err(|e| Error::io(&partial, e))?;
+        let writer = csv::Writer::from_writer(HashedFile {
+            file,
+            hash: Default::default(),
+        });
         let mut out = CsvOut {
             path,
             partial,
@@ -246,8 +271,9 @@ impl CsvOut {
     }
 
     /// Continues the `members.csv.partial` of an interrupted run after its first `bytes` bytes
-    /// (the rows of the chunks its checkpoint holds; rows written after it are dropped).
-    pub fn resume(path: PathBuf, bytes: u64) -> Result<CsvOut> {
+    /// (the rows of the chunks its checkpoint holds; rows written after it are dropped), which
+    /// must have the FNV-1a `hash` where the checkpoint recorded one.
+    pub fn resume(path: PathBuf, bytes: u64, hash: Option<&str>) -> Result<CsvOut> {
         let partial = path.with_extension("csv.partial");
         // A run killed after its last chunk, while it wrote the statistics, has already renamed
         // the partial to members.csv (its checkpoint is removed last): the same rows.
@@ -255,6 +281,7 @@ impl CsvOut {
             std::fs::rename(&path, &partial).map_err(|e| Error::io(&path, e))?;
         }
         let mut file = std::fs::OpenOptions::new()
+            .read(true)
             .write(true)
             .open(&partial)
             .map_err(|e| Error::io(&partial, e))?;
@@ -265,25 +292,45 @@ impl CsvOut {
             });
         }
         file.set_len(bytes).map_err(|e| Error::io(&partial, e))?;
+        let mut kept = crate::output::Fnv1a::default();
+        let mut reader = std::io::BufReader::new(&file);
+        let mut buffer = vec![0u8; 1 << 16];
+        loop {
+            let n = std::io::Read::read(&mut reader, &mut buffer)
+                .map_err(|e| Error::io(&partial, e))?;
+            if n == 0 {
+                break;
+            }
+            kept.update(&buffer[..n]);
+        }
+        if hash.is_some_and(|h| h != kept.hex()) {
+            return Err(Error::Output {
+                path: partial,
+                message: format!("its first {bytes} bytes differ from the rows its checkpoint recorded (FNV-1a {} against {}): the file was changed; rerun without --resume", kept.hex(), hash.unwrap_or_default()),
+            });
+        }
         std::io::Seek::seek(&mut file, std::io::SeekFrom::End(0))
             .map_err(|e| Error::io(&partial, e))?;
         Ok(CsvOut {
             path,
             partial,
-            writer: csv::Writer::from_writer(file),
+            writer: csv::Writer::from_writer(HashedFile { file, hash: kept }),
         })
     }
 
-    /// Flushes the rows written so far and returns the file's length (for a checkpoint).
-    pub fn flushed_len(&mut self) -> Result<u64> {
+    /// Flushes the rows written so far and returns the file's length and the FNV-1a of its
+    /// bytes (for a checkpoint).
+    pub fn flushed(&mut self) -> Result<(u64, String)> {
         self.writer
             .flush()
             .map_err(|e| Error::io(&self.partial, e))?;
-        self.writer
-            .get_ref()
+        let out = self.writer.get_ref();
+        let len = out
+            .file
             .metadata()
             .map(|m| m.len())
-            .map_err(|e| Error::io(&self.partial, e))
+            .map_err(|e| Error::io(&self.partial, e))?;
+        Ok((len, out.hash.hex()))
     }
 
     pub fn finish(mut self) -> Result<()> {
@@ -551,7 +598,7 @@ pub(super) fn check_resume(old: &StudyHeader, new: &StudyHeader, path: &Path) ->
 
 #[cfg(test)]
 mod tests {
-    use super::{shard_range, CsvOut};
+    use super::{shard_range, CsvOut, MemberRow};
 
     /// Shards partition the members in order, also where K·M exceeds u64 (it wrapped, giving
     /// shard 2^61 - 1 of 2^61 of 8 members the range [7, 0]).
@@ -581,10 +628,68 @@ mod tests {
         let path = tmp.path().join("members.csv");
         std::fs::write(&path, "member,x\n0,1\n1,2\n").unwrap();
         let kept = "member,x\n0,1\n".len() as u64;
-        let mut csv = CsvOut::resume(path.clone(), kept).unwrap();
-        assert_eq!(csv.flushed_len().unwrap(), kept);
+        let mut csv = CsvOut::resume(path.clone(), kept, None).unwrap();
+        assert_eq!(csv.flushed().unwrap().0, kept);
         csv.finish().unwrap();
         assert_eq!(std::fs::read_to_string(&path).unwrap(), "member,x\n0,1\n");
         assert!(!path.with_extension("csv.partial").exists());
+    }
+
+    /// A checkpoint records the FNV-1a of the rows it holds: a resume takes them back unchanged,
+    /// and refuses them when a byte among them changed without a change of length (it took
+    /// them as they were until 2026-11-30); rows after the checkpoint do not count.
+    #[test]
+    fn resume_refuses_rows_changed_since_their_checkpoint() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("members.csv");
+        let mut csv = CsvOut::create(path.clone(), &[]).unwrap();
+        let row = |member: u64| MemberRow {
+            member,
+            sweep_point: 0,
+            parameters: vec![],
+            mu: 0.01,
+            gamma: 2.0,
+            particles: 10,
+            status: "ok".into(),
+            failure_time: f64::NAN,
+            failure_reason: String::new(),
+            velocity_factor: 1.0,
+            velocity_phase: 0.0,
+            mean_dstar: 0.1,
+            min_rho_star: 0.7,
+            peak_density: 0.75,
+            peak_time: 0.5,
+            min_gap: 1e-3,
+            final_energy: 0.25,
+            first_hit_time: f64::NAN,
+            steps_accepted: 12,
+            steps_rejected: 1,
+            error_estimate: 1e-5,
+        };
+        csv.push(&row(0)).unwrap();
+        csv.push(&row(1)).unwrap();
+        let (bytes, hash) = csv.flushed().unwrap();
+        csv.push(&row(2)).unwrap();
+        drop(csv);
+        let partial = path.with_extension("csv.partial");
+        let text = std::fs::read(&partial).unwrap();
+        assert_eq!(hash, crate::output::fnv1a(&text[..bytes as usize]));
+
+        let mut resumed = CsvOut::resume(path.clone(), bytes, Some(&hash)).unwrap();
+        assert_eq!(resumed.flushed().unwrap(), (bytes, hash.clone()));
+        drop(resumed);
+
+        let mut damaged = text.clone();
+        let at = damaged[..bytes as usize]
+            .iter()
+            .rposition(|&b| b == b'7')
+            .unwrap();
+        damaged[at] = b'8';
+        std::fs::write(&partial, &damaged).unwrap();
+        let err = CsvOut::resume(path.clone(), bytes, Some(&hash))
+            .err()
+            .expect("a changed row is refused")
+            .to_string();
+        assert!(err.contains("rerun without --resume"), "{err}");
     }
 }

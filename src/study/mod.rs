@@ -459,7 +459,7 @@ fn solve_chunks(
     let (mut total, mut csv_out, mut largest_error_estimate) = match checkpoint {
         Some(c) => (
             c.state,
-            CsvOut::resume(members_csv, c.csv_bytes)?,
+            CsvOut::resume(members_csv, c.csv_bytes, c.csv_hash.as_deref())?,
             c.largest_error_estimate,
         ),
         None => (
@@ -504,12 +504,13 @@ fn solve_chunks(
             }
             if b < end && last_checkpoint.elapsed().as_secs_f64() >= options.checkpoint_seconds {
                 let t0 = Instant::now();
-                let csv_bytes = csv_out.flushed_len()?;
+                let (csv_bytes, csv_hash) = csv_out.flushed()?;
                 write_state_atomic(
                     &checkpoint_path,
                     &CheckpointFileRef {
                         state: &total,
                         csv_bytes,
+                        csv_hash: Some(csv_hash),
                         largest_error_estimate,
                     },
                 )?;
