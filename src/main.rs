@@ -43,9 +43,9 @@ enum Command {
         #[arg(long)]
         resume: bool,
         /// Ensembles only: seconds of solving between checkpoints of the finished chunks (what an
-        /// interrupted run can lose; 0 = after every chunk).
-        #[arg(long, value_name = "SECONDS", default_value_t = roughlub::study::DEFAULT_CHECKPOINT_SECONDS)]
-        checkpoint_every: f64,
+        /// interrupted run can lose; 0 = after every chunk, inf = never) [default: 60]
+        #[arg(long, value_name = "SECONDS")]
+        checkpoint_every: Option<f64>,
         #[command(flatten)]
         replace: ReplaceArgs,
         /// Write outputs larger than 21.5 GB, sweep more than 100000 points, or run a study whose memory estimate exceeds half the machine's memory (refused otherwise).
@@ -355,15 +355,22 @@ fn main() -> ExitCode {
                         resume,
                         force,
                         allow_large,
-                        checkpoint_seconds: checkpoint_every,
+                        checkpoint_seconds: checkpoint_every
+                            .unwrap_or(roughlub::study::DEFAULT_CHECKPOINT_SECONDS),
                     },
                 )?;
                 report_study(&summary, quiet);
                 return Ok(());
             }
-            if shard.is_some() || resume {
+            if shard.is_some() || resume || checkpoint_every.is_some() {
                 return Err(Error::missing(
-                    if resume { "--resume" } else { "--shard" },
+                    if resume {
+                        "--resume"
+                    } else if shard.is_some() {
+                        "--shard"
+                    } else {
+                        "--checkpoint-every"
+                    },
                     "only for ensemble scenes (with an [ensemble] section)",
                 ));
             }

@@ -1501,3 +1501,25 @@ fn a_symlinked_out_is_refused() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("symbolic link"));
     assert!(link.is_symlink() && std::fs::read_dir(&real).unwrap().next().is_none());
 }
+
+/// The options of ensemble studies on a scene without `[ensemble]` are errors naming the option,
+/// not silently ignored (`--checkpoint-every` was, until 2026-11-30), and nothing is written.
+#[test]
+fn study_options_on_a_single_run_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    for extra in [
+        &["--checkpoint-every", "5"][..],
+        &["--shard", "0/2"],
+        &["--resume"],
+    ] {
+        let out_dir = tmp.path().join("out");
+        let out = run(&data("small.toml"), &out_dir, extra);
+        let err = stderr_of(&out);
+        assert_eq!(out.status.code(), Some(2), "{extra:?}: {err}");
+        assert!(
+            err.contains(extra[0]) && err.contains("[ensemble]"),
+            "{extra:?}: {err}"
+        );
+        assert!(!out_dir.exists(), "{extra:?} wrote {out_dir:?}");
+    }
+}

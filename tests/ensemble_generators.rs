@@ -664,6 +664,12 @@ fn spec_deserialises_from_toml() {
         ),
         ("kind = \"gaussian\"\nspread = 0.3", "gaussian"),
         ("kind = \"lognormal\"\nsprad = 0.3", "sprad"),
+        // 1e300 ran, with every d* ~1e-276: no roughness left (2026-11-30).
+        ("kind = \"lognormal\"\nspread = 1e300", "0 <= spread <= 10"),
+        (
+            "kind = \"correlated\"\nlength = 0.05\nspread = 10.5",
+            "0 <= spread <= 10",
+        ),
     ] {
         let e = parse(text).unwrap_err().to_string();
         assert!(e.contains(needle), "{text}: {e}");

@@ -380,3 +380,25 @@ fn merge_refuses_shards_whose_detailed_points_differ() {
     assert!(err.contains("detailed points"), "{err}");
     assert!(!tmp.path().join("mixed").exists());
 }
+
+/// A shard without its manifest (written last) is not a complete study: an interrupted run's
+/// directory or its staging directory, whose statistics may be a checkpoint's. Merge refuses it,
+/// naming the directory (until 2026-11-30 it merged it and called the result complete).
+#[test]
+fn merge_refuses_a_shard_without_its_manifest() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dirs: Vec<PathBuf> = (0..3).map(|k| tmp.path().join(format!("s{k}"))).collect();
+    for (k, dir) in dirs.iter().enumerate() {
+        shard(dir, k as u64);
+    }
+    std::fs::remove_file(dirs[1].join("manifest.json")).unwrap();
+    let merged = tmp.path().join("m");
+    let out = merge(&[&dirs[0], &dirs[1], &dirs[2]], &merged, &[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("s1") && err.contains("no manifest.json") && err.contains("--resume"),
+        "{err}"
+    );
+    assert!(!merged.exists(), "a refused merge wrote {merged:?}");
+}

@@ -395,7 +395,12 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
 #[test]
 fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [(&str, String, &[&str]); 16] = [
+    let cases: [(&str, String, &[&str]); 17] = [
+        (
+            "a velocity that is infinite at the last point only",
+            format!("{BASE}\n[sweep]\nA = [0.1, 0.2, 0.0]\n").replace("A*sin(2*pi*x)", "0.05/A*sin(2*pi*x)"),
+            &["initial.velocity", "sweep point 2", "inf"],
+        ),
         (
             "a Saltelli design beyond the points' limit",
             format!("{BASE}\n[sweep]\ndesign = \"saltelli\"\npoints = 40000\nA = {{ min = 0.2, max = 0.8 }}\nlevel = {{ min = 0.5, max = 0.7 }}\n"),

@@ -46,7 +46,7 @@ pub use perturb::{jitter_gaps, perturbed_velocity, validate_velocity_perturbatio
 pub use radii::{
     dstar_from_radii, mean_radii_from_rho_star, read_radii_file, MAX_ROUGHNESS_RADIUS,
 };
-pub use roughness::{RoughnessKind, RoughnessSpec, UNIFORM_MAX_SPREAD};
+pub use roughness::{RoughnessKind, RoughnessSpec, MAX_RELATIVE_SPREAD, UNIFORM_MAX_SPREAD};
 pub use sampler::{correlated_field, roughness_radii, RoughnessSampler};
 pub use streams::{member_rng, purpose_seed, Purpose};
 

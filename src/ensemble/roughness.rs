@@ -9,6 +9,8 @@ use super::EnsembleError;
 
 /// 1/sqrt(3): the largest relative spread of uniform radii that keeps them non-negative.
 pub const UNIFORM_MAX_SPREAD: f64 = 0.577_350_269_189_625_8;
+/// The largest relative spread of the lognormal and correlated radii (as `sweep.roughness_spread`).
+pub const MAX_RELATIVE_SPREAD: f64 = 10.0;
 
 /// How the roughness radii of a member are drawn. In every random kind, r_i has mean
 /// `mean_radii[i]` and relative standard deviation `spread` (sd(r_i)/mean_i = spread).
@@ -181,12 +183,14 @@ impl RoughnessSpec {
                 }
             }
             RoughnessKind::LogNormal | RoughnessKind::Correlated { .. } => {
-                if !(s >= 0.0 && s.is_finite()) {
+                if !(0.0..=MAX_RELATIVE_SPREAD).contains(&s) {
                     return Err(EnsembleError::parameter(
                         field,
                         s,
-                        "the relative standard deviation must be a finite non-negative number",
-                        "0 <= spread < inf",
+                        "the relative standard deviation of the radii: above 10 the median radius \
+                         falls below a tenth of the mean, and at 1e10 every gap's d* is ~1e-9 of \
+                         its mean (no roughness left in practice)",
+                        "0 <= spread <= 10",
                     ));
                 }
             }

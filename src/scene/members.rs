@@ -11,6 +11,7 @@ use crate::model::chain::{positions_from_gaps, Chain};
 use crate::model::params::MemberParams;
 use crate::scene::{EnsembleSpec, InitialSpec, Scene, SweepTarget};
 
+use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 /// What the members of one sweep point share: the point's scene (swept settings set, expressions
@@ -32,7 +33,16 @@ pub struct PointSetup {
     pub params: MemberParams,
 }
 
+/// What the setups built while checking a study's points may hold at most.
+const PREBUILT_BYTES: usize = 64 << 20;
+
 impl PointSetup {
+    /// Its size in memory, roughly: the scene's text and a few KB for the rest of it, the chain,
+    /// the positions and the sampler's per-particle arrays.
+    fn approximate_bytes(&self) -> usize {
+        4096 + self.scene.source_text.len() + 10 * 8 * self.positions.len()
+    }
+
     fn new(point: u64, scene: Scene) -> Result<PointSetup> {
         let chain = scene.initial_chain()?;
         let positions = chain.positions();
@@ -143,6 +153,8 @@ pub struct EnsembleMembers {
     pub first: Arc<PointSetup>,
     /// The setups built last (members of a chunk are mostly of one or two points).
     recent: Mutex<Vec<Arc<PointSetup>>>,
+    /// Setups of points with their own chains, built when every point was checked.
+    prebuilt: HashMap<u64, Arc<PointSetup>>,
     /// The forcing with the swept parameters it uses left symbolic (read per member), and their
     /// names; `None` when the sweep does not reach the forcing.
     symbolic_forcing: Option<(Expr, Vec<String>)>,
@@ -205,14 +217,30 @@ impl EnsembleMembers {
         let mut base_scene = scene.clone();
         base_scene.ensemble = Some(spec.clone());
         let first = Arc::new(PointSetup::new(0, base_scene.at_point(0)?)?);
+        let mut prebuilt = HashMap::new();
         if shared {
             base_scene.initial_chain()?;
         } else {
-            // Every point's settings and profiles are checked before any member is solved: a
-            // value that is out of range at point 3 of 4 is an error now, not after the first
-            // three points' work. (mu and gamma alone are checked with the sweep's lists.)
+            // Every point's settings, profiles and initial chain are checked before any member
+            // is solved, by building its setup as the solve will: a value that is out of range
+            // at point 3 of 4 (a velocity infinite at some particle included) is an error now,
+            // not after the first three points' work. (mu and gamma alone are checked with the
+            // sweep's lists.)
+            // A point with its own chain (its density, rho* or N swept) is built from scratch,
+            // the costly part: kept while they fit in PREBUILT_BYTES, so the solve does not
+            // build it again (a rho-swept design of 10000 points of N = 20 spent half again
+            // its time building twice).
+            let mut budget = PREBUILT_BYTES;
             for p in 1..points {
-                base_scene.at_point(p)?;
+                let scene = base_scene.at_point(p)?;
+                if PointSetup::like(p, scene.clone(), &first)?.is_none() {
+                    let setup = PointSetup::new(p, scene)?;
+                    let bytes = setup.approximate_bytes();
+                    if bytes <= budget {
+                        budget -= bytes;
+                        prebuilt.insert(p, Arc::new(setup));
+                    }
+                }
             }
         }
         refuse_gamma_swept_without_roughness(scene, spec, &first.chain)?;
@@ -251,7 +279,13 @@ impl EnsembleMembers {
             base_scene,
             first,
             recent: Mutex::new(Vec::new()),
+            prebuilt,
         })
+    }
+
+    /// What the setups built while checking the points hold (at most 64 MB).
+    pub fn prebuilt_bytes(&self) -> usize {
+        self.prebuilt.values().map(|s| s.approximate_bytes()).sum()
     }
 
     /// Number of members: `spec.members` per sweep point.
@@ -291,6 +325,9 @@ impl EnsembleMembers {
     pub fn setup(&self, p: u64) -> Result<Arc<PointSetup>> {
         if p == 0 {
             return Ok(self.first.clone());
+        }
+        if let Some(setup) = self.prebuilt.get(&p) {
+            return Ok(setup.clone());
         }
         let mut recent = self.recent.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(s) = recent.iter().find(|s| s.point == p) {

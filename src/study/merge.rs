@@ -55,6 +55,14 @@ pub fn merge_studies(
         if !partial_path.exists() && dir.join(OLD_PARTIAL).exists() {
             return Err(old_format_error(&dir.join(OLD_PARTIAL)));
         }
+        // A study is complete once its manifest is written (last): a directory without one is an
+        // interrupted run's, or its staging directory, whose statistics may be a checkpoint's.
+        if partial_path.exists() && !dir.join(MANIFEST).exists() {
+            return Err(Error::Output {
+                path: dir.clone(),
+                message: format!("has no {MANIFEST}: not a complete study (an interrupted run, or its staging directory); finish it with roughlub run SCENE --out DIR --resume, or run that shard again"),
+            });
+        }
         let partial: PartialFile = read_state(&partial_path)?;
         check_state(&partial.header, &partial.state, &partial_path)?;
         // A run killed before it finished leaves the previous study's partial.json beside its

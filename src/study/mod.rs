@@ -226,7 +226,9 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         .map_or(members.first.chain.particles(), |largest| {
             largest.max(members.first.chain.particles())
         });
-    let memory = memory::estimate(&header, spec, particles, solvers);
+    let mut memory = memory::estimate(&header, spec, particles, solvers);
+    // The points' setups built while checking them, kept for the solve.
+    memory.bytes += members.prebuilt_bytes() as u64;
     let memory_limit = memory::memory_limit();
     let disk = memory::disk_bytes(&header, spec, particles, &memory);
     if !options.allow_large {

@@ -144,7 +144,11 @@ pub(super) fn check_value(field: &str, target: &SweepTarget, v: f64) -> Result<(
             MAX_PARTICLES as f64,
             "the number N of particle intervals",
         ),
-        SweepTarget::RoughnessSpread => within(0.0, 10.0, "relative spread of the roughness radii"),
+        SweepTarget::RoughnessSpread => within(
+            0.0,
+            crate::ensemble::MAX_RELATIVE_SPREAD,
+            "relative spread of the roughness radii",
+        ),
         SweepTarget::CorrelationLength => {
             if v > 0.0 {
                 Ok(())
