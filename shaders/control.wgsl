@@ -10,10 +10,12 @@ const SAFETY: real = 0.9;
 const MAX_GROWTH: real = 5.0;
 const MAX_SHRINK: real = 0.2;
 
-// STALL_WINDOW and STALL_PACE of kernels/src/shared/control.rs: a member whose last
+// STALL_WINDOW, STALL_PACE (fixed steps) and STALL_PACE_ADAPTIVE of
+// kernels/src/shared/control.rs: a member whose last
 // STALL_WINDOW attempts advanced it less than STALL_PACE of the time left an attempt fails.
 const STALL_WINDOW: u32 = 100000u;
 const STALL_PACE: real = 1e-12;
+const STALL_PACE_ADAPTIVE: real = 1e-9;
 
 // WORK_SLACK of kernels/src/shared/control.rs.
 const WORK_SLACK: real = 0.1;
@@ -160,7 +162,8 @@ fn conclude_attempt(c: ptr<function, Control>, h: real, r_in: Attempt) -> bool {
     (*c).window_attempts += 1u;
     if (*c).window_attempts >= STALL_WINDOW {
         let advanced = ((*c).t - (*c).window_t) + (*c).t_low;
-        if advanced < real(STALL_WINDOW) * STALL_PACE * remaining_time(*c) {
+        let pace = select(STALL_PACE_ADAPTIVE, STALL_PACE, config.fixed_h > 0.0);
+        if advanced < real(STALL_WINDOW) * pace * remaining_time(*c) {
             // Failure::Stalled = 6.
             (*c).failure = 6u;
             (*c).failure_time = (*c).t;

@@ -486,7 +486,8 @@ fn a_headless_gpu_run_prints_no_error_lines() {
 /// A member whose steps no longer advance it fails as stalled, on both backends at the same
 /// attempt: a forcing that oscillates with period 0.06 holds order 2's steps near 1e-3, which
 /// would take ~1e14 steps to reach t = 1e11; after 100000 attempts (`STALL_WINDOW`) that
-/// advanced it less than 1e-12 of the time left an attempt it fails, where it ran for ever.
+/// advanced it less than 1e-9 of the time left an attempt (`STALL_PACE_ADAPTIVE`) it fails,
+/// where it ran for ever.
 #[test]
 fn a_member_whose_steps_no_longer_advance_it_fails_as_stalled() {
     use roughlub::backend::shared::control::STALL_WINDOW;
@@ -544,5 +545,61 @@ plots = false
             (gpu_time - cpu_time).abs() <= 1e-12 * cpu_time,
             "{gpu_time} {cpu_time}"
         );
+    }
+}
+
+/// An f32 member held by rounding at a pace just above 1e-12 of the time left an attempt (the
+/// limit of fixed steps) ran for hours on the CPU (gamma = 1000, mu = 1e-8, found 2026-11-30;
+/// f64 fails it at once as a step-size collapse). Adaptive steps fail from a pace of 1e-9: it
+/// fails as stalled within a few windows of attempts, on both backends.
+#[test]
+fn an_f32_member_held_by_rounding_fails_as_stalled() {
+    use roughlub::backend::shared::control::STALL_WINDOW;
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("held.toml");
+    std::fs::write(
+        &scene,
+        r#"
+name = "held"
+[model]
+particles = 50
+mu = 1e-08
+gamma = 1000.0
+[initial]
+rho = "0.5+0.49*sin(pi*x)"
+velocity = "2*sin(2*pi*x)"
+rho_star = "0.999"
+[time]
+end = 0.5
+outputs = 11
+tolerance = 1e-5
+[solver]
+precision = "f32"
+[output]
+grid = 50
+plots = false
+"#,
+    )
+    .unwrap();
+    let held = |backend: &str| {
+        let out_dir = tmp.path().join(backend);
+        let out = run(&scene, &out_dir, &["--quiet", "--backend", backend]);
+        assert_success(&out);
+        let member = read_manifest(&out_dir)["members"][0].clone();
+        assert_eq!(member["status"], "failed", "{backend}: {member}");
+        let attempts =
+            member["steps_accepted"].as_u64().unwrap() + member["steps_rejected"].as_u64().unwrap();
+        assert!(
+            attempts < 5 * u64::from(STALL_WINDOW),
+            "{backend}: {attempts} attempts: {member}"
+        );
+        assert!(
+            member["time"].as_f64().unwrap() < 0.1,
+            "{backend}: {member}"
+        );
+    };
+    held("cpu");
+    if have_gpu(false, "an_f32_member_held_by_rounding_fails_as_stalled") {
+        held("gpu");
     }
 }

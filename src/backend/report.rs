@@ -1,6 +1,6 @@
 //! What every backend reports about its members: status, failure reason, step counts.
 
-use crate::backend::shared::control::{step_floor, STALL_PACE, STALL_WINDOW};
+use crate::backend::shared::control::{step_floor, STALL_PACE, STALL_PACE_ADAPTIVE, STALL_WINDOW};
 pub use roughlub_kernels::failure::Failure;
 
 /// Why a member stopped.
@@ -183,7 +183,9 @@ impl FailureRecord {
                 self.detail, self.index
             ),
             Failure::Stalled => format!(
-                "stalled at t = {t}: its last {STALL_WINDOW} attempts (accepted or rejected) advanced it by less than {STALL_PACE:e} of the time left to the next output time each, a pace at which it would take more than 1e12 steps to get there, though every step stayed above the step floor ({floor:e}) ({})",
+                "stalled at t = {t}: its last {STALL_WINDOW} attempts (accepted or rejected) advanced it by less than {STALL_PACE_ADAPTIVE:e} (adaptive steps; {STALL_PACE:e} with fixed steps) of the time left to the next output time each, a pace at which it would take more than {:e} ({:e}) steps to get there, though every step stayed above the step floor ({floor:e}) ({})",
+                1.0 / STALL_PACE_ADAPTIVE,
+                1.0 / STALL_PACE,
                 smallest_gap()
             ),
             Failure::Repulsion => format!(

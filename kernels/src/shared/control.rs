@@ -84,8 +84,14 @@ pub const STALL_WINDOW: u32 = 100_000;
 /// the member would take more than 1e12 attempts to get there and is failed: a forcing singular
 /// at a quadrature point (tan(pi x) at x = 1/2) held every step near 1e-28 at t = 1e-14, each
 /// above the step floor, and the run never ended. Collisions resolved with steps of 1e-18 t
-/// take thousands of attempts at that pace, not 1e5 (docs/accuracy-measurements.md).
+/// take thousands of attempts at that pace, not 1e5 (docs/accuracy-measurements.md). For fixed
+/// steps, which may be as small as end/1e12 (`time.dt`'s range).
 pub const STALL_PACE: f64 = 1e-12;
+/// The same for adaptive steps: 1e-9, so more than 1e9 attempts to the next output time. At
+/// 1e-12 an f32 member with gamma = 1000 and mu = 1e-8 kept a pace just above it (its steps
+/// near the rounding of its error estimates) and ran for hours where f64 failed it at once; no
+/// adaptive run measured needs 1e9 attempts an output interval.
+pub const STALL_PACE_ADAPTIVE: f64 = 1e-9;
 
 pub const REJECT_SHRINK: f64 = 0.25;
 pub const SAFETY: f64 = 0.9;
@@ -223,7 +229,12 @@ impl StepControl {
         self.window_attempts += 1;
         if self.window_attempts >= STALL_WINDOW {
             let advanced = (self.t - self.window_t) + self.t_low;
-            if advanced < STALL_WINDOW as f64 * STALL_PACE * self.remaining(rules) {
+            let pace = if rules.fixed_h.is_some() {
+                STALL_PACE
+            } else {
+                STALL_PACE_ADAPTIVE
+            };
+            if advanced < STALL_WINDOW as f64 * pace * self.remaining(rules) {
                 self.failure = Failure::Stalled;
                 self.failure_time = self.t;
                 return false;
