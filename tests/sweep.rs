@@ -395,10 +395,17 @@ fn sampled_designs_are_reproducible_across_chunks_threads_and_shards() {
 #[test]
 fn bad_parameters_and_sweeps_are_refused_naming_the_key() {
     let tmp = tempfile::tempdir().unwrap();
-    let cases: [(&str, String, &[&str]); 17] = [
+    let cases: [(&str, String, &[&str]); 18] = [
         (
             "a velocity that is infinite at the last point only",
             format!("{BASE}\n[sweep]\nA = [0.1, 0.2, 0.0]\n").replace("A*sin(2*pi*x)", "0.05/A*sin(2*pi*x)"),
+            &["initial.velocity", "sweep point 2", "inf"],
+        ),
+        (
+            "a velocity that is infinite at the last point only, which has its own chain",
+            format!("{BASE}\n[sweep]\nA = [0.1, 0.2, 0.0]\n")
+                .replace("A*sin(2*pi*x)", "0.05/A*sin(2*pi*x)")
+                .replace("rho = \"level\"", "rho = \"0.6+0.1*A\""),
             &["initial.velocity", "sweep point 2", "inf"],
         ),
         (

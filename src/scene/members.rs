@@ -36,6 +36,20 @@ pub struct PointSetup {
 /// What the setups built while checking a study's points may hold at most.
 const PREBUILT_BYTES: usize = 64 << 20;
 
+/// A sweep point's initial velocity u at x: finite and at most MAX_VELOCITY (the unswept
+/// scene's profile was sampled over [0, 1] when the scene was read).
+fn check_point_velocity(velocity: &Expr, u: f64, x: f64, point: u64) -> Result<()> {
+    if u.is_finite() && u.abs() <= crate::scene::MAX_VELOCITY {
+        return Ok(());
+    }
+    Err(Error::invalid(
+        "initial.velocity",
+        format!("\"{}\"", velocity.source()),
+        format!("u0 = {u} at x = {x} (sweep point {point})"),
+        format!("finite, |u0| <= {:e}", crate::scene::MAX_VELOCITY),
+    ))
+}
+
 impl PointSetup {
     /// Its size in memory, roughly: the scene's text and a few KB for the rest of it, the chain,
     /// the positions and the sampler's per-particle arrays.
@@ -46,6 +60,11 @@ impl PointSetup {
     fn new(point: u64, scene: Scene) -> Result<PointSetup> {
         let chain = scene.initial_chain()?;
         let positions = chain.positions();
+        if let (true, InitialSpec::Profiles { velocity, .. }) = (point != 0, &scene.initial) {
+            for (&u, &q) in chain.velocities.iter().zip(&positions[1..]) {
+                check_point_velocity(velocity, u, q, point)?;
+            }
+        }
         PointSetup::with_chain(point, scene, chain, positions)
     }
 
@@ -55,12 +74,26 @@ impl PointSetup {
     /// the Prop. 3.1 construction (thousands of quadrature panels) per point; the velocities
     /// are the point's own.
     fn like(point: u64, scene: Scene, first: &PointSetup) -> Result<Option<PointSetup>> {
+        if !PointSetup::shares_first_chain(&scene, first) {
+            return Ok(None);
+        }
+        let InitialSpec::Profiles { velocity, .. } = &scene.initial else {
+            return Ok(None);
+        };
+        let mut chain = first.chain.clone();
+        for (u, &q) in chain.velocities.iter_mut().zip(&first.positions[1..]) {
+            *u = velocity.eval(q, 0.0);
+            check_point_velocity(velocity, *u, q, point)?;
+        }
+        let positions = first.positions.clone();
+        PointSetup::with_chain(point, scene, chain, positions).map(Some)
+    }
+
+    /// Whether a point's scene differs from `first`'s only where the initial chain's gaps and
+    /// roughness do not see it (see [`like`](Self::like)).
+    fn shares_first_chain(scene: &Scene, first: &PointSetup) -> bool {
         let (
-            InitialSpec::Profiles {
-                rho,
-                velocity,
-                rho_star,
-            },
+            InitialSpec::Profiles { rho, rho_star, .. },
             InitialSpec::Profiles {
                 rho: rho_first,
                 rho_star: rho_star_first,
@@ -68,28 +101,9 @@ impl PointSetup {
             },
         ) = (&scene.initial, &first.scene.initial)
         else {
-            return Ok(None);
+            return false;
         };
-        if rho != rho_first
-            || rho_star != rho_star_first
-            || scene.particles != first.scene.particles
-        {
-            return Ok(None);
-        }
-        let mut chain = first.chain.clone();
-        for (u, &q) in chain.velocities.iter_mut().zip(&first.positions[1..]) {
-            *u = velocity.eval(q, 0.0);
-            if !(u.is_finite() && u.abs() <= crate::scene::MAX_VELOCITY) {
-                return Err(Error::invalid(
-                    "initial.velocity",
-                    format!("\"{}\"", velocity.source()),
-                    format!("u0 = {u} at x = {q} (sweep point {point})"),
-                    format!("finite, |u0| <= {:e}", crate::scene::MAX_VELOCITY),
-                ));
-            }
-        }
-        let positions = first.positions.clone();
-        PointSetup::with_chain(point, scene, chain, positions).map(Some)
+        rho == rho_first && rho_star == rho_star_first && scene.particles == first.scene.particles
     }
 
     fn with_chain(
@@ -153,7 +167,9 @@ pub struct EnsembleMembers {
     pub first: Arc<PointSetup>,
     /// The setups built last (members of a chunk are mostly of one or two points).
     recent: Mutex<Vec<Arc<PointSetup>>>,
-    /// Setups of points with their own chains, built when every point was checked.
+    /// Per sweep point, whether its chain is its own (not point 0's); empty when shared.
+    own_chain: Vec<bool>,
+    /// Setups of points with their own chains, built by [`prepare`](Self::prepare).
     prebuilt: HashMap<u64, Arc<PointSetup>>,
     /// The forcing with the swept parameters it uses left symbolic (read per member), and their
     /// names; `None` when the sweep does not reach the forcing.
@@ -217,30 +233,18 @@ impl EnsembleMembers {
         let mut base_scene = scene.clone();
         base_scene.ensemble = Some(spec.clone());
         let first = Arc::new(PointSetup::new(0, base_scene.at_point(0)?)?);
-        let mut prebuilt = HashMap::new();
+        let mut own_chain = Vec::new();
         if shared {
             base_scene.initial_chain()?;
         } else {
-            // Every point's settings, profiles and initial chain are checked before any member
-            // is solved, by building its setup as the solve will: a value that is out of range
-            // at point 3 of 4 (a velocity infinite at some particle included) is an error now,
-            // not after the first three points' work. (mu and gamma alone are checked with the
-            // sweep's lists.)
-            // A point with its own chain (its density, rho* or N swept) is built from scratch,
-            // the costly part: kept while they fit in PREBUILT_BYTES, so the solve does not
-            // build it again (a rho-swept design of 10000 points of N = 20 spent half again
-            // its time building twice).
-            let mut budget = PREBUILT_BYTES;
+            // Every point's settings and profiles are checked before any member is solved: a
+            // value that is out of range at point 3 of 4 is an error now, not after the first
+            // three points' work. (mu and gamma alone are checked with the sweep's lists; the
+            // initial chains of a run's own points, by `prepare`.)
+            own_chain = vec![false; points as usize];
             for p in 1..points {
                 let scene = base_scene.at_point(p)?;
-                if PointSetup::like(p, scene.clone(), &first)?.is_none() {
-                    let setup = PointSetup::new(p, scene)?;
-                    let bytes = setup.approximate_bytes();
-                    if bytes <= budget {
-                        budget -= bytes;
-                        prebuilt.insert(p, Arc::new(setup));
-                    }
-                }
+                own_chain[p as usize] = !PointSetup::shares_first_chain(&scene, &first);
             }
         }
         refuse_gamma_swept_without_roughness(scene, spec, &first.chain)?;
@@ -279,13 +283,59 @@ impl EnsembleMembers {
             base_scene,
             first,
             recent: Mutex::new(Vec::new()),
-            prebuilt,
+            own_chain,
+            prebuilt: HashMap::new(),
         })
     }
 
-    /// What the setups built while checking the points hold (at most 64 MB).
-    pub fn prebuilt_bytes(&self) -> usize {
-        self.prebuilt.values().map(|s| s.approximate_bytes()).sum()
+    /// The sweep points of members `range` (a shard's).
+    fn points_of(&self, (first, end): (u64, u64)) -> std::ops::Range<u64> {
+        if first >= end {
+            return 0..0;
+        }
+        self.sweep_point(first)..self.sweep_point(end - 1) + 1
+    }
+
+    /// Builds the setup of every sweep point of members `range` (a shard's) as the solve will,
+    /// before anything is solved: a velocity infinite at some particle of point 3 of 4 is an
+    /// error now, not after the first three points' work. Setups with their own chain (density,
+    /// rho* or N swept), the costly part, are kept for the solve while they fit in
+    /// PREBUILT_BYTES ([`prebuilt_bound`](Self::prebuilt_bound)): built twice, a rho-swept
+    /// design of 10000 points of N = 20 took half again its time. Only the run's own points: in
+    /// every shard of 1000 all points took 7 times a shard's time.
+    pub fn prepare(&mut self, range: (u64, u64)) -> Result<()> {
+        if self.shared {
+            return Ok(());
+        }
+        let mut budget = PREBUILT_BYTES;
+        for p in self.points_of(range).filter(|&p| p != 0) {
+            let scene = self.base_scene.at_point(p)?;
+            if !self.own_chain[p as usize] {
+                PointSetup::like(p, scene, &self.first)?;
+                continue;
+            }
+            let setup = PointSetup::new(p, scene)?;
+            let bytes = setup.approximate_bytes();
+            if bytes <= budget {
+                budget -= bytes;
+                self.prebuilt.insert(p, Arc::new(setup));
+            }
+        }
+        Ok(())
+    }
+
+    /// What [`prepare`](Self::prepare) may keep for members `range`, with chains of at most
+    /// `particles` particles: for the memory estimate, before it runs.
+    pub fn prebuilt_bound(&self, range: (u64, u64), particles: usize) -> usize {
+        if self.shared {
+            return 0;
+        }
+        let own = self
+            .points_of(range)
+            .filter(|&p| p != 0 && self.own_chain[p as usize])
+            .count();
+        let each = 4096 + self.base_scene.source_text.len() + 10 * 8 * (particles + 1);
+        own.saturating_mul(each).min(PREBUILT_BYTES)
     }
 
     /// Number of members: `spec.members` per sweep point.

@@ -196,7 +196,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         .ok_or_else(|| Error::missing("ensemble", "this scene has no [ensemble] section"))?;
     check_options(scene, options)?;
     let (k, n) = options.shard;
-    let members = EnsembleMembers::new(scene, spec)?;
+    let mut members = EnsembleMembers::new(scene, spec)?;
     let range = shard_range(members.total(), options.shard);
     let engine = select_for_study(scene, spec, &members, range, options)?;
     let mut header = header_for(
@@ -228,13 +228,14 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> Result<StudySummary> 
         });
     let mut memory = memory::estimate(&header, spec, particles, solvers);
     // The points' setups built while checking them, kept for the solve.
-    memory.bytes += members.prebuilt_bytes() as u64;
+    memory.bytes += members.prebuilt_bound(range, particles) as u64;
     let memory_limit = memory::memory_limit();
     let disk = memory::disk_bytes(&header, spec, particles, &memory);
     if !options.allow_large {
         memory::check(&memory, &header, spec, memory_limit)?;
         memory::check_disk(disk, &header, spec)?;
     }
+    members.prepare(range)?;
     if !options.quiet {
         eprintln!(
             "ensemble {}: members {}..{} of {} (shard {k}/{n}); {}; estimated memory {:.3} GB (limit {:.1} GB), disk {:.3} GB",
