@@ -15,7 +15,7 @@ const MAX_SHRINK: real = 0.2;
 // STALL_WINDOW attempts advanced it less than STALL_PACE of the time left an attempt fails.
 const STALL_WINDOW: u32 = 100000u;
 const STALL_PACE: real = 1e-12;
-const STALL_PACE_ADAPTIVE: real = 1e-9;
+const STALL_PACE_ADAPTIVE: real = 1e-10;
 
 // WORK_SLACK of kernels/src/shared/control.rs.
 const WORK_SLACK: real = 0.1;

@@ -548,10 +548,10 @@ plots = false
     }
 }
 
-/// An f32 member held by rounding at a pace just above 1e-12 of the time left an attempt (the
-/// limit of fixed steps) ran for hours on the CPU (gamma = 1000, mu = 1e-8, found 2026-11-30;
-/// f64 fails it at once as a step-size collapse). Adaptive steps fail from a pace of 1e-9: it
-/// fails as stalled within a few windows of attempts, on both backends.
+/// An f32 member held by rounding at a pace of ~1e-12 of the time left an attempt (the limit
+/// of fixed steps) ran for hours on the CPU (gamma = 1000, mu = 1e-8, found 2026-11-30; f64
+/// fails it at once as a step-size collapse, and so does the GPU's f32 kernel). Adaptive steps
+/// fail from a pace of 1e-10: it fails as stalled within a few windows of attempts.
 #[test]
 fn an_f32_member_held_by_rounding_fails_as_stalled() {
     use roughlub::backend::shared::control::STALL_WINDOW;
@@ -581,25 +581,80 @@ plots = false
 "#,
     )
     .unwrap();
-    let held = |backend: &str| {
+    let out_dir = tmp.path().join("cpu");
+    let out = run(&scene, &out_dir, &["--quiet", "--backend", "cpu"]);
+    assert_success(&out);
+    let member = read_manifest(&out_dir)["members"][0].clone();
+    assert_eq!(member["status"], "failed", "{member}");
+    assert!(
+        member["reason"].as_str().unwrap().contains("stalled"),
+        "{member}"
+    );
+    let attempts =
+        member["steps_accepted"].as_u64().unwrap() + member["steps_rejected"].as_u64().unwrap();
+    assert!(
+        attempts < 5 * u64::from(STALL_WINDOW),
+        "{attempts} attempts: {member}"
+    );
+    assert!(member["time"].as_f64().unwrap() < 0.1, "{member}");
+}
+
+/// Adaptive steps fail as stalled from a pace of 1e-10 of the time left an attempt (fixed steps
+/// from 1e-12), on both backends alike (kernels/src/shared/control.rs and its WGSL twin): the
+/// oscillating forcing of `a_member_whose_steps_no_longer_advance_it_fails_as_stalled` holds
+/// order 2's steps near 3e-4, a pace of ~3e-12 towards t = 1e8, so it fails in its first window,
+/// at the same attempt and time on both (at a limit of 1e-12 it ran on).
+#[test]
+fn adaptive_steps_stall_from_a_pace_of_1e_10_on_both_backends() {
+    use roughlub::backend::shared::control::STALL_WINDOW;
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("slow.toml");
+    std::fs::write(
+        &scene,
+        r#"
+name = "slow"
+[model]
+particles = 4
+mu = 0.1
+forcing = "0.5*sin(2*pi*x)*cos(100*t)"
+[initial]
+rho = "0.7"
+rho_star = "0.7"
+[time]
+end = 1e8
+outputs = 2
+tolerance = 1e-6
+[solver]
+order = 2
+[output]
+plots = false
+"#,
+    )
+    .unwrap();
+    let stalled = |backend: &str| {
         let out_dir = tmp.path().join(backend);
         let out = run(&scene, &out_dir, &["--quiet", "--backend", backend]);
         assert_success(&out);
         let member = read_manifest(&out_dir)["members"][0].clone();
         assert_eq!(member["status"], "failed", "{backend}: {member}");
-        let attempts =
-            member["steps_accepted"].as_u64().unwrap() + member["steps_rejected"].as_u64().unwrap();
         assert!(
-            attempts < 5 * u64::from(STALL_WINDOW),
-            "{backend}: {attempts} attempts: {member}"
-        );
-        assert!(
-            member["time"].as_f64().unwrap() < 0.1,
+            member["reason"].as_str().unwrap().contains("stalled"),
             "{backend}: {member}"
         );
+        let attempts =
+            member["steps_accepted"].as_u64().unwrap() + member["steps_rejected"].as_u64().unwrap();
+        assert_eq!(attempts, u64::from(STALL_WINDOW) - 1, "{backend}: {member}");
+        member["time"].as_f64().unwrap()
     };
-    held("cpu");
-    if have_gpu(false, "an_f32_member_held_by_rounding_fails_as_stalled") {
-        held("gpu");
+    let cpu_time = stalled("cpu");
+    if have_gpu(
+        true,
+        "adaptive_steps_stall_from_a_pace_of_1e_10_on_both_backends",
+    ) {
+        let gpu_time = stalled("gpu");
+        assert!(
+            (gpu_time - cpu_time).abs() <= 1e-12 * cpu_time,
+            "{gpu_time} {cpu_time}"
+        );
     }
 }

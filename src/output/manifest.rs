@@ -142,7 +142,7 @@ pub fn large_error_warning(
                 crate::backend::Precision::F64 => "the estimate adds the local errors that the steps held below the tolerance, without what later steps do to them, so it is mostly above the error; near contact they add up (docs/accuracy.md, Near contact)",
             };
             return Some(format!(
-                "the largest error estimate {e:.2e} is {times:.0} times the tolerance {tolerance:.0e}: these results may be accurate only to about the estimate, not to the tolerance; {why}"
+                "the largest error estimate {e:.2e} is {times:.0} times the tolerance {tolerance:e}: these results may be accurate only to about the estimate, not to the tolerance; {why}"
             ));
         }
     }
