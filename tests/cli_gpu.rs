@@ -483,6 +483,22 @@ fn a_headless_gpu_run_prints_no_error_lines() {
     );
 }
 
+/// The single member of `scene` run on `backend` into `out_dir`, asserted failed as stalled,
+/// and its attempts (accepted and rejected steps).
+fn stalled_member(scene: &Path, out_dir: &Path, backend: &str) -> (Value, u64) {
+    let out = run(scene, out_dir, &["--quiet", "--backend", backend]);
+    assert_success(&out);
+    let member = read_manifest(out_dir)["members"][0].clone();
+    assert_eq!(member["status"], "failed", "{backend}: {member}");
+    assert!(
+        member["reason"].as_str().unwrap().contains("stalled"),
+        "{backend}: {member}"
+    );
+    let attempts =
+        member["steps_accepted"].as_u64().unwrap() + member["steps_rejected"].as_u64().unwrap();
+    (member, attempts)
+}
+
 /// A member whose steps no longer advance it fails as stalled, on both backends at the same
 /// attempt and time (kernels/src/shared/control.rs and its WGSL twin): a forcing that
 /// oscillates with period 0.06 holds order 2's steps near 3e-4, which would take ~3e14 steps
@@ -521,17 +537,12 @@ plots = false
         .unwrap();
         let stalled = |backend: &str| {
             let out_dir = tmp.path().join(format!("{backend}_{end}"));
-            let out = run(&scene, &out_dir, &["--quiet", "--backend", backend]);
-            assert_success(&out);
-            let member = read_manifest(&out_dir)["members"][0].clone();
-            assert_eq!(member["status"], "failed", "{backend}: {member}");
-            let reason = member["reason"].as_str().unwrap().to_string();
+            let (member, attempts) = stalled_member(&scene, &out_dir, backend);
+            let reason = member["reason"].as_str().unwrap();
             assert!(
                 reason.contains(&format!("its last {STALL_WINDOW} attempts")),
                 "{backend}: {reason}"
             );
-            let attempts = member["steps_accepted"].as_u64().unwrap()
-                + member["steps_rejected"].as_u64().unwrap();
             let time = member["time"].as_f64().unwrap();
             // It failed in its first window of attempts, long before the end.
             assert_eq!(attempts, u64::from(STALL_WINDOW) - 1, "{backend}: {member}");
@@ -586,17 +597,7 @@ plots = false
 "#,
     )
     .unwrap();
-    let out_dir = tmp.path().join("cpu");
-    let out = run(&scene, &out_dir, &["--quiet", "--backend", "cpu"]);
-    assert_success(&out);
-    let member = read_manifest(&out_dir)["members"][0].clone();
-    assert_eq!(member["status"], "failed", "{member}");
-    assert!(
-        member["reason"].as_str().unwrap().contains("stalled"),
-        "{member}"
-    );
-    let attempts =
-        member["steps_accepted"].as_u64().unwrap() + member["steps_rejected"].as_u64().unwrap();
+    let (member, attempts) = stalled_member(&scene, &tmp.path().join("cpu"), "cpu");
     assert!(
         attempts < 5 * u64::from(STALL_WINDOW),
         "{attempts} attempts: {member}"

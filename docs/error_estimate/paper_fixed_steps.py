@@ -6,31 +6,26 @@ error, over 3000 steps: it falls like dt, as order 1's error does, and stands fa
 2's.
 
     python3 docs/error_estimate/paper_fixed_steps.py target/release/roughlub   (about 2 minutes)"""
-import json, os, re, subprocess, sys, tempfile
+import os, re, sys, tempfile
 import numpy as np
+from chain_runs import run
 
 BIN = sys.argv[1] if len(sys.argv) > 1 else "target/release/roughlub"
 SCENES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "paper", "scenes")
 
 
-def run(tmp, case, variant):
+def paper_run(tmp, case, variant):
+    """The paper's scene <case>_<variant> with 31 outputs of gaps and velocities."""
     text = open(os.path.join(SCENES, f"{case}_{variant}.toml")).read()
     text = re.sub(r"outputs = \d+", "outputs = 31", text)
     text = re.sub(r"fields = \[.*\]", 'fields = ["gaps", "velocities"]', text)
-    path, out = os.path.join(tmp, "s.toml"), os.path.join(tmp, variant)
-    open(path, "w").write(text)
-    r = subprocess.run([BIN, "run", path, "--out", out, "--quiet", "--force"],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(r.stderr)
-    m = json.load(open(os.path.join(out, "manifest.json")))
-    return m, np.load(os.path.join(out, "gaps.npy")), np.load(os.path.join(out, "velocities.npy"))
+    return run(BIN, tmp, text)
 
 
 with tempfile.TemporaryDirectory() as tmp:
     for case in ["case2a", "case3", "case1_gamma_sweep"]:
-        m, g, v = run(tmp, case, "N")
-        m4, G, V = run(tmp, case, "dt4")
+        m, g, v = paper_run(tmp, case, "N")
+        m4, G, V = paper_run(tmp, case, "dt4")
         for b, member in enumerate(m["members"]):
             error = max(np.abs(np.log(g[:, b]) - np.log(G[:, b])).max(),
                         (np.abs(v[:, b] - V[:, b]) / (1 + np.abs(V[:, b]))).max())

@@ -117,6 +117,18 @@ impl Fnv1a {
     }
 }
 
+/// Hashes what is written to it (`std::io::copy` of a file into it hashes the file).
+impl std::io::Write for Fnv1a {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.update(buf);
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
 /// Whether `dir` holds a record that roughlub wrote: a `manifest.json` or `study.json` with its
 /// `roughlub_version` (a file of that name alone may be anyone's: a web app's manifest).
 fn holds_roughlub_record(dir: &Path) -> bool {

@@ -36,33 +36,45 @@ pub struct PointSetup {
 /// What the setups built while checking a study's points may hold at most.
 const PREBUILT_BYTES: usize = 64 << 20;
 
-/// A sweep point's initial velocity u at x: finite and at most MAX_VELOCITY (the unswept
-/// scene's profile was sampled over [0, 1] when the scene was read).
-fn check_point_velocity(velocity: &Expr, u: f64, x: f64, point: u64) -> Result<()> {
+/// A sweep point's initial velocity u of `particle` (at x): finite and at most MAX_VELOCITY (the
+/// unswept scene's profile was sampled over [0, 1] when the scene was read).
+fn check_point_velocity(
+    velocity: &Expr,
+    u: f64,
+    particle: usize,
+    x: f64,
+    point: u64,
+) -> Result<()> {
     if u.is_finite() && u.abs() <= crate::scene::MAX_VELOCITY {
         return Ok(());
     }
     Err(Error::invalid(
         "initial.velocity",
         format!("\"{}\"", velocity.source()),
-        format!("u0 = {u} at x = {x} (sweep point {point})"),
+        format!("u0 = {u} at particle {particle} (x = {x}) of sweep point {point}"),
         format!("finite, |u0| <= {:e}", crate::scene::MAX_VELOCITY),
     ))
+}
+
+/// Roughly the memory of a point's setup with `particles` particles and a scene text of
+/// `text_bytes`: a few KB for the scene, the chain, the positions and the sampler's arrays.
+fn setup_bytes(text_bytes: usize, particles: usize) -> usize {
+    4096 + text_bytes + 10 * 8 * (particles + 1)
 }
 
 impl PointSetup {
     /// Its size in memory, roughly: the scene's text and a few KB for the rest of it, the chain,
     /// the positions and the sampler's per-particle arrays.
     fn approximate_bytes(&self) -> usize {
-        4096 + self.scene.source_text.len() + 10 * 8 * self.positions.len()
+        setup_bytes(self.scene.source_text.len(), self.chain.particles())
     }
 
     fn new(point: u64, scene: Scene) -> Result<PointSetup> {
         let chain = scene.initial_chain()?;
         let positions = chain.positions();
         if let (true, InitialSpec::Profiles { velocity, .. }) = (point != 0, &scene.initial) {
-            for (&u, &q) in chain.velocities.iter().zip(&positions[1..]) {
-                check_point_velocity(velocity, u, q, point)?;
+            for (i, (&u, &q)) in chain.velocities.iter().zip(&positions[1..]).enumerate() {
+                check_point_velocity(velocity, u, i + 1, q, point)?;
             }
         }
         PointSetup::with_chain(point, scene, chain, positions)
@@ -81,9 +93,14 @@ impl PointSetup {
             return Ok(None);
         };
         let mut chain = first.chain.clone();
-        for (u, &q) in chain.velocities.iter_mut().zip(&first.positions[1..]) {
+        for (i, (u, &q)) in chain
+            .velocities
+            .iter_mut()
+            .zip(&first.positions[1..])
+            .enumerate()
+        {
             *u = velocity.eval(q, 0.0);
-            check_point_velocity(velocity, *u, q, point)?;
+            check_point_velocity(velocity, *u, i + 1, q, point)?;
         }
         let positions = first.positions.clone();
         PointSetup::with_chain(point, scene, chain, positions).map(Some)
@@ -334,7 +351,7 @@ impl EnsembleMembers {
             .points_of(range)
             .filter(|&p| p != 0 && self.own_chain[p as usize])
             .count();
-        let each = 4096 + self.base_scene.source_text.len() + 10 * 8 * (particles + 1);
+        let each = setup_bytes(self.base_scene.source_text.len(), particles);
         own.saturating_mul(each).min(PREBUILT_BYTES)
     }
 
@@ -453,19 +470,9 @@ impl EnsembleMembers {
                 let q = positions_from_gaps(&chain.gaps, chain.eps);
                 for (i, u) in chain.velocities.iter_mut().enumerate() {
                     let v = velocity.eval(q[i + 1] - phase, 0.0);
-                    // A sweep point's velocity profile is checked here, where it is used (the
-                    // unswept scene's was sampled over [0, 1] when the scene was read).
-                    if p != 0 && !(v.is_finite() && v.abs() <= crate::scene::MAX_VELOCITY) {
-                        return Err(Error::invalid(
-                            "initial.velocity",
-                            format!("\"{}\"", velocity.source()),
-                            format!(
-                                "u0 = {v} at particle {} (x = {}) of sweep point {p}",
-                                i + 1,
-                                q[i + 1] - phase
-                            ),
-                            format!("finite, |u0| <= {:e}", crate::scene::MAX_VELOCITY),
-                        ));
+                    // Again at the member's own (jittered, phase-shifted) positions.
+                    if p != 0 {
+                        check_point_velocity(velocity, v, i + 1, q[i + 1] - phase, p)?;
                     }
                     *u = factor * v;
                 }

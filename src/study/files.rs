@@ -293,16 +293,7 @@ impl CsvOut {
         }
         file.set_len(bytes).map_err(|e| Error::io(&partial, e))?;
         let mut kept = crate::output::Fnv1a::default();
-        let mut reader = std::io::BufReader::new(&file);
-        let mut buffer = vec![0u8; 1 << 16];
-        loop {
-            let n = std::io::Read::read(&mut reader, &mut buffer)
-                .map_err(|e| Error::io(&partial, e))?;
-            if n == 0 {
-                break;
-            }
-            kept.update(&buffer[..n]);
-        }
+        std::io::copy(&mut &file, &mut kept).map_err(|e| Error::io(&partial, e))?;
         if hash.is_some_and(|h| h != kept.hex()) {
             return Err(Error::Output {
                 path: partial,
