@@ -96,8 +96,8 @@ fn tableau_work(k: u32) -> real {
 }
 
 // `select_order` of kernels/src/shared/control.rs: (next column, step factor) from the scaled
-// estimates of columns 2..=k.
-fn select_order(k: u32, errs: array<real, 9>, accepted: bool) -> vec2<real> {
+// estimates of columns 2..=k, raised only below `top` (`top_column`).
+fn select_order(k: u32, errs: array<real, 9>, accepted: bool, top: u32) -> vec2<real> {
     var e = errs;
     var work_k = tableau_work(k) / step_factor(e[k], k);
     if k > 2u {
@@ -107,7 +107,7 @@ fn select_order(k: u32, errs: array<real, 9>, accepted: bool) -> vec2<real> {
         }
     }
     var raise = false;
-    if accepted && k < MAX_ORDER {
+    if accepted && k < top {
         if k == 2u {
             raise = true;
         } else {

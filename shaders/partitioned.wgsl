@@ -871,7 +871,7 @@ fn p_decide(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     err = scaled[rows];
 //@BEGIN AUTO
-    let chosen = select_order(k, scaled, admissible && energy_ok && err <= 1.0);
+    let chosen = select_order(k, scaled, admissible && energy_ok && err <= 1.0, config.top_column);
     order_next = u32(chosen.x);
     factor = chosen.y;
 //@END AUTO

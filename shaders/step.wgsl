@@ -52,13 +52,14 @@
 
 alias real = f64;
 
-// Keep in sync with `ConfigF64` / `ConfigF32` in src/backend/gpu/wgsl_types.rs (`padding`
+// Keep in sync with `ConfigF64` / `ConfigF32` in src/backend/gpu/wgsl_types.rs (`top_column`
 // keeps the reals 8-aligned for f64).
 struct Config {
     batch: u32,
     particles: u32,
     max_attempts: u32,
-    padding: u32,
+    // Auto's highest column (`Plan::top_column`).
+    top_column: u32,
     eps: real,
     t_start: real,
     t_end: real,
@@ -824,7 +825,7 @@ fn try_step(b: u32, cur: u32, cand: u32, h: real, c: Control, p: Param) -> Attem
     }
     err = scaled[rows];
 //@BEGIN AUTO
-    let chosen = select_order(k, scaled, admissible && energy_ok && err <= 1.0);
+    let chosen = select_order(k, scaled, admissible && energy_ok && err <= 1.0, config.top_column);
     order_next = u32(chosen.x);
     factor = chosen.y;
 //@END AUTO

@@ -588,7 +588,7 @@ rho_star = "0.999"
 [time]
 end = 0.5
 outputs = 11
-tolerance = 1e-5
+tolerance = 3e-5
 [solver]
 precision = "f32"
 [output]

@@ -5,6 +5,7 @@
 //! order 1; adaptive f32 as accurate as adaptive f64 against an independent reference.
 
 use roughlub::backend::cpu::CpuSolver;
+use roughlub::backend::shared::control::top_column;
 use roughlub::backend::{BatchSolver, MemberReport, MemberStatus, Precision};
 use roughlub::expr::Expr;
 use roughlub::model::chain::Chain;
@@ -192,24 +193,24 @@ fn f32_agrees_with_f64_within_the_derived_tolerance() {
     }
 }
 
-/// Adaptive steps (order 2, order 4 and auto at tolerance 1e-4): every member completes in f32
-/// with the step counts of f64 to 5 % plus 3 steps per member (the estimates differ by rounding,
-/// ~1e-6, far below the tolerance, but one decision taken the other way shifts the sequence;
-/// auto: at most twice f64's, since its high columns' estimates carry the extrapolation's
-/// amplified rounding, gain(6) ≈ 1400 ulps ≈ 1e-4, as large as the tolerance), and
-/// its error against an independent reference (f64, order 4, fixed dt = 1e-4) is at most 1.5
-/// times f64's (both held to the same tolerance by step sequences that differ as much; measured
-/// at most 1.21) plus the order-1 rounding bound 2·steps·(gamma_max + 1)·u32 at the steps taken
-/// (the rows' rounding is correlated: the fixed-step test at order 4 stays within it). Auto is
-/// the exception: its high columns' estimates are dominated by amplified rounding, so its choices
-/// follow rounding; measured on case 1, velocities 1.8e-2 in f32 against 2.8e-3 in f64 (3.3e-3
-/// with the projection rounded another way), so auto is only held to 10 times f64's error (a
-/// guard against a broken f32 path, not an accuracy claim: prefer a fixed order in f32). f32
+/// Adaptive steps (order 2, order 4 and auto at tolerance 2e-4, above the f32 floors): every
+/// member completes in f32 with the step counts of f64 to 5 % plus 3 steps per member for the
+/// fixed orders (the estimates differ by rounding, ~1e-6, far below the tolerance, but one
+/// decision taken the other way shifts the sequence; auto in f32 stops at column 4, where its
+/// rounding stays 10 times below the tolerance, `top_column`, so it takes more steps than in
+/// f64), and its error against an independent reference (f64, order 4, fixed dt = 1e-4) is at
+/// most 1.5 times f64's (both held to the same tolerance by step sequences that differ; measured
+/// at most 1.21 with the fixed orders; auto's against the larger of f64's auto and order 4, the
+/// columns it may take) plus the order-1 rounding bound 2·steps·(gamma_max +
+/// 1)·u32 at the steps taken (the rows' rounding is correlated: the fixed-step test at order 4
+/// stays within it). Until auto's columns were capped in f32, its high columns' estimates were
+/// dominated by amplified rounding and its choices followed it (case 1 at 1e-4: velocities
+/// 1.8e-2 in f32 against 2.8e-3 in f64), so it was held only to 10 times f64's error. f32
 /// rounding grows with the step count, so at tighter tolerances f32 falls behind f64: measured
 /// at 1e-5, order 2, case 1 (~2300 steps per member): f32 1.7e-3 against f64 9.1e-5 on gaps.
 #[test]
 fn adaptive_f32_is_as_accurate_as_adaptive_f64_up_to_rounding() {
-    let tol = 1e-4;
+    let tol = 2e-4;
     let u32_eps = 2f64.powi(-24);
     for (label, chain, members) in scenes() {
         let gamma_max = members.iter().fold(1.0f64, |m, p| m.max(p.gamma));
@@ -223,6 +224,9 @@ fn adaptive_f32_is_as_accurate_as_adaptive_f64_up_to_rounding() {
             },
         );
         let (exact, _) = run(&reference, &chain, Precision::F64);
+        // Auto's highest column in f32 at this tolerance, and f64's errors with it.
+        assert_eq!(top_column(tol, true, false), 4);
+        let mut f64_at_top = (0.0, 0.0);
         for order in [Order::Fixed(2), Order::Fixed(4), Order::Auto] {
             let adaptive = Stepping::Adaptive {
                 tolerance: tol,
@@ -245,13 +249,20 @@ fn adaptive_f32_is_as_accurate_as_adaptive_f64_up_to_rounding() {
             eprintln!(
                 "{label} {order:?}: error f64 gaps {e64g:.2e} velocities {e64v:.2e} ({s64} steps), f32 gaps {e32g:.2e} velocities {e32v:.2e} ({s32} steps); rounding bound {rounding:.2e}"
             );
-            assert!(
-                (s32 - s64).abs()
-                    <= if order == Order::Auto { 1.0 } else { 0.05 } * s64
-                        + 3.0 * members.len() as f64,
-                "{label} {order:?}: {s32} steps in f32, {s64} in f64"
-            );
-            let factor = if order == Order::Auto { 10.0 } else { 1.5 };
+            if order != Order::Auto {
+                assert!(
+                    (s32 - s64).abs() <= 0.05 * s64 + 3.0 * members.len() as f64,
+                    "{label} {order:?}: {s32} steps in f32, {s64} in f64"
+                );
+            }
+            if order == Order::Fixed(4) {
+                f64_at_top = (e64g, e64v);
+            }
+            let (e64g, e64v) = match order {
+                Order::Auto => (e64g.max(f64_at_top.0), e64v.max(f64_at_top.1)),
+                Order::Fixed(_) => (e64g, e64v),
+            };
+            let factor = 1.5;
             assert!(
                 e32g <= factor * e64g + rounding && e32v <= factor * e64v + rounding,
                 "{label} {order:?}: f32 error {e32g:e} {e32v:e} vs f64 {e64g:e} {e64v:e}"

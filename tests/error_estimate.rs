@@ -508,11 +508,12 @@ fn outputs_at(text: &str, precision: Precision) -> Vec<(Vec<f64>, Vec<f64>)> {
 }
 
 /// An adaptive run whose estimate is over 100 times its tolerance warns that the tolerance was
-/// not met, below the estimate's absolute limit of 0.1 (issue 22, item 2). f32 at tolerance 1e-6
-/// on a chain driven to a gap of 1e-13 (N = 24, gamma 1, u0 = 2 sin 2 pi x) errs by over 100
-/// times the tolerance against the same chain in f64 at 1e-11 (measured 2026-11-30: 5.5e-3, and
-/// an estimate of 2.15e-3: docs/error_estimate/tolerance_factor.py); in f64 at 1e-6 the error is
-/// within 10 times the tolerance (1.2e-6) and the run does not warn.
+/// not met, below the estimate's absolute limit of 0.1 (issue 22, item 2). f32 at tolerance 3e-5
+/// (near its floor for auto, 2.63e-5) on a chain driven to a gap of 1e-13 (N = 24, gamma 1, u0 =
+/// 2 sin 2 pi x) errs by over 10 times the tolerance against the same chain in f64 at 1e-11
+/// (measured 2026-11-30: 30 times, and an estimate of 520 times:
+/// docs/error_estimate/tolerance_factor.py); in f64 at 3e-5 the error is within 10 times the
+/// tolerance and the run does not warn.
 #[test]
 fn an_adaptive_run_far_from_its_tolerance_says_so() {
     let text = |tolerance: f64, precision: &str| {
@@ -556,31 +557,31 @@ plots = false
     };
     let tmp = tempfile::tempdir().unwrap();
     for (precision, name) in [(Precision::F32, "f32"), (Precision::F64, "f64")] {
-        let scene = text(1e-6, name);
+        let scene = text(3e-5, name);
         let error = error(&outputs_at(&scene, precision));
         let (_, stderr, manifest) = run_cli(tmp.path(), name, &scene, &[]);
         let record = &manifest["error_estimate"];
         let estimate = record["largest"].as_f64().unwrap();
         let warning = record["warning"].as_str();
         eprintln!(
-            "{name} at 1e-6: error {error:.3e}, estimate {estimate:.3e}, warning {warning:?}"
+            "{name} at 3e-5: error {error:.3e}, estimate {estimate:.3e}, warning {warning:?}"
         );
         if precision == Precision::F32 {
-            assert!(error > 1e-4, "f32 no longer errs far from 1e-6: {error:e}");
+            assert!(error > 3e-4, "f32 no longer errs far from 3e-5: {error:e}");
             assert!(
-                (1e-4..0.1).contains(&estimate),
+                (3e-3..0.1).contains(&estimate),
                 "estimate {estimate:e}: not between 100 times the tolerance and the limit"
             );
             for text in [warning.unwrap_or(""), &stderr] {
                 assert!(
-                    text.contains("times the tolerance 1e-6")
+                    text.contains("times the tolerance 3e-5")
                         && text.contains("precision = \"f64\""),
                     "{text}"
                 );
             }
         } else {
-            assert!(error < 1e-5, "f64 errs {error:e} at 1e-6");
-            assert!(estimate < 1e-4, "estimate {estimate:e}");
+            assert!(error < 3e-4, "f64 errs {error:e} at 3e-5");
+            assert!(estimate < 3e-3, "estimate {estimate:e}");
             assert!(warning.is_none() && !stderr.contains("warning"), "{stderr}");
         }
     }
@@ -589,11 +590,11 @@ plots = false
     // reads the tolerance from the shards' scene).
     let study = format!(
         "{}\n[ensemble]\nmembers = 2\nchunk = 1\n",
-        text(1e-6, "f32")
+        text(3e-5, "f32")
     );
     let (_, _, whole) = run_cli(tmp.path(), "whole", &study, &[]);
     let recorded = whole["error_estimate"]["warning"].as_str().unwrap_or("");
-    assert!(recorded.contains("times the tolerance 1e-6"), "{recorded}");
+    assert!(recorded.contains("times the tolerance 3e-5"), "{recorded}");
     let mut shards = Vec::new();
     for k in 0..2 {
         let (dir, _, _) = run_cli(

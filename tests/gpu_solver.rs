@@ -9,6 +9,7 @@ use common::{plan_for, random_chain, Rng};
 use roughlub::backend::cpu::CpuSolver;
 use roughlub::backend::gpu::solver::GpuSolver;
 use roughlub::backend::gpu::GpuContext;
+use roughlub::backend::shared::control::top_column;
 use roughlub::backend::{BatchSolver, MemberReport, MemberStatus, Precision};
 use roughlub::expr::Expr;
 use roughlub::model::chain::Chain;
@@ -757,6 +758,64 @@ fn f32_higher_orders_agree_with_f64() {
         dg <= 10.0 * tolerance && dv <= 10.0 * tolerance,
         "auto: {dg:e} {dv:e}"
     );
+}
+
+/// Auto in f32 ends its steps only in columns whose rounding stays 10 times below the tolerance
+/// (`top_column`: 3 at 1e-4, 4 at 2e-4), on the CPU and in the GPU's twin alike, where in f64
+/// the same members end in higher columns; CPU f32 and GPU f32 take the same number of steps to 5
+/// % plus one a member.
+#[test]
+fn auto_in_f32_keeps_to_the_columns_its_rounding_allows() {
+    let Some(ctx) = acquire_for_tests(true) else {
+        return;
+    };
+    let chain = profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7"));
+    let members: Vec<MemberParams> = [(0.01, 1.0), (0.005, 2.0), (0.02, 2.0)]
+        .iter()
+        .map(|&(mu, gamma)| MemberParams { mu, gamma })
+        .collect();
+    let chains = vec![chain.clone(); members.len()];
+    for (tolerance, top) in [(1e-4, 3u8), (2e-4, 4)] {
+        assert_eq!(top_column(tolerance, true, false), top);
+        let adaptive = Stepping::Adaptive {
+            tolerance,
+            dt_initial: 1e-4,
+            dt_min: 1e-12,
+        };
+        let plan = plan_for(
+            &chain,
+            members.clone(),
+            Order::Auto,
+            adaptive,
+            vec![0.0, 0.1, 0.2],
+            None,
+        );
+        let (_, f64_reports) = run_cpu(&plan, &chains);
+        let (_, cpu32) = run_cpu_in(&plan, &chains, Precision::F32);
+        let (_, gpu32) = run_gpu(&ctx, &plan, &chains, Precision::F32);
+        let columns = |r: &[MemberReport]| r.iter().map(|m| m.last_order).collect::<Vec<_>>();
+        let steps = |r: &[MemberReport]| r.iter().map(|m| m.steps_accepted).sum::<u64>() as f64;
+        eprintln!(
+            "tolerance {tolerance:e}: last columns f64 {:?}, CPU f32 {:?}, GPU f32 {:?}; steps {} {} {}",
+            columns(&f64_reports),
+            columns(&cpu32),
+            columns(&gpu32),
+            steps(&f64_reports),
+            steps(&cpu32),
+            steps(&gpu32)
+        );
+        assert!(columns(&f64_reports).iter().any(|&k| k > top));
+        for r in cpu32.iter().chain(&gpu32) {
+            assert_eq!(r.status, MemberStatus::Ok, "{r:?}");
+            assert!(r.last_order <= top, "{tolerance:e}: {r:?}");
+        }
+        assert!(
+            (steps(&cpu32) - steps(&gpu32)).abs() <= 0.05 * steps(&cpu32) + members.len() as f64,
+            "{tolerance:e}: CPU f32 {} steps, GPU f32 {}",
+            steps(&cpu32),
+            steps(&gpu32)
+        );
+    }
 }
 
 /// CPU f32 against GPU f32, the two f32 twins of one kernel (orders 1 and 2, fixed steps): each

@@ -243,8 +243,8 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
                     plan.order.label(),
                     plan.sequence.record(plan.order)
                 ),
-                "the error estimates of that order carry more f32 rounding than that, so the \
-                 steps would shrink without end",
+                "the f32 rounding of that order's steps, added up over them, would exceed that \
+                 tolerance (its lowest column must stay 10 times below it)",
                 format!(
                     ">= {} for this order and sequence in f32 (with sequence {}: {others}); \
                      down to 1e-13 in f64",

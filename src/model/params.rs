@@ -246,21 +246,26 @@ impl Order {
     }
 
     /// The tightest tolerance an adaptive run in f32 may ask for with this order and sequence:
-    /// the f32 rounding of the lowest column its step control keeps (column max(k, 2) for a
-    /// fixed order k, column 2 for auto), 2^-23 times the column's rounding gain
-    /// (`extrapolation_rounding_gain`): 5.96e-7 for orders 1, 2 and auto, 1.08e-5 for order 4,
-    /// 1.72e-4 for order 6 (from 2: 1.55e-6, 3.28e-5, 5.48e-4). Below it the estimates carry more rounding than the tolerance allows, and
-    /// the steps shrink without end without collapsing (on an N = 50 chain to t = 0.05: order 1
-    /// at 1e-7, order 4 at 1e-6 and order 6 at 1e-5 had not finished after 30 s, auto at 1e-7
-    /// took 370000 steps to t = 0.0005), where at the floor each took 20 to 600 steps.
+    /// where the lowest column its step control keeps (column max(k, 2) for a fixed order k,
+    /// column 2 for auto) carries `F32_ROUNDING_MARGIN` times less f32 rounding than the
+    /// tolerance, the rule by which auto's columns are capped (`top_column`): 10 · 2^-23 times the
+    /// column's rounding gain (`extrapolation_rounding_gain`), 5.96e-6 for orders 1, 2 and auto,
+    /// 5.42e-5 for order 4, 8.61e-4 for order 6 (from 2: 1.55e-5, 1.42e-4, 2.27e-3). Below it the
+    /// rounding the steps leave in the state adds up to more than the tolerance (case 3, order
+    /// 2 at 1e-6: 32 times the tolerance), and an order's own floor without the margin is where
+    /// the estimates themselves carry more rounding than the tolerance and the steps shrink
+    /// without end (on an N = 50 chain to t = 0.05: order 1 at 1e-7, order 4 at 1e-6 and order 6
+    /// at 1e-5 had not finished after 30 s).
     pub fn f32_tolerance_floor(self, sequence: Sequence) -> f64 {
-        use roughlub_kernels::shared::control::extrapolation_rounding_gain;
+        use roughlub_kernels::shared::control::{extrapolation_rounding_gain, F32_ROUNDING_MARGIN};
         let column = match self {
-            Order::Fixed(p) => p.max(2),
-            Order::Auto => 2,
+            Order::Fixed(p) => p.max(3),
+            Order::Auto => 3,
         };
         let from_two = sequence.of(self) == Sequence::FromTwo;
-        extrapolation_rounding_gain(column, from_two) * f64::from(f32::EPSILON)
+        F32_ROUNDING_MARGIN
+            * extrapolation_rounding_gain(column, from_two)
+            * f64::from(f32::EPSILON)
     }
 
     /// "1".."8" or "auto", as a scene writes it.

@@ -6,6 +6,7 @@ use crate::expr::Expr;
 use crate::model::params::{Jacobian, MemberParams, Order, OutputFields, Sequence, Stepping};
 use crate::model::quadrature::GaussLegendre;
 use roughlub_kernels::overrides::Overrides;
+use roughlub_kernels::shared::control::{top_column, MAX_ORDER};
 
 pub use roughlub_kernels::power::{powi_by_squaring, Power, MAX_INTEGER_GAMMA};
 
@@ -125,6 +126,31 @@ impl Plan {
     /// Whether the extrapolated steps keep the exact Jacobian's -r_i (see [`Jacobian`]).
     pub fn exact_jacobian(&self) -> bool {
         self.jacobian.is_exact(self.order, self.stepping)
+    }
+
+    /// The highest column the steps may end in (`top_column`: in f32, `f32_rounding`, auto's
+    /// columns stay where their rounding is well below the tolerance).
+    pub fn top_column(&self, f32_rounding: bool) -> u8 {
+        match self.stepping {
+            Stepping::Adaptive { tolerance, .. } => top_column(
+                tolerance,
+                f32_rounding,
+                self.sequence.of(self.order) == Sequence::FromTwo,
+            ),
+            Stepping::Fixed { .. } => MAX_ORDER,
+        }
+    }
+
+    /// The column a member's first step ends in: the order's [`Order::initial`], for auto at most
+    /// [`Plan::top_column`].
+    pub fn initial_column(&self, f32_rounding: bool) -> u8 {
+        match self.order {
+            Order::Fixed(p) => p,
+            Order::Auto => self
+                .order
+                .initial(&self.stepping)
+                .min(self.top_column(f32_rounding)),
+        }
     }
 }
 

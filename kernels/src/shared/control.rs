@@ -418,24 +418,49 @@ pub fn tableau_work(k: u8, from_two: bool) -> f64 {
         .sum::<u32>() as f64
 }
 
+/// How far below an f32 run's tolerance its column's rounding must stay: a column k may carry
+/// `extrapolation_rounding_gain(k)` ulps of f32 in each step only where that is at most
+/// 1/F32_ROUNDING_MARGIN of the tolerance. Measured on the paper's case 3 (order 4 at 1e-4,
+/// rounding 0.05 of the tolerance: error 0.8 times the tolerance; order 3 at 1e-5, 0.13: 2.7
+/// times) against auto without it (column 5 at 1e-4, 0.22: 13 times; column 4 at 1e-5, 0.54: 23
+/// times; order 2 at 1e-6, 0.3: 32 times): the rounding adds up over the steps where the
+/// estimates, which difference two columns of the same rows, leave most of it out.
+pub const F32_ROUNDING_MARGIN: f64 = 10.0;
+
+/// The highest column an adaptive run may end its steps in (auto's ceiling; a fixed order's
+/// tolerance floor is the same rule): MAX_ORDER in f64, and in f32 the highest column whose
+/// rounding stays [`F32_ROUNDING_MARGIN`] times below the tolerance, at least 2. In f64 the rule
+/// would bind only below about 1e-10, where it has not been measured.
+pub fn top_column(tolerance: f64, f32_rounding: bool, from_two: bool) -> u8 {
+    if !f32_rounding {
+        return MAX_ORDER;
+    }
+    let fits = |k: u8| {
+        F32_ROUNDING_MARGIN * extrapolation_rounding_gain(k, from_two) * f64::from(f32::EPSILON)
+            <= tolerance
+    };
+    (3..=MAX_ORDER).take_while(|&k| fits(k)).last().unwrap_or(2)
+}
+
 /// Auto order: the column for the next step and its step factor, from the scaled estimates
 /// `errs[j]` of columns j = 2..=k (Hairer–Wanner II §IV.9 and the order selection of their
 /// ODEX/SEULEX: the least work per unit step, W_j = A_j / H_j). A column is dropped when the one
 /// below costs less per unit step by a margin, added when the current one beats the one below
-/// (from column 2, which has no column below to compare with, always after an accepted step);
-/// a rejected step never raises the order.
+/// (from column 2, which has no column below to compare with, always after an accepted step) and
+/// is below `top` ([`top_column`]); a rejected step never raises the order.
 pub fn select_order(
     k: u8,
     errs: &[f64; MAX_ORDER as usize + 1],
     accepted: bool,
     from_two: bool,
+    top: u8,
 ) -> (u8, f64) {
     let factor = |j: u8| step_factor(errs[j as usize], j);
     let work = |j: u8| tableau_work(j, from_two) / factor(j);
     if k > 2 && work(k - 1) < 0.8 * work(k) {
         return (k - 1, factor(k - 1));
     }
-    let raise = accepted && k < MAX_ORDER && (k == 2 || work(k) < 0.9 * work(k - 1));
+    let raise = accepted && k < top && (k == 2 || work(k) < 0.9 * work(k - 1));
     if raise {
         let f =
             (factor(k) * tableau_work(k + 1, from_two) / tableau_work(k, from_two)).min(MAX_GROWTH);

@@ -49,16 +49,19 @@ pub(super) struct Lane {
 struct Scheme {
     order: Order,
     adaptive_tol: Option<f64>,
+    /// Auto's highest column (`Plan::top_column`).
+    top: u8,
 }
 
 impl Scheme {
-    fn of(plan: &Plan) -> Scheme {
+    fn of(plan: &Plan, f32_rounding: bool) -> Scheme {
         Scheme {
             order: plan.order,
             adaptive_tol: match plan.stepping {
                 Stepping::Fixed { .. } => None,
                 Stepping::Adaptive { tolerance, .. } => Some(tolerance),
             },
+            top: plan.top_column(f32_rounding),
         }
     }
 
@@ -202,12 +205,12 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
         } else {
             Gamma::PerLane(gammas)
         };
+        let scheme = Scheme::of(plan, !T::IS_F64);
         let lane = |member| Lane {
             member,
-            control: StepControl::new(dt0, plan.order.initial(&plan.stepping)),
+            control: StepControl::new(dt0, plan.initial_column(!T::IS_F64)),
             error_estimates: Vec::new(),
         };
-        let scheme = Scheme::of(plan);
         let (rows, subs) = if scheme.plain_euler() {
             (0, 0)
         } else {
@@ -252,7 +255,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
 
     /// Advances every running lane to `t_end`.
     pub(super) fn advance(&mut self, plan: &Plan, t_start: f64, t_end: f64) {
-        let scheme = Scheme::of(plan);
+        let scheme = Scheme::of(plan, !T::IS_F64);
         let fixed_dt = match plan.stepping {
             Stepping::Fixed { dt, .. } => Some(dt),
             Stepping::Adaptive { .. } => None,
@@ -572,6 +575,7 @@ impl<T: BlockKernels<L>, const L: usize> Block<T, L> {
                             &scaled,
                             admissible[l] && energy_ok[l] && err <= 1.0,
                             from_two,
+                            scheme.top,
                         ),
                         Order::Fixed(_) => (k, step_factor(err, scheme.estimate_order(k))),
                     };

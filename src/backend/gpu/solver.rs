@@ -237,7 +237,7 @@ fn member_bonded(plan: &Plan, chains: &[Chain]) -> Vec<Option<Vec<bool>>> {
 }
 
 /// A member's control before its first step (as `StepControl::new`).
-fn initial_control(plan: &Plan) -> ControlF64 {
+fn initial_control(plan: &Plan, precision: Precision) -> ControlF64 {
     let dt = match plan.stepping {
         Stepping::Fixed { dt, .. } => dt,
         Stepping::Adaptive { dt_initial, .. } => dt_initial,
@@ -261,7 +261,7 @@ fn initial_control(plan: &Plan) -> ControlF64 {
         failure: 0,
         parity: 0,
         failure_index: 0,
-        order: u32::from(plan.order.initial(&plan.stepping)),
+        order: u32::from(plan.initial_column(precision == Precision::F32)),
         after_rejection: 0,
         window_attempts: 0,
     }
@@ -365,7 +365,7 @@ impl<'a> GpuSolver<'a> {
         let dstar = member_dstar(&plan, &chains);
         let bonded = member_bonded(&plan, &chains);
         let sizes = BufferSizes::of(plan.particles, plan.members.len(), scheme, precision);
-        let control = initial_control(&plan);
+        let control = initial_control(&plan, precision);
         let mut initial =
             InitialData::new(&plan, &chains, &dstar, &bonded, control, sizes, precision);
         let source = match choice.segments {
@@ -626,7 +626,7 @@ impl<'a> GpuSolver<'a> {
             batch: self.plan.members.len() as u32,
             particles: self.plan.particles as u32,
             max_attempts: self.max_attempts,
-            padding: 0,
+            top_column: u32::from(self.plan.top_column(self.precision == Precision::F32)),
             eps: self.plan.eps,
             t_start,
             t_end,

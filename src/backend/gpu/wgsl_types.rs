@@ -33,8 +33,8 @@ macro_rules! mirror_structs {
             pub particles: u32,
             /// Trial steps per member per `advance` dispatch.
             pub max_attempts: u32,
-            /// Keeps the reals 8-aligned (WGSL field `padding`).
-            pub padding: u32,
+            /// Auto's highest column (`Plan::top_column`); also keeps the reals 8-aligned.
+            pub top_column: u32,
             pub eps: $real,
             pub t_start: $real,
             pub t_end: $real,
@@ -118,7 +118,7 @@ impl ConfigF64 {
             batch: self.batch,
             particles: self.particles,
             max_attempts: self.max_attempts,
-            padding: self.padding,
+            top_column: self.top_column,
             eps: self.eps as f32,
             t_start: self.t_start as f32,
             t_end: self.t_end as f32,
