@@ -1,6 +1,6 @@
 """f32's error against the tolerance on a chain with gamma 1 and a fast initial velocity (N = 24,
 rho0 = 0.6, rho*0 = 0.65 + 0.1 sin 6 pi x, u0 = 2 sin 2 pi x, mu 0.01, to t = 0.2): auto and
-order 2 in f32 at tolerances 1e-4 to 6e-7 (the f32 floor of both is 5.97e-7), each against the
+order 2 in f32 at tolerances 1e-3 to 3e-5 (the f32 floor of both is 2.63e-5), each against the
 same chain in f64 at order auto, tolerance 1e-11, in the estimate's norm (the largest over
 output times of |ln d - ln d_ref| and |u - u_ref| / (1 + |u_ref|)).
 
@@ -15,7 +15,7 @@ CHAIN = dict(N=24, mu=0.01, gamma=1.0, rho="0.6", vel="2*sin(2*pi*x)",
 with tempfile.TemporaryDirectory() as tmp:
     _, G, V = run(BIN, tmp, scene(CHAIN, "tolerance = 1e-11", 'order = "auto"'))
     for order in ['"auto"', "2"]:
-        for tol in [1e-4, 1e-5, 3e-6, 1e-6, 6e-7]:
+        for tol in [1e-3, 1e-4, 5e-5, 3e-5]:
             m, g, v = run(BIN, tmp, scene(CHAIN, f"tolerance = {tol}",
                                           f'order = {order}\nprecision = "f32"'))
             mm = m["members"][0]

@@ -246,16 +246,16 @@ impl Order {
     }
 
     /// The tightest tolerance an adaptive run in f32 may ask for with this order and sequence:
-    /// where the lowest column its step control keeps (column max(k, 2) for a fixed order k,
-    /// column 2 for auto) carries `F32_ROUNDING_MARGIN` times less f32 rounding than the
-    /// tolerance, the rule by which auto's columns are capped (`top_column`): 10 · 2^-23 times the
-    /// column's rounding gain (`extrapolation_rounding_gain`), 5.96e-6 for orders 1, 2 and auto,
-    /// 5.42e-5 for order 4, 8.61e-4 for order 6 (from 2: 1.55e-5, 1.42e-4, 2.27e-3). Below it the
-    /// rounding the steps leave in the state adds up to more than the tolerance (case 3, order
-    /// 2 at 1e-6: 32 times the tolerance), and an order's own floor without the margin is where
-    /// the estimates themselves carry more rounding than the tolerance and the steps shrink
-    /// without end (on an N = 50 chain to t = 0.05: order 1 at 1e-7, order 4 at 1e-6 and order 6
-    /// at 1e-5 had not finished after 30 s).
+    /// where column max(k, 3) of a fixed order k (column 3 for auto) carries
+    /// `F32_ROUNDING_MARGIN` = 10 times less f32 rounding than the tolerance, by the rule that
+    /// caps auto's columns (`top_column`): 10 · 2^-23 times the column's rounding gain
+    /// (`extrapolation_rounding_gain`), 2.63e-5 for orders 1 to 3 and auto, 1.09e-4 for order 4,
+    /// 1.73e-3 for order 6 (from 2: 7.52e-5, 3.29e-4, 5.49e-3). Below it the rounding the steps
+    /// leave in the state adds up to more than the tolerance: on the paper's case 2a auto at 1e-5
+    /// erred 13 times the tolerance and order 2 at 1e-6 on case 3 32 times, the lower columns
+    /// taking thousands of steps (docs/backends-and-precision.md). Without the margin, below the
+    /// column's own rounding, the steps shrank without end (on an N = 50 chain to t = 0.05: order
+    /// 1 at 1e-7, order 4 at 1e-6 and order 6 at 1e-5 had not finished after 30 s).
     pub fn f32_tolerance_floor(self, sequence: Sequence) -> f64 {
         use roughlub_kernels::shared::control::{extrapolation_rounding_gain, F32_ROUNDING_MARGIN};
         let column = match self {

@@ -138,7 +138,7 @@ pub fn large_error_warning(
         if e <= limit && e > TOLERANCE_NOT_MET_FACTOR * tolerance {
             let times = e / tolerance;
             let why = match precision {
-                crate::backend::Precision::F32 => "in f32 the rounding of the extrapolated rows adds up over the steps (measured on four chains: 2 to 20 times the tolerance at 1e-4, 13 to 5500 times at 1e-6, docs/backends-and-precision.md): use precision = \"f64\" below a tolerance of about 1e-3",
+                crate::backend::Precision::F32 => "in f32 the rounding of the steps adds up over them, most near contact (measured with order auto: 0.5 to 3.1 times the tolerance on the paper's cases 1, 2a and 3 from 1e-2 to 3e-5, but 30 times at 3e-5 on a chain driven to a gap of 1e-13, docs/backends-and-precision.md): use precision = \"f64\" near contact or for tighter results",
                 crate::backend::Precision::F64 => "the estimate adds the local errors that the steps held below the tolerance, without what later steps do to them, so it is mostly above the error; near contact they add up (docs/accuracy.md, Near contact)",
             };
             return Some(format!(
