@@ -207,7 +207,8 @@ fn f32_agrees_with_f64_within_the_derived_tolerance() {
 /// dominated by amplified rounding and its choices followed it (case 1 at 1e-4: velocities
 /// 1.8e-2 in f32 against 2.8e-3 in f64), so it was held only to 10 times f64's error. f32
 /// rounding grows with the step count, so at tighter tolerances f32 falls behind f64: measured
-/// at 1e-5, order 2, case 1 (~2300 steps per member): f32 1.7e-3 against f64 9.1e-5 on gaps.
+/// at 1e-5, order 2, case 1 (~2300 steps per member, before f32 refused that tolerance): f32
+/// 1.7e-3 against f64 9.1e-5 on gaps.
 #[test]
 fn adaptive_f32_is_as_accurate_as_adaptive_f64_up_to_rounding() {
     let tol = 2e-4;

@@ -114,8 +114,10 @@ pub const LARGE_ERROR_ESTIMATE: f64 = 0.1;
 /// the controller held below the tolerance, so it grows with the steps: in f64, on four chains
 /// from 1e-3 to 1e-10, it was 0.5 to 101 times the tolerance, with errors of 0.04 to 7.5 times
 /// it (only the 101, at 1e-10, warns); in f32, with auto's columns capped by their rounding
-/// (`top_column`), 0.96 to 522 times from 1e-2 to 3e-5 with errors of 0.5 to 30 times: the 30,
-/// at 3e-5 on a chain driven to a gap of 1e-13, warns, its 5.6 at 1e-3 does not
+/// (`top_column`), 0.96 to 522 times from 1e-2 to 3e-5 with errors of 0.5 to 30 times, the
+/// estimate summing the local errors of up to 751 steps: the runs that err 30 and 5.2 times the
+/// tolerance on a chain driven to a gap of 1e-13 warn (at 3e-5 and 1e-4), and so does case 2a at
+/// 3e-5 (error 3.0 times, estimate 144), where that chain's 5.6 times at 1e-3 does not
 /// (`docs/error_estimate/tolerance_factor.py`).
 pub const TOLERANCE_NOT_MET_FACTOR: f64 = 100.0;
 

@@ -244,7 +244,8 @@ pub fn select(requested: Backend, precision: Precision, plan: &Plan) -> Result<E
                     plan.sequence.record(plan.order)
                 ),
                 "the f32 rounding of that order's steps, added up over them, would exceed that \
-                 tolerance (its lowest column must stay 10 times below it)",
+                 tolerance (column max(order, 3), column 3 for auto, must carry 10 times less \
+                 rounding than it)",
                 format!(
                     ">= {} for this order and sequence in f32 (with sequence {}: {others}); \
                      down to 1e-13 in f64",

@@ -427,8 +427,9 @@ pub fn tableau_work(k: u8, from_two: bool) -> f64 {
 /// estimates, which difference two columns of the same rows, leave most of it out.
 pub const F32_ROUNDING_MARGIN: f64 = 10.0;
 
-/// The highest column an adaptive run may end its steps in (auto's ceiling; a fixed order's
-/// tolerance floor is the same rule): MAX_ORDER in f64, and in f32 the highest column whose
+/// The highest column an adaptive run may end its steps in (auto's ceiling; the f32 tolerance
+/// floors, `Order::f32_tolerance_floor`, hold column max(k, 3) of order k to the same margin):
+/// MAX_ORDER in f64, and in f32 the highest column whose
 /// rounding stays [`F32_ROUNDING_MARGIN`] times below the tolerance, at least 2. In f64 the rule
 /// would bind only below about 1.6e-10 (column 8 of the sequence from 2); tried there on the four
 /// chains of docs/error_estimate/tolerance_factor.py, at 1e-10 it took about twice the steps
