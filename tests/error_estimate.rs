@@ -514,9 +514,7 @@ fn outputs_at(text: &str, precision: Precision) -> Vec<(Vec<f64>, Vec<f64>)> {
 /// 13.0 and, at 1e-5, 23.0 times before the cap).
 #[test]
 fn f32_auto_follows_its_tolerance_on_case_3() {
-    let text = |tolerance: f64, precision: &str| {
-        format!(
-            r#"
+    let chain = r#"
 name = "case3"
 [model]
 particles = 400
@@ -529,17 +527,8 @@ rho_star = "0.6 - 0.2*exp(-(x-0.5)^2/(2*0.1^2))"
 [time]
 end = 0.4
 outputs = 9
-tolerance = {tolerance}
-[solver]
-order = "auto"
-backend = "cpu"
-precision = "{precision}"
-[output]
-grid = 20
-plots = false
-"#
-        )
-    };
+"#;
+    let text = |tolerance: f64, precision: &str| auto_on_the_cpu(chain, tolerance, precision);
     let reference = outputs_at(&text(1e-11, "f64"), Precision::F64);
     let mut previous = f64::INFINITY;
     for tolerance in [1e-3, 1e-4, 3e-5] {
@@ -558,6 +547,15 @@ plots = false
         );
         previous = error;
     }
+}
+
+/// `chain` (a scene up to its `[time]` section's end and outputs) with order auto on the CPU at
+/// `tolerance` in `precision`, and small outputs.
+fn auto_on_the_cpu(chain: &str, tolerance: f64, precision: &str) -> String {
+    format!(
+        "{chain}tolerance = {tolerance}\n[solver]\norder = \"auto\"\nbackend = \"cpu\"\n\
+         precision = \"{precision}\"\n[output]\ngrid = 20\nplots = false\n"
+    )
 }
 
 /// The largest over output times of |ln d - ln d_ref| and |u - u_ref| / (1 + |u_ref|): the
@@ -584,9 +582,7 @@ fn largest_error(outputs: &[(Vec<f64>, Vec<f64>)], reference: &[(Vec<f64>, Vec<f
 /// tolerance and the run does not warn.
 #[test]
 fn an_adaptive_run_far_from_its_tolerance_says_so() {
-    let text = |tolerance: f64, precision: &str| {
-        format!(
-            r#"
+    let chain = r#"
 name = "tolerance"
 [model]
 particles = 24
@@ -599,17 +595,8 @@ rho_star = "0.65+0.1*sin(6*pi*x)"
 [time]
 end = 0.2
 outputs = 7
-tolerance = {tolerance}
-[solver]
-order = "auto"
-backend = "cpu"
-precision = "{precision}"
-[output]
-grid = 20
-plots = false
-"#
-        )
-    };
+"#;
+    let text = |tolerance: f64, precision: &str| auto_on_the_cpu(chain, tolerance, precision);
     let reference = outputs_at(&text(1e-11, "f64"), Precision::F64);
     let error = |outputs: &[(Vec<f64>, Vec<f64>)]| largest_error(outputs, &reference);
     let tmp = tempfile::tempdir().unwrap();

@@ -690,6 +690,18 @@ fn f32_agrees_with_f64_within_the_derived_tolerance() {
     }
 }
 
+/// Case 1's chain at N = 200 for three members (mu, gamma) = (0.01, 1), (0.005, 2), (0.02, 2):
+/// the chain, the members, and the chain once per member.
+fn case_one_chains() -> (Chain, Vec<MemberParams>, Vec<Chain>) {
+    let chain = profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7"));
+    let members: Vec<MemberParams> = [(0.01, 1.0), (0.005, 2.0), (0.02, 2.0)]
+        .iter()
+        .map(|&(mu, gamma)| MemberParams { mu, gamma })
+        .collect();
+    let chains = vec![chain.clone(); members.len()];
+    (chain, members, chains)
+}
+
 /// f32 runs the higher orders too. Fixed steps: T_kk = sum_j c_j T_j1 with the Aitken–Neville
 /// weights of the harmonic sequence, c_j = (-1)^(k-j) j^k / (j! (k-j)!), whose magnitudes sum to
 /// Lambda_k (28.3 at k = 4, 302 at k = 6); row j takes j substeps per step, so its rounding is at
@@ -702,12 +714,7 @@ fn f32_higher_orders_agree_with_f64() {
     let Some(ctx) = acquire_for_tests(true) else {
         return;
     };
-    let chain = profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7"));
-    let members: Vec<MemberParams> = [(0.01, 1.0), (0.005, 2.0), (0.02, 2.0)]
-        .iter()
-        .map(|&(mu, gamma)| MemberParams { mu, gamma })
-        .collect();
-    let chains = vec![chain.clone(); members.len()];
+    let (chain, members, chains) = case_one_chains();
     let times = vec![0.0, 0.1, 0.2];
     let fixed = Stepping::Fixed {
         dt: 1e-3,
@@ -769,12 +776,7 @@ fn auto_in_f32_keeps_to_the_columns_its_rounding_allows() {
     let Some(ctx) = acquire_for_tests(true) else {
         return;
     };
-    let chain = profile_chain(200, "0.7", "0.5*sin(2*pi*x)", Some("0.7"));
-    let members: Vec<MemberParams> = [(0.01, 1.0), (0.005, 2.0), (0.02, 2.0)]
-        .iter()
-        .map(|&(mu, gamma)| MemberParams { mu, gamma })
-        .collect();
-    let chains = vec![chain.clone(); members.len()];
+    let (chain, members, chains) = case_one_chains();
     for (tolerance, top) in [(1e-4, 3u8), (2e-4, 4)] {
         assert_eq!(top_column(tolerance, true, false), top);
         let adaptive = Stepping::Adaptive {
