@@ -257,15 +257,13 @@ impl Order {
     /// column's own rounding, the steps shrank without end (on an N = 50 chain to t = 0.05: order
     /// 1 at 1e-7, order 4 at 1e-6 and order 6 at 1e-5 had not finished after 30 s).
     pub fn f32_tolerance_floor(self, sequence: Sequence) -> f64 {
-        use roughlub_kernels::shared::control::{extrapolation_rounding_gain, F32_ROUNDING_MARGIN};
+        use roughlub_kernels::shared::control::f32_column_floor;
         let column = match self {
             Order::Fixed(p) => p.max(3),
             Order::Auto => 3,
         };
         let from_two = sequence.of(self) == Sequence::FromTwo;
-        F32_ROUNDING_MARGIN
-            * extrapolation_rounding_gain(column, from_two)
-            * f64::from(f32::EPSILON)
+        f32_column_floor(column, from_two)
     }
 
     /// "1".."8" or "auto", as a scene writes it.

@@ -439,11 +439,16 @@ pub fn top_column(tolerance: f64, f32_rounding: bool, from_two: bool) -> u8 {
     if !f32_rounding {
         return MAX_ORDER;
     }
-    let fits = |k: u8| {
-        F32_ROUNDING_MARGIN * extrapolation_rounding_gain(k, from_two) * f64::from(f32::EPSILON)
-            <= tolerance
-    };
-    (3..=MAX_ORDER).take_while(|&k| fits(k)).last().unwrap_or(2)
+    (3..=MAX_ORDER)
+        .take_while(|&k| f32_column_floor(k, from_two) <= tolerance)
+        .last()
+        .unwrap_or(2)
+}
+
+/// The tightest tolerance at which column k's f32 rounding stays [`F32_ROUNDING_MARGIN`] times
+/// below it: the margin times 2^-23 times its rounding gain.
+pub fn f32_column_floor(k: u8, from_two: bool) -> f64 {
+    F32_ROUNDING_MARGIN * extrapolation_rounding_gain(k, from_two) * f64::from(f32::EPSILON)
 }
 
 /// Auto order: the column for the next step and its step factor, from the scaled estimates
